@@ -1,0 +1,59 @@
+# Two entry points: `make bake` (set up, build, run the bundled example) and `make test`.
+# Every step is idempotent: stamps and dependency lists make a second run skip what is done.
+
+PYTHON  ?= python3
+VENV    := .venv
+PY      := $(VENV)/bin/python
+HIRAD   := $(VENV)/bin/hirad
+CPP_SRC := $(wildcard pipeline/*.h pipeline/*.cpp formats/*.h formats/*.cpp) CMakeLists.txt
+CPP_TESTS := $(wildcard tests/cpp/*.cpp)
+DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
+                libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+JOBS := $(shell nproc)
+
+.PHONY: bake test engine cpp-test py-test bench clean
+
+bake: engine
+	$(HIRAD) bake configs/cornell.yaml
+
+test: engine cpp-test py-test
+
+engine: .stamp-engine
+
+# Debian packages: installed only when one of them is missing.
+.stamp-apt: Makefile
+	@if dpkg-query -W -f='$${Status}\n' $(DEB_PACKAGES) 2>/dev/null | grep -vq "install ok installed" \
+	    || [ $$(dpkg-query -W -f='$${Status}\n' $(DEB_PACKAGES) 2>/dev/null | wc -l) -lt $(words $(DEB_PACKAGES)) ]; then \
+	  echo "installing Debian packages: $(DEB_PACKAGES)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEB_PACKAGES); \
+	fi
+	@touch $@
+
+.stamp-venv: pyproject.toml .stamp-apt
+	@[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "scikit-build-core>=0.10" "nanobind>=2.0" \
+	    $$($(PY) -c "import tomllib;d=tomllib.load(open('pyproject.toml','rb'))['project'];print(' '.join(repr(x) for x in d['dependencies']+d['optional-dependencies']['test']))" | tr -d "'")
+	@touch $@
+
+# The C++ engine as the Python extension hirad._engine (editable: Python files are used in place).
+.stamp-engine: .stamp-venv $(CPP_SRC)
+	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
+	@touch $@
+
+build/cpp/hirad_tests: .stamp-apt $(CPP_SRC) $(CPP_TESTS)
+	cmake -S . -B build/cpp -G Ninja -DHIRAD_BUILD_TESTS=ON -DHIRAD_BUILD_PYTHON=OFF -DCMAKE_BUILD_TYPE=Release > /dev/null
+	cmake --build build/cpp -j $(JOBS)
+
+cpp-test: build/cpp/hirad_tests
+	cd build/cpp && ctest --output-on-failure -j $(JOBS)
+
+py-test: engine
+	$(PY) -m pytest -q tests/python
+
+bench: engine
+	$(PY) bench/run.py
+
+clean:
+	rm -rf build out .stamp-*

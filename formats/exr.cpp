@@ -1,0 +1,70 @@
+#include "exr.h"
+
+#include <Imath/half.h>
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfStringAttribute.h>
+
+#include <cstdio>
+#include <stdexcept>
+
+namespace hirad {
+
+void write_exr_rgb(const std::string& path, int width, int height, const float* rgb,
+                   const std::vector<std::pair<std::string, std::string>>& metadata) {
+    if (width <= 0 || height <= 0) throw std::invalid_argument(path + ": empty image");
+    std::vector<Imath::half> channels[3];
+    for (auto& c : channels) c.resize(size_t(width) * height);
+    for (size_t i = 0; i < size_t(width) * height; ++i)
+        for (int c = 0; c < 3; ++c) channels[c][i] = Imath::half(rgb[3 * i + c]);
+    Imf::Header header(width, height);
+    header.compression() = Imf::ZIP_COMPRESSION;  // lossless
+    for (const auto& [key, value] : metadata) header.insert(key, Imf::StringAttribute(value));
+    const char* names[3] = {"R", "G", "B"};
+    Imf::FrameBuffer fb;
+    for (int c = 0; c < 3; ++c) {
+        header.channels().insert(names[c], Imf::Channel(Imf::HALF));
+        fb.insert(names[c], Imf::Slice(Imf::HALF, reinterpret_cast<char*>(channels[c].data()), sizeof(Imath::half),
+                                       sizeof(Imath::half) * width));
+    }
+    const std::string tmp = path + ".partial";
+    try {
+        Imf::OutputFile file(tmp.c_str(), header);
+        file.setFrameBuffer(fb);
+        file.writePixels(height);
+    } catch (const std::exception& e) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(path + ": could not write EXR: " + e.what());
+    }
+    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(path + ": could not rename the finished EXR into place");
+    }
+}
+
+std::vector<float> read_exr_rgb(const std::string& path, int& width, int& height) {
+    try {
+        Imf::InputFile file(path.c_str());
+        Imath::Box2i dw = file.header().dataWindow();
+        width = dw.max.x - dw.min.x + 1;
+        height = dw.max.y - dw.min.y + 1;
+        std::vector<float> rgb(size_t(width) * height * 3, 0.0f);
+        Imf::FrameBuffer fb;
+        const char* names[3] = {"R", "G", "B"};
+        char* base = reinterpret_cast<char*>(rgb.data()) -
+                     (size_t(dw.min.y) * width + dw.min.x) * 3 * sizeof(float);
+        for (int c = 0; c < 3; ++c)
+            fb.insert(names[c], Imf::Slice(Imf::FLOAT, base + c * sizeof(float), 3 * sizeof(float),
+                                           3 * sizeof(float) * width));
+        file.setFrameBuffer(fb);
+        file.readPixels(dw.min.y, dw.max.y);
+        return rgb;
+    } catch (const std::exception& e) {
+        throw std::runtime_error(path + ": could not read EXR: " + e.what());
+    }
+}
+
+}  // namespace hirad

@@ -1,0 +1,17 @@
+// EXR output: half-float RGB, written to a temporary name and renamed, so a reader never
+// sees a partial file.
+#pragma once
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace hirad {
+
+// rgb: height*width*3 floats, row 0 at the top. Metadata become string attributes.
+void write_exr_rgb(const std::string& path, int width, int height, const float* rgb,
+                   const std::vector<std::pair<std::string, std::string>>& metadata);
+
+// Reads an RGB EXR back as floats (for tests and `hirad render` comparisons).
+std::vector<float> read_exr_rgb(const std::string& path, int& width, int& height);
+
+}  // namespace hirad

@@ -1,0 +1,605 @@
+// The Python face of the engine (module hirad._engine). Arrays cross as numpy arrays; long
+// stages run on a worker thread while the calling thread, holding the GIL, reports progress
+// and lets Ctrl-C through.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/function.h>
+#include <nanobind/stl/pair.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <tbb/global_control.h>
+
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <mutex>
+#include <thread>
+
+#include "exr.h"
+#include "formfactors.h"
+#include "hemicube.h"
+#include "lightmaps.h"
+#include "links.h"
+#include "patches.h"
+#include "reconstruct.h"
+#include "render.h"
+#include "scene.h"
+#include "solvers.h"
+#include "visibility.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+using namespace hirad;
+
+namespace {
+
+template <typename T>
+using In = nb::ndarray<const T, nb::c_contig, nb::device::cpu>;
+using Out = nb::ndarray<nb::numpy, double>;
+
+template <typename T>
+nb::ndarray<nb::numpy, T> to_numpy(std::vector<T>&& v, std::initializer_list<size_t> shape) {
+    auto* data = new std::vector<T>(std::move(v));
+    nb::capsule owner(data, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T>(data->data(), shape.size(), shape.begin(), owner);
+}
+
+Out rgb_array(const std::vector<RGB>& v) {
+    std::vector<double> flat(v.size() * 3);
+    for (size_t i = 0; i < v.size(); ++i)
+        for (int c = 0; c < 3; ++c) flat[3 * i + c] = v[i][c];
+    return to_numpy(std::move(flat), {v.size(), 3});
+}
+
+std::vector<RGB> rgb_vector(const In<double>& a, size_t n, const char* what) {
+    if (a.ndim() != 2 || a.shape(0) != n || a.shape(1) != 3)
+        throw std::invalid_argument(std::string(what) + ": expected shape (" + std::to_string(n) + ", 3)");
+    std::vector<RGB> v(n);
+    for (size_t i = 0; i < n; ++i) v[i] = {a.data()[3 * i], a.data()[3 * i + 1], a.data()[3 * i + 2]};
+    return v;
+}
+
+std::unique_ptr<tbb::global_control> g_threads;
+
+void set_threads(int threads) {
+    g_threads.reset();
+    if (threads > 0) g_threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, threads);
+}
+
+// Runs `work` on a worker thread; meanwhile calls `tick()` (with the GIL) every 100 ms and
+// checks for Ctrl-C. Exceptions from the work are rethrown here.
+template <typename Work, typename Tick>
+void run_reporting(Work&& work, Tick&& tick) {
+    std::exception_ptr error;
+    std::atomic<bool> finished{false};
+    std::thread worker([&] {
+        try { work(); } catch (...) { error = std::current_exception(); }
+        finished = true;
+    });
+    while (!finished) {
+        {
+            nb::gil_scoped_release release;
+            for (int k = 0; k < 10 && !finished; ++k) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+        }
+        try {
+            tick();
+            if (PyErr_CheckSignals() != 0) throw nb::python_error();
+        } catch (...) {
+            // The engine can't be interrupted mid-stage: wait for it, then report.
+            nb::gil_scoped_release release;
+            worker.join();
+            throw;
+        }
+    }
+    worker.join();
+    if (error) std::rethrow_exception(error);
+    tick();
+}
+
+std::vector<Patch> patches_from_arrays(const In<double>& corners, const In<int32_t>& nv) {
+    const size_t n = nv.shape(0);
+    if (corners.ndim() != 3 || corners.shape(0) != n || corners.shape(1) != 4 || corners.shape(2) != 3)
+        throw std::invalid_argument("corners: expected shape (n, 4, 3)");
+    std::vector<Patch> patches(n);
+    for (size_t i = 0; i < n; ++i) {
+        Patch& p = patches[i];
+        p.nv = nv.data()[i];
+        if (p.nv != 3 && p.nv != 4) throw std::invalid_argument("nv: every patch has 3 or 4 corners");
+        for (int k = 0; k < 4; ++k) {
+            const double* c = corners.data() + (i * 4 + k) * 3;
+            p.p[k] = {c[0], c[1], c[2]};
+        }
+        if (p.nv == 3) p.p[3] = p.p[2];
+        Vec3 nn;
+        for (int k = 0; k < p.nv; ++k) nn += cross(p.p[k], p.p[(k + 1) % p.nv]);
+        p.area = 0.5 * length(nn);
+        p.normal = normalize(nn);
+        p.centroid = p.p[0];
+    }
+    return patches;
+}
+
+std::vector<std::array<RGB, 4>> corner_values(const In<double>& a, size_t n, const char* what) {
+    if (a.ndim() != 3 || a.shape(0) != n || a.shape(1) != 4 || a.shape(2) != 3)
+        throw std::invalid_argument(std::string(what) + ": expected shape (n, 4, 3)");
+    std::vector<std::array<RGB, 4>> v(n);
+    for (size_t i = 0; i < n; ++i)
+        for (int k = 0; k < 4; ++k) {
+            const double* c = a.data() + (i * 4 + k) * 3;
+            v[i][k] = {c[0], c[1], c[2]};
+        }
+    return v;
+}
+
+// The whole flat pipeline for one scene: scene -> patches -> links -> solution.
+class Model {
+public:
+    Model(In<double> points, In<int32_t> counts, In<int32_t> indices, In<int32_t> face_mesh, In<int32_t> face_source,
+          In<double> reflectance, In<double> emission, std::optional<In<double>> corner_uv) {
+        SceneInput in;
+        in.points = points.data();
+        in.num_points = points.shape(0);
+        in.face_vertex_counts = counts.data();
+        in.num_faces = counts.shape(0);
+        size_t corners = 0;
+        for (size_t f = 0; f < in.num_faces; ++f) {
+            if (counts.data()[f] < 0) throw std::invalid_argument("face_vertex_counts: negative count");
+            corners += counts.data()[f];
+        }
+        if (indices.shape(0) != corners) throw std::invalid_argument("face_vertex_indices: length != sum of counts");
+        if (face_mesh.shape(0) != in.num_faces || face_source.shape(0) != in.num_faces ||
+            reflectance.shape(0) != in.num_faces || emission.shape(0) != in.num_faces)
+            throw std::invalid_argument("per-face arrays must have one row per face");
+        in.face_vertex_indices = indices.data();
+        in.face_mesh = face_mesh.data();
+        in.face_source = face_source.data();
+        in.face_reflectance = reflectance.data();
+        in.face_emission = emission.data();
+        if (corner_uv) {
+            if (corner_uv->shape(0) != corners) throw std::invalid_argument("corner_uv: one row per face corner");
+            in.corner_uv = corner_uv->data();
+        }
+        scene_ = Scene::build(in);
+    }
+
+    nb::dict stats() const {
+        nb::dict d;
+        d["input_faces"] = scene_.stats.input_faces;
+        d["faces"] = scene_.faces.size();
+        d["degenerate_faces"] = scene_.stats.degenerate_faces;
+        d["nonfinite_faces"] = scene_.stats.nonfinite_faces;
+        d["triangulated_faces"] = scene_.stats.triangulated_faces;
+        d["nonmanifold_edges"] = scene_.stats.nonmanifold_edges;
+        d["patches"] = patches_.patches.size();
+        d["links"] = links_ ? links_->link_count() : 0;
+        d["link_bytes"] = links_ ? links_->bytes() : 0;
+        d["rays"] = visibility_ ? visibility_->rays_cast() : 0;
+        return d;
+    }
+
+    void mesh(double max_area, double max_edge) {
+        if (!(max_area > 0) || !(max_edge > 0)) throw std::invalid_argument("meshing limits must be positive");
+        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+        links_.reset();
+        visibility_.reset();
+        patches_ = mesh_patches(scene_, {max_area, max_edge});
+        visibility_ = std::make_unique<Visibility>(patches_.patches);
+    }
+
+    size_t num_patches() const { return patches_.patches.size(); }
+
+    nb::dict patch_arrays() const {
+        const auto& P = patches_.patches;
+        const size_t n = P.size();
+        std::vector<double> corners(n * 12), uv(n * 8), area(n), normal(n * 3), centroid(n * 3), rho(n * 3), emit(n * 3);
+        std::vector<int32_t> nv(n), mesh(n), face(n), source(n);
+        for (size_t i = 0; i < n; ++i) {
+            const Patch& p = P[i];
+            for (int k = 0; k < 4; ++k) {
+                for (int a = 0; a < 3; ++a) corners[i * 12 + k * 3 + a] = p.p[k][a];
+                uv[i * 8 + k * 2] = p.uv[k].u;
+                uv[i * 8 + k * 2 + 1] = p.uv[k].v;
+            }
+            for (int a = 0; a < 3; ++a) {
+                normal[i * 3 + a] = p.normal[a];
+                centroid[i * 3 + a] = p.centroid[a];
+                rho[i * 3 + a] = p.reflectance[a];
+                emit[i * 3 + a] = p.emission[a];
+            }
+            area[i] = p.area;
+            nv[i] = p.nv;
+            mesh[i] = static_cast<int32_t>(p.mesh);
+            face[i] = static_cast<int32_t>(p.face);
+            source[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
+        }
+        nb::dict d;
+        d["corners"] = to_numpy(std::move(corners), {n, 4, 3});
+        d["uv"] = to_numpy(std::move(uv), {n, 4, 2});
+        d["area"] = to_numpy(std::move(area), {n});
+        d["normal"] = to_numpy(std::move(normal), {n, 3});
+        d["centroid"] = to_numpy(std::move(centroid), {n, 3});
+        d["reflectance"] = to_numpy(std::move(rho), {n, 3});
+        d["emission"] = to_numpy(std::move(emit), {n, 3});
+        d["nv"] = to_numpy(std::move(nv), {n});
+        d["mesh"] = to_numpy(std::move(mesh), {n});
+        d["face"] = to_numpy(std::move(face), {n});
+        d["source_face"] = to_numpy(std::move(source), {n});
+        return d;
+    }
+
+    // Link generation for the flat method; `progress(done_rows)` is called periodically.
+    void compute_links(const std::string& method, int samples, int hemicube_resolution, int hemicube_points,
+                       uint64_t seed, nb::object progress) {
+        require_mesh();
+        const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
+        std::atomic<uint32_t> done{0};
+        std::unique_ptr<LinkMatrix> result;
+        auto tick = [&] { if (!progress.is_none()) progress(done.load()); };
+        if (method == "raycast") {
+            RayCastFormFactors ff(patches_.patches, *visibility_, {samples, seed});
+            run_reporting([&] {
+                result = std::make_unique<LinkMatrix>(LinkMatrix::build(
+                    n, [&](uint32_t i, auto& out) { ff.upper_couplings_of(i, out); },
+                    [&](uint32_t d) { done = std::max(done.load(), d); }));
+            }, tick);
+        } else if (method == "hemicube") {
+            Hemicube hc(patches_.patches, {hemicube_resolution, hemicube_points});
+            run_reporting([&] { result = std::make_unique<LinkMatrix>(hemicube_links(hc, done)); }, tick);
+        } else {
+            throw std::invalid_argument("unknown form factor method '" + method + "'");
+        }
+        links_ = std::move(result);
+    }
+
+    nb::dict solve(const std::string& method, double tolerance, uint64_t max_iterations, int samples, uint64_t seed,
+                   uint64_t snapshot_every, nb::object snapshot, nb::object progress) {
+        require_mesh();
+        RadiositySystem sys = system();
+        std::atomic<uint64_t> iteration{0};
+        std::atomic<double> residual{1.0};
+        std::mutex snap_mutex;
+        std::vector<std::pair<uint64_t, std::vector<RGB>>> snaps;
+        SolverOptions base;
+        base.tolerance = tolerance;
+        base.max_iterations = max_iterations;
+        base.on_iteration = [&](const IterationReport& r) {
+            iteration = r.iteration;
+            residual = r.residual;
+            return true;
+        };
+        auto tick = [&] {
+            std::vector<std::pair<uint64_t, std::vector<RGB>>> pending;
+            {
+                std::lock_guard<std::mutex> lock(snap_mutex);
+                pending.swap(snaps);
+            }
+            for (auto& [shot, display] : pending) snapshot(shot, rgb_array(display));
+            if (!progress.is_none()) progress(iteration.load(), residual.load());
+        };
+        Solution sol;
+        uint64_t rows = 0;
+        if (method == "progressive") {
+            ProgressiveOptions opt;
+            static_cast<SolverOptions&>(opt) = base;
+            opt.snapshot_every = snapshot.is_none() ? 0 : snapshot_every;
+            opt.snapshot = [&](uint64_t shot, const std::vector<RGB>& display) {
+                std::lock_guard<std::mutex> lock(snap_mutex);
+                snaps.emplace_back(shot, display);
+            };
+            auto ff = std::make_shared<RayCastFormFactors>(patches_.patches, *visibility_, RayCastOptions{samples, seed});
+            run_reporting([&] {
+                sol = solve_progressive(sys, [&](uint32_t i, auto& out) { ff->couplings_of(i, out); }, opt, &rows);
+            }, tick);
+        } else {
+            if (!links_) throw std::invalid_argument("solver '" + method + "' needs links: compute_links first");
+            run_reporting([&] {
+                if (method == "direct") sol = solve_direct(sys);
+                else if (method == "jacobi") sol = solve_jacobi(sys, base);
+                else if (method == "gauss_seidel") sol = solve_gauss_seidel(sys, base);
+                else if (method == "southwell") sol = solve_southwell(sys, base);
+                else throw std::invalid_argument("unknown solver '" + method + "'");
+            }, tick);
+        }
+        solution_ = sol.radiosity;
+        nb::dict d;
+        d["radiosity"] = rgb_array(sol.radiosity);
+        d["iterations"] = sol.iterations;
+        d["residual"] = sol.residual;
+        d["converged"] = sol.converged;
+        d["residual_history"] = sol.residual_history;
+        d["rows_computed"] = rows;
+        return d;
+    }
+
+    // Irradiance H = F B (W/m^2) and, per patch, the power that leaves it and reaches no
+    // patch (A_i - sum_j G_ij) B_i: the two terms of the energy balance.
+    nb::dict transport(In<double> radiosity, int samples, uint64_t seed) {
+        require_mesh();
+        const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
+        std::vector<RGB> b = rgb_vector(radiosity, n, "radiosity");
+        std::vector<RGB> h(n), escaped(n);
+        std::unique_ptr<RayCastFormFactors> ff;
+        if (!links_) ff = std::make_unique<RayCastFormFactors>(patches_.patches, *visibility_, RayCastOptions{samples, seed});
+        run_reporting([&] {
+            tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+                std::vector<std::pair<uint32_t, float>> row;
+                if (links_) {
+                    for (uint64_t k = links_->offsets[i]; k < links_->offsets[i + 1]; ++k)
+                        row.emplace_back(links_->columns[k], links_->coupling[k]);
+                } else {
+                    ff->couplings_of(i, row);
+                }
+                RGB acc;
+                double g_sum = 0;
+                for (const auto& [j, g] : row) { acc += b[j] * double(g); g_sum += g; }
+                const double a = patches_.patches[i].area;
+                h[i] = acc / a;
+                escaped[i] = b[i] * std::max(0.0, a - g_sum);
+            });
+        }, [] {});
+        nb::dict d;
+        d["irradiance"] = rgb_array(h);
+        d["escaped"] = rgb_array(escaped);
+        return d;
+    }
+
+    double residual_of(In<double> radiosity) const {
+        if (!links_) throw std::invalid_argument("residual_of needs links");
+        RadiositySystem sys = system();
+        return relative_residual(sys, rgb_vector(radiosity, sys.size(), "radiosity"));
+    }
+
+    nb::dict display_mesh(double crease_angle) {
+        require_mesh();
+        display_ = build_display_mesh(patches_, crease_angle);
+        const size_t np = display_.points.size(), n = display_.corners.size();
+        std::vector<double> pts(np * 3);
+        std::vector<int32_t> pm(np), corners(n * 4);
+        std::vector<uint8_t> boundary(display_.boundary);
+        for (size_t v = 0; v < np; ++v) {
+            for (int a = 0; a < 3; ++a) pts[3 * v + a] = display_.points[v][a];
+            pm[v] = static_cast<int32_t>(display_.point_mesh[v]);
+        }
+        for (size_t i = 0; i < n; ++i)
+            for (int k = 0; k < 4; ++k) corners[4 * i + k] = static_cast<int32_t>(display_.corners[i][k]);
+        nb::dict d;
+        d["points"] = to_numpy(std::move(pts), {np, 3});
+        d["point_mesh"] = to_numpy(std::move(pm), {np});
+        d["corners"] = to_numpy(std::move(corners), {n, 4});
+        d["boundary"] = to_numpy(std::move(boundary), {np});
+        return d;
+    }
+
+    Out vertex_values_of(In<double> patch_values) const {
+        if (display_.corners.size() != patches_.patches.size()) throw std::invalid_argument("call display_mesh first");
+        return rgb_array(vertex_values(patches_, display_, rgb_vector(patch_values, patches_.patches.size(), "values")));
+    }
+
+    double form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) const {
+        require_index(i);
+        require_index(j);
+        RayCastFormFactors ff(patches_.patches, *visibility_, {samples, seed});
+        return ff.form_factor(i, j);
+    }
+
+    Out hemicube_row(uint32_t i, int resolution, int points) const {
+        require_index(i);
+        Hemicube hc(patches_.patches, {resolution, points});
+        std::vector<std::pair<uint32_t, double>> row;
+        hc.row(i, row);
+        std::vector<double> dense(patches_.patches.size(), 0.0);
+        for (const auto& [j, f] : row) dense[j] = f;
+        return to_numpy(std::move(dense), {patches_.patches.size()});
+    }
+
+    uint64_t rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
+
+private:
+    void require_mesh() const {
+        if (!visibility_) throw std::invalid_argument("call mesh() first");
+    }
+    void require_index(uint32_t i) const {
+        require_mesh();
+        if (i >= patches_.patches.size()) throw nb::index_error("patch index out of range");
+    }
+
+    RadiositySystem system() const {
+        RadiositySystem sys;
+        sys.links = links_.get();
+        for (const Patch& p : patches_.patches) {
+            sys.area.push_back(p.area);
+            sys.reflectance.push_back(p.reflectance);
+            sys.emission.push_back(p.emission);
+        }
+        return sys;
+    }
+
+    // Hemicube rows are not reciprocal on their own; the stored coupling is the mean of the
+    // two directions, G_ij = (A_i F_ij + A_j F_ji) / 2.
+    LinkMatrix hemicube_links(const Hemicube& hc, std::atomic<uint32_t>& done) const {
+        const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
+        std::vector<std::vector<std::pair<uint32_t, double>>> rows(n);
+        tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+            hc.row(i, rows[i]);
+            ++done;
+        });
+        std::vector<std::vector<std::pair<uint32_t, float>>> upper(n);
+        auto find = [&](uint32_t i, uint32_t j) {
+            auto it = std::lower_bound(rows[i].begin(), rows[i].end(), std::make_pair(j, -1.0));
+            return (it != rows[i].end() && it->first == j) ? it->second : 0.0;
+        };
+        tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+            const double ai = patches_.patches[i].area;
+            // Pairs seen from either side: walk row i (j > i) and pick up j's view of i.
+            for (const auto& [j, f] : rows[i])
+                if (j > i) upper[i].emplace_back(j, static_cast<float>(0.5 * (ai * f + patches_.patches[j].area * find(j, i))));
+        });
+        // Pairs that only j saw (j < i would be in row j; j > i only in row j): add them.
+        for (uint32_t j = 0; j < n; ++j)
+            for (const auto& [i, f] : rows[j])
+                if (i < j && find(i, j) == 0.0)
+                    upper[i].emplace_back(j, static_cast<float>(0.5 * patches_.patches[j].area * f));
+        for (auto& u : upper) std::sort(u.begin(), u.end());
+        return LinkMatrix::from_upper(n, upper);
+    }
+
+    Scene scene_;
+    PatchSet patches_;
+    std::unique_ptr<Visibility> visibility_;
+    std::unique_ptr<LinkMatrix> links_;
+    DisplayMesh display_;
+    std::vector<RGB> solution_;
+};
+
+// A stored solution as a queryable surface: what `hirad render` and `hirad probe` use.
+class SurfaceField {
+public:
+    SurfaceField(In<double> corners, In<int32_t> nv, In<double> corner_radiance, In<double> corner_irradiance)
+        : patches_(patches_from_arrays(corners, nv)),
+          radiance_(corner_values(corner_radiance, patches_.size(), "corner_radiance")),
+          irradiance_(corner_values(corner_irradiance, patches_.size(), "corner_irradiance")),
+          visibility_(patches_) {}
+
+    nb::ndarray<nb::numpy, float> render(const std::vector<double>& position, const std::vector<double>& forward,
+                                         const std::vector<double>& up, double fov, int width, int height, int samples) {
+        if (position.size() != 3 || forward.size() != 3 || up.size() != 3)
+            throw std::invalid_argument("camera vectors need 3 components");
+        if (width <= 0 || height <= 0) throw std::invalid_argument("image size must be positive");
+        Camera cam;
+        cam.position = {position[0], position[1], position[2]};
+        cam.forward = {forward[0], forward[1], forward[2]};
+        cam.up = {up[0], up[1], up[2]};
+        cam.vertical_fov_degrees = fov;
+        cam.width = width;
+        cam.height = height;
+        std::vector<float> img;
+        {
+            nb::gil_scoped_release release;
+            img = render_radiance(patches_, visibility_, radiance_, cam, samples);
+        }
+        return to_numpy(std::move(img), {size_t(height), size_t(width), 3});
+    }
+
+    // Closest surface point to each query point (optionally facing along its normal):
+    // (patch index or -1, distance, irradiance (n,3), radiance (n,3)).
+    nb::dict probe(In<double> points, In<double> normals, double max_distance) {
+        const size_t n = points.shape(0);
+        if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(0) != n)
+            throw std::invalid_argument("points and normals: shape (n, 3)");
+        std::vector<int32_t> patch(n);
+        std::vector<double> distance(n), irr(n * 3), rad(n * 3);
+        {
+            nb::gil_scoped_release release;
+            tbb::parallel_for(size_t(0), n, [&](size_t q) {
+                const double* p = points.data() + 3 * q;
+                const double* m = normals.data() + 3 * q;
+                RayHit hit = visibility_.closest_point({p[0], p[1], p[2]}, {m[0], m[1], m[2]}, max_distance);
+                patch[q] = hit.patch;
+                distance[q] = hit.patch >= 0 ? hit.t : -1;
+                if (hit.patch < 0) return;
+                const int nv = patches_[hit.patch].nv;
+                RGB e = interpolate_corners(nv, irradiance_[hit.patch], hit.u, hit.v);
+                RGB l = interpolate_corners(nv, radiance_[hit.patch], hit.u, hit.v);
+                for (int c = 0; c < 3; ++c) { irr[3 * q + c] = e[c]; rad[3 * q + c] = l[c]; }
+            });
+        }
+        nb::dict d;
+        d["patch"] = to_numpy(std::move(patch), {n});
+        d["distance"] = to_numpy(std::move(distance), {n});
+        d["irradiance"] = to_numpy(std::move(irr), {n, 3});
+        d["radiance"] = to_numpy(std::move(rad), {n, 3});
+        return d;
+    }
+
+private:
+    std::vector<Patch> patches_;
+    std::vector<std::array<RGB, 4>> radiance_, irradiance_;
+    Visibility visibility_;
+};
+
+nb::dict bake_uv_py(In<double> uv, In<int32_t> nv, In<double> values, int width, int height, int dilation) {
+    const size_t n = nv.shape(0);
+    if (uv.ndim() != 3 || uv.shape(0) != n || uv.shape(1) != 4 || uv.shape(2) != 2)
+        throw std::invalid_argument("uv: expected shape (n, 4, 2)");
+    auto vals = corner_values(values, n, "values");
+    std::vector<UVPolygon> polys(n);
+    for (size_t i = 0; i < n; ++i) {
+        polys[i].nv = nv.data()[i];
+        for (int k = 0; k < 4; ++k) {
+            polys[i].uv[k] = {uv.data()[(i * 4 + k) * 2], uv.data()[(i * 4 + k) * 2 + 1]};
+            polys[i].value[k] = vals[i][k];
+        }
+    }
+    TexelImage img;
+    {
+        nb::gil_scoped_release release;
+        img = bake_uv(polys, width, height, dilation);
+    }
+    nb::dict d;
+    d["rgb"] = to_numpy(std::move(img.rgb), {size_t(height), size_t(width), 3});
+    d["covered"] = to_numpy(std::move(img.covered), {size_t(height), size_t(width)});
+    return d;
+}
+
+void write_exr_py(const std::string& path, In<float> rgb, const std::vector<std::pair<std::string, std::string>>& meta) {
+    if (rgb.ndim() != 3 || rgb.shape(2) != 3) throw std::invalid_argument("rgb: expected shape (h, w, 3)");
+    write_exr_rgb(path, static_cast<int>(rgb.shape(1)), static_cast<int>(rgb.shape(0)), rgb.data(), meta);
+}
+
+nb::ndarray<nb::numpy, float> read_exr_py(const std::string& path) {
+    int w = 0, h = 0;
+    std::vector<float> rgb = read_exr_rgb(path, w, h);
+    return to_numpy(std::move(rgb), {size_t(h), size_t(w), 3});
+}
+
+double point_polygon_py(const std::vector<double>& x, const std::vector<double>& n, In<double> poly) {
+    const int nv = static_cast<int>(poly.shape(0));
+    if (nv < 3 || nv > 4) throw std::invalid_argument("polygon: 3 or 4 corners");
+    Vec3 p[4];
+    for (int k = 0; k < nv; ++k) p[k] = {poly.data()[3 * k], poly.data()[3 * k + 1], poly.data()[3 * k + 2]};
+    Vec3 pn;
+    for (int k = 0; k < nv; ++k) pn += cross(p[k], p[(k + 1) % nv]);
+    return point_polygon_form_factor({x[0], x[1], x[2]}, normalize({n[0], n[1], n[2]}), p, nv, normalize(pn));
+}
+
+}  // namespace
+
+NB_MODULE(_engine, m) {
+    m.doc() = "hirad's C++ engine: meshing, form factors, solvers, reconstruction, rendering, EXR";
+    m.def("set_threads", &set_threads, "threads"_a, "Caps the engine's TBB threads (0 = all cores).");
+    m.def("parallel_rectangles_form_factor", &parallel_rectangles_form_factor, "a"_a, "b"_a, "c"_a);
+    m.def("perpendicular_rectangles_form_factor", &perpendicular_rectangles_form_factor, "l"_a, "h"_a, "w"_a);
+    m.def("point_polygon_form_factor", &point_polygon_py, "x"_a, "normal"_a, "polygon"_a);
+    m.def("bake_uv", &bake_uv_py, "uv"_a, "nv"_a, "values"_a, "width"_a, "height"_a, "dilation"_a);
+    m.def("write_exr", &write_exr_py, "path"_a, "rgb"_a, "metadata"_a);
+    m.def("read_exr", &read_exr_py, "path"_a);
+
+    nb::class_<Model>(m, "Model")
+        .def(nb::init<In<double>, In<int32_t>, In<int32_t>, In<int32_t>, In<int32_t>, In<double>, In<double>,
+                      std::optional<In<double>>>(),
+             "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "face_mesh"_a, "face_source"_a,
+             "reflectance"_a, "emission"_a, "corner_uv"_a.none())
+        .def("stats", &Model::stats)
+        .def("mesh", &Model::mesh, "max_area"_a, "max_edge_length"_a)
+        .def_prop_ro("num_patches", &Model::num_patches)
+        .def("patch_arrays", &Model::patch_arrays)
+        .def("compute_links", &Model::compute_links, "method"_a, "samples"_a, "hemicube_resolution"_a,
+             "hemicube_points"_a, "seed"_a, "progress"_a.none())
+        .def("solve", &Model::solve, "method"_a, "tolerance"_a, "max_iterations"_a, "samples"_a, "seed"_a,
+             "snapshot_every"_a, "snapshot"_a.none(), "progress"_a.none())
+        .def("transport", &Model::transport, "radiosity"_a, "samples"_a, "seed"_a)
+        .def("residual_of", &Model::residual_of, "radiosity"_a)
+        .def("display_mesh", &Model::display_mesh, "crease_angle"_a)
+        .def("vertex_values", &Model::vertex_values_of, "patch_values"_a)
+        .def("form_factor", &Model::form_factor, "i"_a, "j"_a, "samples"_a, "seed"_a)
+        .def("hemicube_row", &Model::hemicube_row, "i"_a, "resolution"_a, "points"_a)
+        .def("rays_cast", &Model::rays_cast);
+
+    nb::class_<SurfaceField>(m, "SurfaceField")
+        .def(nb::init<In<double>, In<int32_t>, In<double>, In<double>>(), "corners"_a, "nv"_a, "corner_radiance"_a,
+             "corner_irradiance"_a)
+        .def("render", &SurfaceField::render, "position"_a, "forward"_a, "up"_a, "vertical_fov"_a, "width"_a,
+             "height"_a, "samples"_a)
+        .def("probe", &SurfaceField::probe, "points"_a, "normals"_a, "max_distance"_a);
+}

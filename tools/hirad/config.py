@@ -1,0 +1,640 @@
+"""hirad's configuration: the YAML schema, its loader and its error reports.
+
+A config file is one YAML mapping.  Only ``scene`` is required; every other
+key has a default (see the field descriptions below, or ``configs/cornell.yaml``
+for an annotated example).
+
+    cfg = load_config("configs/cornell.yaml")      # raises ConfigError
+    cfg.meshing.max_patch_area                     # 0.0006
+    cfg.fingerprint()                              # sha256 hex of the settings
+
+Every problem is reported as a :class:`ConfigError` whose text reads
+``file:line: key: problem``, with the line of the offending key in the YAML
+file.  Validation is strict about types: a quoted ``"16"`` where a number is
+expected is an error rather than silently converted, and unknown keys (typos)
+are errors too.  Numbers may be written as ``1e-4`` (YAML 1.2 style) even
+though PyYAML's YAML 1.1 rules would read that as a string.
+
+Relative paths in a config resolve against the directory holding the config
+file and are stored as absolute paths.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union
+
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "FormFactorConfig",
+    "LightmapOutputConfig",
+    "MaterialsConfig",
+    "MeshingConfig",
+    "OutputsConfig",
+    "PreviewOutputConfig",
+    "ReconstructionConfig",
+    "SolverConfig",
+    "config_from_dict",
+    "load_config",
+]
+
+DICT_SOURCE = "<dict>"
+
+
+# --------------------------------------------------------------------------
+# Errors
+# --------------------------------------------------------------------------
+
+
+class ConfigError(Exception):
+    """A problem with a config, located in its file.
+
+    Attributes:
+        file: the config file as given to :func:`load_config` (``"<dict>"`` for
+            :func:`config_from_dict`).
+        line: 1-based line in that file; 0 when the problem concerns the file
+            as a whole (missing, unreadable) or has no line (dict input).
+        key: dotted key path such as ``"meshing.max_patch_area"`` or
+            ``"materials.default_reflectance[1]"``; empty when no key applies.
+        problem: what is wrong, in plain words.
+        errors: every problem found, this one first (validation reports all
+            problems at once; ``str()`` shows the first, by line).
+    """
+
+    def __init__(self, file: str, line: int, key: str, problem: str) -> None:
+        self.file = file
+        self.line = line
+        self.key = key
+        self.problem = problem
+        self.errors: list[ConfigError] = [self]
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line > 0 else self.file
+        if self.key:
+            return f"{where}: {self.key}: {self.problem}"
+        return f"{where}: {self.problem}"
+
+    def full_report(self) -> str:
+        """All problems, one per line."""
+        return "\n".join(str(e) for e in self.errors)
+
+
+# --------------------------------------------------------------------------
+# Schema
+# --------------------------------------------------------------------------
+
+# Scalars are strict (no str -> number, no number -> bool); a strict float
+# still accepts an integer, so `crease_angle: 30` is fine.  Containers are
+# lax so that a YAML list can fill a tuple and a Python tuple a list.
+StrictInt = Annotated[int, Strict()]
+StrictFloat = Annotated[float, Strict()]
+StrictBool = Annotated[bool, Strict()]
+StrictStr = Annotated[str, Strict()]
+Reflectance = Annotated[float, Strict(), Field(ge=0.0, lt=1.0)]
+
+_MODEL_CONFIG = ConfigDict(
+    extra="forbid",
+    allow_inf_nan=False,
+    validate_assignment=True,
+    validate_default=False,
+)
+
+
+class MaterialsConfig(BaseModel):
+    """How surface materials are read from the scene."""
+
+    model_config = _MODEL_CONFIG
+
+    default_reflectance: tuple[Reflectance, Reflectance, Reflectance] = Field(
+        default=(0.5, 0.5, 0.5),
+        description=(
+            "Diffuse reflectance [r, g, b] for surfaces without a readable material;"
+            " each channel in [0, 1) (1 would never converge)."
+        ),
+    )
+    uv_primvars: list[StrictStr] = Field(
+        default_factory=lambda: ["st", "uv", "UVMap", "st0", "map1"],
+        description=(
+            "Names of mesh primvars holding texture coordinates, tried in order;"
+            " the first one present on a mesh is used for its texture lookups."
+        ),
+    )
+
+
+class MeshingConfig(BaseModel):
+    """How scene surfaces are subdivided into radiosity patches."""
+
+    model_config = _MODEL_CONFIG
+
+    max_patch_area: StrictFloat = Field(
+        default=0.01,
+        gt=0.0,
+        description="Largest patch area, in square metres; smaller means more patches.",
+    )
+    max_edge_length: StrictFloat = Field(
+        default=0.1,
+        gt=0.0,
+        description="Longest patch edge, in metres; bounds sliver patches.",
+    )
+
+
+class FormFactorConfig(BaseModel):
+    """How patch-to-patch form factors are computed."""
+
+    model_config = _MODEL_CONFIG
+
+    method: Literal["raycast", "hemicube"] = Field(
+        default="raycast",
+        description="'raycast' (stratified area sampling) or 'hemicube' (rasterised hemicubes).",
+    )
+    samples: StrictInt = Field(
+        default=16,
+        ge=1,
+        le=4096,
+        description="Stratified sample points per patch for the raycast method.",
+    )
+    hemicube_resolution: StrictInt = Field(
+        default=128,
+        ge=8,
+        le=2048,
+        description="Pixels along the top face of each hemicube (hemicube method).",
+    )
+    hemicube_points: StrictInt = Field(
+        default=4,
+        ge=1,
+        le=64,
+        description="Hemicubes placed per patch, averaged (hemicube method).",
+    )
+
+
+class SolverConfig(BaseModel):
+    """How the radiosity system (I - R F) B = E is solved."""
+
+    model_config = _MODEL_CONFIG
+
+    method: Literal["southwell", "progressive", "jacobi", "gauss_seidel", "direct"] = Field(
+        default="southwell",
+        description=(
+            "Solver: 'southwell' (shoot the largest unshot energy), 'progressive'"
+            " (shooting with preview snapshots), 'jacobi', 'gauss_seidel' or 'direct'"
+            " (dense factorisation; small scenes only)."
+        ),
+    )
+    tolerance: StrictFloat = Field(
+        default=1e-4,
+        gt=0.0,
+        lt=1.0,
+        description="Stop when the relative residual ||E - M B|| / ||E|| falls below this.",
+    )
+    max_iterations: StrictInt = Field(
+        default=100_000_000,
+        ge=1,
+        description="Upper bound on iterations (shots for shooting methods, sweeps otherwise).",
+    )
+    snapshots: StrictInt = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Progressive solver only: write a preview image every this many shots;"
+            " 0 writes none."
+        ),
+    )
+
+    @field_validator("snapshots")
+    @classmethod
+    def _snapshots_need_progressive(cls, value: int, info: ValidationInfo) -> int:
+        method = info.data.get("method")
+        if value > 0 and method is not None and method != "progressive":
+            raise ValueError(
+                f"snapshots are only written by the progressive solver, not {method!r};"
+                " set solver.method: progressive or snapshots: 0"
+            )
+        return value
+
+
+class ReconstructionConfig(BaseModel):
+    """How per-patch radiosity is turned into smooth per-vertex values."""
+
+    model_config = _MODEL_CONFIG
+
+    crease_angle: StrictFloat = Field(
+        default=30.0,
+        ge=0.0,
+        le=180.0,
+        description=(
+            "Degrees; neighbouring patches whose normals differ by more than this"
+            " are not blended across their shared edge."
+        ),
+    )
+
+
+class LightmapOutputConfig(BaseModel):
+    """Baked lightmap textures."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=True, description="Write lightmap textures.")
+    texels_per_patch: StrictInt = Field(
+        default=4,
+        ge=1,
+        le=64,
+        description="Lightmap texels along the side of one patch.",
+    )
+    max_size: StrictInt = Field(
+        default=4096,
+        ge=64,
+        le=16384,
+        description="Largest lightmap atlas side, in texels.",
+    )
+
+
+class PreviewOutputConfig(BaseModel):
+    """A rendered preview image of the solved scene."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=True, description="Render a preview image.")
+    camera: Optional[StrictStr] = Field(
+        default=None,
+        description=(
+            "USD prim path of the camera to render from, e.g. '/World/Camera';"
+            " null uses the first camera in the scene, or a default view if it has none."
+        ),
+    )
+    width: StrictInt = Field(default=512, ge=16, le=8192, description="Image width, in pixels.")
+    height: StrictInt = Field(default=512, ge=16, le=8192, description="Image height, in pixels.")
+    samples: StrictInt = Field(
+        default=4, ge=1, le=256, description="Anti-aliasing samples per pixel."
+    )
+
+    @field_validator("camera")
+    @classmethod
+    def _camera_is_prim_path(cls, value: Optional[str]) -> Optional[str]:
+        if value is not None and not value.startswith("/"):
+            raise ValueError(f"must be an absolute USD prim path starting with '/', got {value!r}")
+        return value
+
+
+class OutputsConfig(BaseModel):
+    """What a bake writes into the output directory."""
+
+    model_config = _MODEL_CONFIG
+
+    usd: StrictBool = Field(
+        default=True, description="Write a USD layer with radiosity as vertex primvars."
+    )
+    lightmaps: LightmapOutputConfig = Field(
+        default_factory=LightmapOutputConfig, description="Lightmap texture settings."
+    )
+    preview: PreviewOutputConfig = Field(
+        default_factory=PreviewOutputConfig, description="Preview image settings."
+    )
+    report: StrictBool = Field(
+        default=True, description="Write a report of timings, statistics and settings."
+    )
+
+
+class Config(BaseModel):
+    """A complete hirad configuration.
+
+    Build one with :func:`load_config` or :func:`config_from_dict`.  Fields may
+    be assigned afterwards (``cfg.threads = 4``) and are validated again, but a
+    relative path assigned that way resolves against the current directory.
+    """
+
+    model_config = _MODEL_CONFIG
+
+    scene: Path = Field(
+        description="USD scene to light (relative to the config file's directory); must exist.",
+    )
+    output: Path = Field(
+        default=None,
+        validate_default=True,
+        description=(
+            "Output directory (relative to the config file's directory);"
+            " omitted or null means <config dir>/out/<config file stem>."
+        ),
+    )
+    threads: StrictInt = Field(
+        default=0, ge=0, description="Worker threads; 0 uses all cores."
+    )
+    seed: StrictInt = Field(
+        default=1, ge=0, description="Random seed for all sampling; equal seeds give equal results."
+    )
+    materials: MaterialsConfig = Field(
+        default_factory=MaterialsConfig, description="Material settings."
+    )
+    meshing: MeshingConfig = Field(default_factory=MeshingConfig, description="Patch subdivision.")
+    formfactors: FormFactorConfig = Field(
+        default_factory=FormFactorConfig, description="Form factor computation."
+    )
+    solver: SolverConfig = Field(default_factory=SolverConfig, description="Radiosity solver.")
+    reconstruction: ReconstructionConfig = Field(
+        default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
+    )
+    outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="What to write.")
+
+    @field_validator("scene", mode="after")
+    @classmethod
+    def _scene_exists(cls, value: Path, info: ValidationInfo) -> Path:
+        path = _absolute(value, info)
+        if not path.exists():
+            raise ValueError(f"scene file not found: {path}")
+        if not path.is_file():
+            raise ValueError(f"scene is not a file: {path}")
+        return path
+
+    @field_validator("output", mode="before")
+    @classmethod
+    def _default_output(cls, value: Any, info: ValidationInfo) -> Any:
+        if value is not None:
+            return value
+        context = info.context or {}
+        name = context.get("name")
+        if not name:
+            scene = info.data.get("scene")
+            name = Path(scene).stem if isinstance(scene, Path) else "hirad"
+        return _base_dir(info) / "out" / name
+
+    @field_validator("output", mode="after")
+    @classmethod
+    def _absolute_output(cls, value: Path, info: ValidationInfo) -> Path:
+        return _absolute(value, info)
+
+    def fingerprint(self) -> str:
+        """SHA-256 (hex) of the canonical JSON form of every setting.
+
+        Independent of key order and formatting in the YAML file; paths enter
+        as the absolute paths stored in the model.
+        """
+        canonical = json.dumps(
+            self.model_dump(mode="json"),
+            sort_keys=True,
+            separators=(",", ":"),
+            ensure_ascii=False,
+            allow_nan=False,
+        )
+        return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+
+    def thread_count(self) -> int:
+        """The number of worker threads to use: ``threads``, or all cores if 0."""
+        return self.threads or (os.cpu_count() or 1)
+
+
+def _base_dir(info: ValidationInfo) -> Path:
+    context = info.context or {}
+    base = context.get("base_dir")
+    return Path(base) if base is not None else Path.cwd()
+
+
+def _absolute(value: Path, info: ValidationInfo) -> Path:
+    path = value.expanduser()
+    if not path.is_absolute():
+        path = _base_dir(info) / path
+    return Path(os.path.normpath(path.absolute()))
+
+
+# --------------------------------------------------------------------------
+# YAML reading
+# --------------------------------------------------------------------------
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads YAML 1.2 floats without a dot (``1e-4``)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _line(node: Node) -> int:
+    return node.start_mark.line + 1
+
+
+def _format_key(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += f".{part}" if out else str(part)
+    return out
+
+
+def _locate(root: Optional[Node], loc: tuple[Any, ...]) -> int:
+    """Line of the YAML node at `loc`, or of the deepest existing ancestor.
+
+    For a mapping entry this is the line of its key, so a missing key is
+    reported at the line that opens its section (line of ``meshing:``).
+    """
+    if root is None:
+        return 1
+    node: Node = root
+    line = _line(root)
+    for part in loc:
+        if isinstance(node, MappingNode) and isinstance(part, str):
+            for key_node, value_node in node.value:
+                if isinstance(key_node, ScalarNode) and key_node.value == part:
+                    line, node = _line(key_node), value_node
+                    break
+            else:
+                return line
+        elif isinstance(node, SequenceNode) and isinstance(part, int):
+            if not 0 <= part < len(node.value):
+                return line
+            node = node.value[part]
+            line = _line(node)
+        else:
+            return line
+    return line
+
+
+def _check_keys(node: Optional[Node], loc: tuple[Any, ...], found: list[tuple[int, str, str]]) -> None:
+    """Find duplicate and non-string mapping keys, which validation cannot see."""
+    if isinstance(node, MappingNode):
+        seen: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            if isinstance(key_node, ScalarNode) and key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            if not (isinstance(key_node, ScalarNode) and key_node.tag == "tag:yaml.org,2002:str"):
+                text = key_node.value if isinstance(key_node, ScalarNode) else "<complex key>"
+                found.append(
+                    (
+                        _line(key_node),
+                        _format_key(loc),
+                        f"key {text!r} is not a string; quote it if it is meant as a key name",
+                    )
+                )
+                continue
+            name = key_node.value
+            if name in seen:
+                found.append(
+                    (
+                        _line(key_node),
+                        _format_key(loc + (name,)),
+                        f"duplicate key (first given on line {seen[name]})",
+                    )
+                )
+            else:
+                seen[name] = _line(key_node)
+            _check_keys(value_node, loc + (name,), found)
+    elif isinstance(node, SequenceNode):
+        for i, item in enumerate(node.value):
+            _check_keys(item, loc + (i,), found)
+
+
+def _model_at(loc: tuple[Any, ...]) -> Optional[type[BaseModel]]:
+    model: Any = Config
+    for part in loc:
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            return None
+        field = model.model_fields.get(part) if isinstance(part, str) else None
+        if field is None:
+            return None
+        model = field.annotation
+    return model if isinstance(model, type) and issubclass(model, BaseModel) else None
+
+
+def _describe(err: dict[str, Any]) -> str:
+    kind = err["type"]
+    loc = tuple(err["loc"])
+    if kind == "missing":
+        if loc and isinstance(loc[-1], int):
+            return "too few values"
+        return "required key is missing"
+    if kind == "extra_forbidden":
+        problem = "unknown key"
+        model = _model_at(loc[:-1])
+        if model is not None and isinstance(loc[-1], str):
+            close = difflib.get_close_matches(loc[-1], list(model.model_fields), n=1)
+            if close:
+                problem += f" (did you mean {close[0]!r}?)"
+            else:
+                problem += "; expected one of: " + ", ".join(model.model_fields)
+        return problem
+    if kind == "value_error":
+        return str(err.get("ctx", {}).get("error", err["msg"]))
+    problem = err["msg"]
+    value = err.get("input")
+    if kind == "too_long":
+        return problem
+    if isinstance(value, (dict, list, tuple)):
+        problem += f", got a {'mapping' if isinstance(value, dict) else 'list'}"
+    else:
+        shown = repr(value)
+        if len(shown) > 60:
+            shown = shown[:57] + "..."
+        problem += f", got {shown}"
+        if isinstance(value, str) and kind in ("int_type", "float_type", "bool_type"):
+            problem += " (a string; remove the quotes)"
+    return problem
+
+
+def _validate(
+    data: Any, *, file: str, root: Optional[Node], base_dir: Path, name: Optional[str]
+) -> Config:
+    if not isinstance(data, dict):
+        line = _line(root) if root is not None else (1 if file != DICT_SOURCE else 0)
+        got = "nothing" if data is None else type(data).__name__
+        raise ConfigError(file, line, "", f"the config must be a mapping of keys to values, got {got}")
+    problems: list[ConfigError] = []
+    try:
+        config = Config.model_validate(data, context={"base_dir": base_dir, "name": name})
+    except ValidationError as exc:
+        for err in exc.errors(include_url=False):
+            loc = tuple(err["loc"])
+            line = _locate(root, loc) if root is not None else 0
+            problems.append(ConfigError(file, line, _format_key(loc), _describe(err)))
+        problems.sort(key=lambda e: e.line)
+        first = problems[0]
+        first.errors = problems
+        raise first from None
+    return config
+
+
+# --------------------------------------------------------------------------
+# Public entry points
+# --------------------------------------------------------------------------
+
+
+def load_config(path: Union[str, os.PathLike[str]]) -> Config:
+    """Read and validate a YAML config file.
+
+    Raises :class:`ConfigError` for an unreadable file, malformed YAML, unknown
+    keys, wrong types, out-of-range values, missing required keys and a scene
+    file that does not exist.
+    """
+    file = os.fspath(path)
+    config_path = Path(file)
+    try:
+        text = config_path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(file, 0, "", "config file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(file, 0, "", "config path is a directory, not a file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(file, 0, "", f"config file is not UTF-8 text ({exc.reason})") from None
+    except OSError as exc:
+        raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+
+    loader = _Loader(text)
+    try:
+        root = loader.get_single_node()
+        data = loader.construct_document(root) if root is not None else None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else 0
+        problem = ": ".join(p for p in (exc.context, exc.problem) if p) or "malformed YAML"
+        raise ConfigError(file, line, "", f"malformed YAML: {problem}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(file, 0, "", f"malformed YAML: {exc}") from None
+    finally:
+        loader.dispose()
+
+    key_problems: list[tuple[int, str, str]] = []
+    _check_keys(root, (), key_problems)
+    if key_problems:
+        errors = [ConfigError(file, line, key, problem) for line, key, problem in sorted(key_problems)]
+        errors[0].errors = errors
+        raise errors[0]
+
+    base_dir = config_path.expanduser().absolute().parent
+    return _validate(data, file=file, root=root, base_dir=base_dir, name=config_path.stem)
+
+
+def config_from_dict(
+    d: dict[str, Any],
+    base_dir: Union[str, os.PathLike[str], None] = None,
+    name: Optional[str] = None,
+) -> Config:
+    """Validate a config given as a Python mapping (same rules as a file).
+
+    Relative paths resolve against `base_dir` (default: the current
+    directory).  The default output directory is ``<base_dir>/out/<name>``,
+    where `name` defaults to the scene file's stem.  Errors name ``"<dict>"``
+    as their file, with line 0.
+    """
+    base = Path(base_dir).expanduser().absolute() if base_dir is not None else Path.cwd()
+    return _validate(d, file=DICT_SOURCE, root=None, base_dir=base, name=name)
