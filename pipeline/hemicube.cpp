@@ -164,7 +164,8 @@ Hemicube::Hemicube(const std::vector<Patch>& patches, const HemicubeOptions& opt
 void Hemicube::accumulate(const Vec3& x, const Vec3& n_in, uint32_t exclude, double weight,
                           std::vector<double>& accum) const {
     const Vec3 n = normalize(n_in);
-    // Tangent from the world axis least aligned with n, so the cross product is well conditioned.
+    // Tangent from a world axis well away from n (some component of a unit vector is at most
+    // 1/sqrt(3) < 0.6), so the cross product is well conditioned.
     const Vec3 axis = std::fabs(n.x) < 0.6 ? Vec3{1, 0, 0} : (std::fabs(n.y) < 0.6 ? Vec3{0, 1, 0} : Vec3{0, 0, 1});
     const Vec3 t = normalize(cross(n, axis));
     const Vec3 b = cross(n, t);

@@ -162,18 +162,32 @@ def _transform_points(pts: np.ndarray, m: np.ndarray) -> np.ndarray:
     return pts @ m[:3, :3] + m[3, :3]
 
 
+def _corner_order(starts: np.ndarray, counts: np.ndarray, flip: bool) -> np.ndarray:
+    """Indices of the corners of the given faces, in order; reversed (first corner kept) if flip."""
+    counts = np.asarray(counts, dtype=np.int64)
+    if len(counts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    offset = np.arange(int(counts.sum()), dtype=np.int64) - np.repeat(first, counts)
+    if flip:
+        offset = np.where(offset == 0, 0, np.repeat(counts, counts) - offset)
+    return np.repeat(np.asarray(starts, dtype=np.int64), counts) + offset
+
+
 def _polygon_areas(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Area of each polygon (norm of the vector area), robust to non-planar polygons."""
-    areas = np.zeros(len(counts))
-    start = 0
-    for f, n in enumerate(counts):
-        poly = points[indices[start : start + n]]
-        start += n
-        if n < 3:
-            continue
-        v = np.cross(poly - poly[0], np.roll(poly, -1, axis=0) - poly[0]).sum(axis=0)
-        areas[f] = 0.5 * float(np.linalg.norm(v))
-    return areas
+    """Area of each polygon (half the norm of its vector area; fine for non-planar polygons)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    if len(counts) == 0:
+        return np.zeros(0)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    cur = points[indices]
+    nxt_corner = np.arange(len(indices)) + 1
+    face_end = np.repeat(first + counts, counts)
+    nxt_corner = np.where(nxt_corner == face_end, np.repeat(first, counts), nxt_corner)
+    origin = np.repeat(points[indices[first]], counts, axis=0)
+    cross = np.cross(cur - origin, points[indices[nxt_corner]] - origin)
+    vec_area = np.add.reduceat(cross, first, axis=0)
+    return 0.5 * np.linalg.norm(vec_area, axis=1)
 
 
 def _finite_area(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> float:
@@ -519,14 +533,7 @@ class _Builder:
 
         kept_faces = np.nonzero(keep)[0]
         kept_counts = counts[kept_faces]
-        corner_src_parts = []
-        for f in kept_faces:
-            s, n = starts[f], counts[f]
-            c = np.arange(s, s + n)
-            if flip:
-                c = np.concatenate([c[:1], c[1:][::-1]])
-            corner_src_parts.append(c)
-        corner_src = np.concatenate(corner_src_parts)
+        corner_src = _corner_order(starts[kept_faces], kept_counts, flip)
         new_indices = indices[corner_src]
 
         world_pts = _transform_points(pts, world) * mpu
@@ -686,12 +693,8 @@ class _Builder:
 
 
 def _flip_faces(counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    out, s = [], 0
-    for n in counts:
-        f = idx[s : s + n]
-        out.append(np.concatenate([f[:1], f[1:][::-1]]))
-        s += n
-    return np.concatenate(out)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return np.asarray(idx)[_corner_order(first, counts, True)]
 
 
 def _uv_sphere(r: float, n_lon: int, n_lat: int):

@@ -1,0 +1,66 @@
+"""Preview images: cameras, rendering a stored surface field, tone mapping to PNG."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import _engine
+
+
+@dataclass
+class View:
+    """A pinhole view in metres: where the eye is, where it looks, which way is up."""
+
+    position: np.ndarray
+    forward: np.ndarray
+    up: np.ndarray
+    vertical_fov_degrees: float
+
+
+def default_view(points: np.ndarray, up_axis: str) -> View:
+    """Looks at the scene's bounding box from outside, along the horizontal axis that keeps
+    the box in frame (the Cornell convention: camera on the open side)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, extent = (lo + hi) / 2, hi - lo
+    up = np.array([0.0, 0.0, 1.0]) if up_axis == "Z" else np.array([0.0, 1.0, 0.0])
+    forward = np.array([0.0, 1.0, 0.0]) if up_axis == "Z" else np.array([0.0, 0.0, 1.0])
+    fov = 40.0
+    radius = 0.5 * float(np.linalg.norm(extent))
+    distance = radius / np.tan(np.radians(fov / 2)) + 0.5 * float(np.dot(np.abs(forward), extent))
+    return View(centre - forward * distance, forward, up, fov)
+
+
+def view_from_camera(camera) -> View:
+    return View(np.asarray(camera.position, float), np.asarray(camera.forward, float),
+                np.asarray(camera.up, float), float(camera.vertical_fov_degrees))
+
+
+def render(field: "_engine.SurfaceField", view: View, width: int, height: int, samples: int) -> np.ndarray:
+    """Exitant radiance (W/(m^2 sr)) seen through `view`, shape (height, width, 3)."""
+    return field.render(list(map(float, view.position)), list(map(float, view.forward)),
+                        list(map(float, view.up)), view.vertical_fov_degrees, width, height, samples)
+
+
+def tonemap(radiance: np.ndarray, exposure: float | None = None) -> np.ndarray:
+    """8-bit sRGB for looking at: a fixed exposure that maps the 97th percentile of the lit
+    pixels' luminance to 0.9 (or the given exposure), then the sRGB curve."""
+    lum = radiance @ np.array([0.2126, 0.7152, 0.0722])
+    if exposure is None:
+        lit = lum[lum > 0]
+        exposure = 0.9 / float(np.percentile(lit, 97)) if lit.size else 1.0
+    x = np.clip(radiance * exposure, 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (srgb * 255 + 0.5).astype(np.uint8)
+
+
+def write_png(path: Path, radiance: np.ndarray, exposure: float | None = None) -> None:
+    from PIL import Image
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial")
+    Image.fromarray(tonemap(radiance, exposure), "RGB").save(tmp, format="PNG")
+    os.replace(tmp, path)
