@@ -120,10 +120,12 @@ void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count
     for (size_t base = 0; base < count; base += 16) {
         const size_t m = std::min<size_t>(16, count - base);
         for (size_t k = 0; k < 16; ++k) {
-            if (k >= m) { valid[k] = 0; continue; }
-            valid[k] = -1;
-            const Vec3& o = from[base + k];
-            Vec3 d = to[base + k] - o;
+            // Unused lanes still carry a well-formed ray: Embree's packet kernels may read them.
+            const size_t src = base + std::min(k, m - 1);
+            valid[k] = k < m ? -1 : 0;
+            const Vec3& o = from[src];
+            Vec3 d = to[src] - o;
+            if (!isfinite(o) || !isfinite(d)) throw std::runtime_error("visibility: a ray with a non-finite end point");
             rays.org_x[k] = static_cast<float>(o.x);
             rays.org_y[k] = static_cast<float>(o.y);
             rays.org_z[k] = static_cast<float>(o.z);

@@ -185,6 +185,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     Outputs are assembled in a hidden sibling directory and moved into place at the end, so
     an interrupted or failed bake never leaves a directory that looks complete.
     """
+    source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config)
     if threads is not None:
         cfg.threads = threads
@@ -200,7 +201,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     staging.mkdir(parents=True)
     try:
         with Reporter(quiet) as rep:
-            result = _run(cfg, staging, rep)
+            result = _run(cfg, staging, rep, source)
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(staging, out_dir)
@@ -211,7 +212,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     return result
 
 
-def _run(cfg: Config, staging: Path, rep: Reporter) -> Result:
+def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
@@ -265,7 +266,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter) -> Result:
 
     with rep.stage("solve", total=1.0) as update:
         def on_progress(iteration: int, residual: float) -> None:
-            done = 0.0 if residual >= 1 else min(1.0, np.log(residual) / np.log(cfg.solver.tolerance))
+            if residual <= 0:
+                done = 1.0
+            else:
+                done = 0.0 if residual >= 1 else min(1.0, np.log(residual) / np.log(cfg.solver.tolerance))
             update(done, f"iteration {iteration}, residual {residual:.2e}")
 
         solved = model.solve(method, cfg.solver.tolerance, cfg.solver.max_iterations, ff.samples, cfg.seed,
@@ -318,7 +322,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter) -> Result:
     stats = model.stats()
     report = {
         "hirad_version": __version__,
-        "config": str(getattr(cfg, "_source", "")) or None,
+        "config": str(source) if source is not None else None,
         "config_fingerprint": cfg.fingerprint(),
         "scene": str(cfg.scene),
         "threads": cfg.thread_count(),

@@ -91,11 +91,14 @@ def info(scene: Path = typer.Argument(..., help="USD scene")):
     def go():
         s = usd.read_scene(scene)
         pts = s.points[np.isfinite(s.points).all(axis=1)]
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
         emit_faces = int(np.count_nonzero(s.face_emission.max(axis=1) > 0))
         print(f"scene: {scene}")
         print(f"units: metersPerUnit {s.meters_per_unit:g}, upAxis {s.up_axis}")
-        print(f"bounds (m): {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
+        if len(pts):
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            print(f"bounds (m): {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
+        else:
+            print("bounds (m): none (no finite points)")
         print(f"meshes: {len(s.meshes)} ({sum(m.is_light for m in s.meshes)} from UsdLux lights), "
               f"faces: {s.num_faces}, emitting faces: {emit_faces}")
         for i, m in enumerate(s.meshes):
@@ -119,14 +122,14 @@ def probe(solution: Path = typer.Argument(..., help="solution.usda written by `h
     from .bake import BakeError, load_solution
 
     def go():
-        pts, nrm = _read_points(points)
+        pts, nrm, lines = _read_points(points)
         sol = load_solution(solution)
         q = sol.query(pts, nrm, max_distance)
         rows = [["x", "y", "z", "irradiance_r", "irradiance_g", "irradiance_b",
                  "radiance_r", "radiance_g", "radiance_b", "distance"]]
         for k in range(len(pts)):
             if q["patch"][k] < 0:
-                raise BakeError(f"{points}: line {k + 1}: no surface within {max_distance} m of {pts[k].tolist()}")
+                raise BakeError(f"{points}:{lines[k]}: no surface within {max_distance} m of {pts[k].tolist()}")
             rows.append([*map(repr, pts[k].tolist()), *(f"{v:.6g}" for v in q["irradiance"][k]),
                          *(f"{v:.6g}" for v in q["radiance"][k]), f"{q['distance'][k]:.3g}"])
         if output:
@@ -145,7 +148,7 @@ def _read_points(path: Path):
 
     if not path.is_file():
         raise BakeError(f"{path}: file not found")
-    pts, nrm = [], []
+    pts, nrm, lines = [], [], []
     with open(path, newline="") as f:
         for line_no, row in enumerate(csv.reader(f), start=1):
             cells = [c.strip() for c in row if c.strip()]
@@ -161,9 +164,10 @@ def _read_points(path: Path):
                 raise BakeError(f"{path}:{line_no}: expected x,y,z or x,y,z,nx,ny,nz (finite numbers)")
             pts.append(values[:3])
             nrm.append(values[3:] if len(values) == 6 else [0.0, 0.0, 0.0])
+            lines.append(line_no)
     if not pts:
         raise BakeError(f"{path}: no points")
-    return np.array(pts), np.array(nrm)
+    return np.array(pts), np.array(nrm), lines
 
 
 def main() -> None:

@@ -185,6 +185,14 @@ class FormFactorConfig(BaseModel):
         description="Hemicubes placed per patch, averaged (hemicube method).",
     )
 
+    @field_validator("hemicube_resolution")
+    @classmethod
+    def _even_resolution(cls, value: int) -> int:
+        # The side faces are resolution x resolution/2 cells.
+        if value % 2:
+            raise ValueError(f"must be even, got {value}")
+        return value
+
 
 class SolverConfig(BaseModel):
     """How the radiosity system (I - R F) B = E is solved."""

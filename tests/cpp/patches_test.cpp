@@ -1,0 +1,279 @@
+// mesh_patches: patches tile their face within the size limits and weld along shared edges.
+#include "patches.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+namespace hirad {
+namespace {
+
+Face make_face(const std::vector<Vec3>& corners, uint32_t mesh = 0, const std::vector<Vec2>& uvs = {}) {
+    Face f;
+    f.nv = static_cast<int>(corners.size());
+    for (int k = 0; k < f.nv; ++k) {
+        f.p[k] = corners[k];
+        if (k < static_cast<int>(uvs.size())) f.uv[k] = uvs[k];
+    }
+    f.mesh = mesh;
+    f.reflectance = {0.5, 0.5, 0.5};
+    return f;
+}
+
+Scene scene_of(const std::vector<Face>& faces) {
+    Scene s;
+    s.faces = faces;
+    return s;
+}
+
+double max_edge_of(const Patch& p) {
+    double m = 0;
+    for (int k = 0; k < p.nv; ++k) m = std::max(m, length(p.p[(k + 1) % p.nv] - p.p[k]));
+    return m;
+}
+
+// Faces of different shapes and orientations, each with the limits it is meshed at.
+struct Case {
+    const char* name;
+    Face face;
+    MeshingOptions options;
+};
+
+std::vector<Case> cases() {
+    std::vector<Case> c;
+    c.push_back({"unit square", make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}), {0.01, 0.1}});
+    c.push_back({"long thin rectangle", make_face({{0, 0, 0}, {0, 0, 3}, {0, 0.2, 3}, {0, 0.2, 0}}), {0.01, 0.1}});
+    // Area-limited: the edge limit alone would give 2 x 1 patches of area 1.
+    c.push_back({"area-limited rectangle", make_face({{0, 0, 0}, {2, 0, 0}, {2, 1, 0}, {0, 1, 0}}), {0.05, 1.0}});
+    // A trapezoid in a tilted plane (z = x + y): sub-quads are not parallelograms.
+    c.push_back({"tilted trapezoid",
+                 make_face({{0, 0, 0}, {1.3, 0, 1.3}, {1.0, 0.7, 1.7}, {0.2, 0.7, 0.9}}), {0.004, 0.07}});
+    c.push_back({"triangle", make_face({{0, 0, 0}, {1, 0, 0}, {0.3, 0.8, 0}}), {0.01, 0.1}});
+    c.push_back({"obtuse tilted triangle", make_face({{0, 0, 1}, {2, 1, 0}, {-0.5, 0.4, 0.2}}), {0.002, 0.3}});
+    c.push_back({"area-limited triangle", make_face({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}), {0.001, 10.0}});
+    return c;
+}
+
+TEST(MeshPatches, PatchesTileTheFaceWithinTheLimits) {
+    for (const Case& c : cases()) {
+        SCOPED_TRACE(c.name);
+        PatchSet set = mesh_patches(scene_of({c.face}), c.options);
+        ASSERT_GT(set.patches.size(), 1u);
+        const double face_area = c.face.area();
+        const Vec3 n = c.face.normal();
+        double total = 0;
+        for (const Patch& p : set.patches) {
+            EXPECT_EQ(p.nv, c.face.nv);
+            EXPECT_EQ(p.face, 0u);
+            // The stored area is the patch's own polygon area.
+            Vec3 newell;
+            for (int k = 0; k < p.nv; ++k) newell += cross(p.p[k], p.p[(k + 1) % p.nv]);
+            EXPECT_NEAR(p.area, 0.5 * length(newell), 1e-15 * face_area);
+            total += p.area;
+            EXPECT_LE(p.area, c.options.max_area * (1 + 1e-12));
+            EXPECT_LE(max_edge_of(p), c.options.max_edge_length * (1 + 1e-12));
+            EXPECT_NEAR(dot(p.normal, n), 1.0, 1e-12);
+            EXPECT_NEAR(length(p.normal), 1.0, 1e-12);
+            // The centroid lies in the face's plane.
+            EXPECT_NEAR(dot(p.centroid - c.face.p[0], n), 0.0, 1e-12);
+        }
+        EXPECT_NEAR(total, face_area, 1e-12 * face_area);
+    }
+}
+
+// A trapezoid's grid cells are not all the same size: the ones along the long parallel side
+// are the largest, and they too must respect max_area.
+TEST(MeshPatches, AreaLimitHoldsForEveryPatchOfATrapezoid) {
+    // Parallel sides 2 (bottom) and 1 (top), height 1: area 1.5. The edge limit is slack, so
+    // the area limit alone decides the grid.
+    Face f = make_face({{0, 0, 0}, {2, 0, 0}, {1.5, 1, 0}, {0.5, 1, 0}});
+    const MeshingOptions opt{0.05, 10.0};
+    PatchSet set = mesh_patches(scene_of({f}), opt);
+    double largest = 0, total = 0;
+    for (const Patch& p : set.patches) {
+        largest = std::max(largest, p.area);
+        total += p.area;
+    }
+    EXPECT_NEAR(total, 1.5, 1.5e-12);
+    EXPECT_LE(largest, opt.max_area * (1 + 1e-12)) << set.patches.size() << " patches";
+}
+
+TEST(MeshPatches, AttributesComeFromTheFace) {
+    Face f = make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 3);
+    f.reflectance = {0.1, 0.2, 0.3};
+    f.emission = {7, 8, 9};
+    Face g = make_face({{0, 0, 1}, {1, 0, 1}, {0, 1, 1}}, 5);
+    PatchSet set = mesh_patches(scene_of({f, g}), {0.3, 0.5});
+    size_t from_f = 0, from_g = 0;
+    for (const Patch& p : set.patches) {
+        if (p.face == 0) {
+            ++from_f;
+            EXPECT_EQ(p.mesh, 3u);
+            EXPECT_EQ(p.reflectance.y, 0.2);
+            EXPECT_EQ(p.emission.z, 9);
+        } else {
+            ++from_g;
+            EXPECT_EQ(p.face, 1u);
+            EXPECT_EQ(p.mesh, 5u);
+        }
+    }
+    EXPECT_EQ(from_f, 4u);  // ceil(1 / 0.5) = 2 per side, area 0.25 <= 0.3
+    EXPECT_EQ(from_g, 9u);  // k = ceil(sqrt(2) / 0.5) = 3, k^2 triangles of area 0.5 / 9
+}
+
+TEST(MeshPatches, StripOfTwoUnitQuadsWeldsItsSharedEdge) {
+    // Each unit quad at edge 0.25 is a 4 x 4 grid (5 x 5 vertices); the strip is a 8 x 4
+    // grid of patches with 9 x 5 = 45 distinct vertices.
+    Face a = make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}});
+    Face b = make_face({{1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0}});
+    PatchSet set = mesh_patches(scene_of({a, b}), {0.1, 0.25});
+    EXPECT_EQ(set.patches.size(), 32u);
+    EXPECT_EQ(set.vertices.size(), 45u);
+    // Every patch corner refers to the vertex at its position.
+    for (const Patch& p : set.patches)
+        for (int k = 0; k < 4; ++k) {
+            const Vec3& v = set.vertices[p.vertex[k]];
+            EXPECT_EQ(v.x, p.p[k].x);
+            EXPECT_EQ(v.y, p.p[k].y);
+            EXPECT_EQ(v.z, p.p[k].z);
+        }
+}
+
+TEST(MeshPatches, DifferentMeshesDoNotWeld) {
+    Face a = make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 0);
+    Face b = make_face({{1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0}}, 1);
+    PatchSet set = mesh_patches(scene_of({a, b}), {0.1, 0.25});
+    EXPECT_EQ(set.vertices.size(), 50u);  // 25 + 25: a vertex belongs to one mesh
+    ASSERT_EQ(set.vertex_mesh.size(), set.vertices.size());
+    size_t in_mesh1 = 0;
+    for (uint32_t m : set.vertex_mesh) in_mesh1 += m == 1;
+    EXPECT_EQ(in_mesh1, 25u);
+    for (const Patch& p : set.patches)
+        for (int k = 0; k < 4; ++k) EXPECT_EQ(set.vertex_mesh[p.vertex[k]], p.mesh);
+}
+
+// Neighbouring faces of a consistently oriented mesh run along their shared edge in
+// opposite directions, and real coordinates are not dyadic. Points on the shared edge must
+// still come out bit-identical from both faces, or the mesh cracks open.
+TEST(MeshPatches, WeldingHoldsForOppositeEdgeDirectionsAndNonDyadicSizes) {
+    // Two quads split 3 x 3 (edge 0.1 / 0.3 steps of 1/3), the second starting at the far
+    // corner so it runs along the shared edge x = 0.4 downwards while the first runs upwards.
+    const double x0 = 0.1, x1 = 0.4, x2 = 0.7, y0 = 0.2, y1 = 0.5;
+    Face a = make_face({{x0, y0, 0.3}, {x1, y0, 0.3}, {x1, y1, 0.3}, {x0, y1, 0.3}});
+    Face b = make_face({{x2, y1, 0.3}, {x1, y1, 0.3}, {x1, y0, 0.3}, {x2, y0, 0.3}});
+    ASSERT_GT(dot(a.normal(), b.normal()), 0.999);  // both face +z
+    PatchSet set = mesh_patches(scene_of({a, b}), {1.0, 0.1 + 1e-9});
+    ASSERT_EQ(set.patches.size(), 18u);
+    // 3 x 3 patches per face, 4 x 4 vertices each, 4 shared: 28.
+    EXPECT_EQ(set.vertices.size(), 28u);
+
+    // Two triangles sharing the diagonal of a 0.3 square, both facing +z (so they run along
+    // the diagonal in opposite directions), split k = ceil(0.3 sqrt(2) / 0.15) = 3.
+    const double s = 0.3;
+    Face t1 = make_face({{0, 0, 0}, {s, 0, 0}, {0, s, 0}});
+    Face t2 = make_face({{s, s, 0}, {0, s, 0}, {s, 0, 0}});
+    ASSERT_GT(t2.normal().z, 0.999);
+    PatchSet tris = mesh_patches(scene_of({t1, t2}), {1.0, 0.15});
+    ASSERT_EQ(tris.patches.size(), 18u);
+    // A 3 x 3 grid of squares cut on the diagonals: 4 x 4 = 16 vertices.
+    EXPECT_EQ(tris.vertices.size(), 16u);
+}
+
+TEST(MeshPatches, PatchCornersSitOnTheFaceCornersExactly) {
+    // The outer corners of the grid are the face's own corners, bit for bit, whatever the
+    // order of the corners' coordinates.
+    std::vector<Vec3> q = {{0.7, 0.1, 0.3}, {0.1, 0.7, 0.3}, {-0.3, 0.3, 0.3}, {0.3, -0.3, 0.3}};
+    Face f = make_face(q);
+    PatchSet set = mesh_patches(scene_of({f}), {1.0, 0.2});
+    for (const Vec3& corner : q) {
+        bool found = false;
+        for (const Vec3& v : set.vertices) found |= v.x == corner.x && v.y == corner.y && v.z == corner.z;
+        EXPECT_TRUE(found) << corner.x << " " << corner.y << " " << corner.z;
+    }
+}
+
+// Point-in-convex-polygon test in the patch's plane.
+bool inside(const Patch& p, const Vec3& x, double eps) {
+    if (std::fabs(dot(x - p.p[0], p.normal)) > eps) return false;
+    for (int k = 0; k < p.nv; ++k)
+        if (dot(cross(p.p[(k + 1) % p.nv] - p.p[k], x - p.p[k]), p.normal) < -eps) return false;
+    return true;
+}
+
+TEST(MeshPatches, PointOnPatchStaysInside) {
+    Rng rng(12345);
+    for (const Case& c : cases()) {
+        SCOPED_TRACE(c.name);
+        PatchSet set = mesh_patches(scene_of({c.face}), c.options);
+        for (const Patch& p : set.patches) {
+            for (int k = 0; k < 16; ++k) {
+                double s = rng.uniform(), t = rng.uniform();
+                EXPECT_TRUE(inside(p, p.point(s, t), 1e-12));
+            }
+            // The corners of the unit square map onto the patch's corners (triangles fold
+            // (1, 1) back onto corner 0).
+            const Vec3 at00 = p.point(0, 0), at10 = p.point(1, 0), at01 = p.point(0, 1);
+            EXPECT_NEAR(length(at00 - p.p[0]), 0, 1e-15);
+            EXPECT_NEAR(length(at10 - p.p[1]), 0, 1e-15);
+            if (p.nv == 4) {
+                EXPECT_NEAR(length(p.point(1, 1) - p.p[2]), 0, 1e-15);
+                EXPECT_NEAR(length(at01 - p.p[3]), 0, 1e-15);
+            } else {
+                EXPECT_NEAR(length(at01 - p.p[2]), 0, 1e-15);
+            }
+        }
+    }
+}
+
+TEST(MeshPatches, PointOnTriangleIsUniformOverTheArea) {
+    // The mean of point(s, t) over the unit square is the triangle's centroid when the
+    // folding maps area uniformly; a midpoint grid of 64 x 64 cells gets it to rounding.
+    Face f = make_face({{0, 0, 0}, {1, 0, 0}, {0.2, 0.9, 0}});
+    PatchSet set = mesh_patches(scene_of({f}), {1.0, 10.0});
+    ASSERT_EQ(set.patches.size(), 1u);
+    const Patch& p = set.patches[0];
+    Vec3 mean;
+    const int g = 64;
+    for (int j = 0; j < g; ++j)
+        for (int i = 0; i < g; ++i) mean += p.point((i + 0.5) / g, (j + 0.5) / g);
+    mean = mean / double(g * g);
+    Vec3 centroid = (f.p[0] + f.p[1] + f.p[2]) / 3.0;
+    EXPECT_NEAR(length(mean - centroid), 0, 1e-12);
+    EXPECT_NEAR(length(p.centroid - centroid), 0, 1e-15);
+}
+
+TEST(MeshPatches, UVsAreInterpolatedToPatchCorners) {
+    // uv is an affine function of position on the face, so each patch corner's uv must be
+    // that function at the corner's position.
+    auto uv_of = [](const Vec3& p) { return Vec2{0.125 + 0.25 * p.x + 0.05 * p.y, 0.9 - 0.3 * p.y}; };
+    std::vector<Vec3> quad = {{0, 0, 0}, {2, 0, 0}, {2.5, 1.5, 0}, {0.5, 1.5, 0}};  // parallelogram
+    std::vector<Vec3> tri = {{0, 0, 1}, {1.2, 0.1, 1}, {0.4, 1.1, 1}};
+    std::vector<Vec2> quv, tuv;
+    for (const Vec3& p : quad) quv.push_back(uv_of(p));
+    for (const Vec3& p : tri) tuv.push_back(uv_of(p));
+    PatchSet set = mesh_patches(scene_of({make_face(quad, 0, quv), make_face(tri, 1, tuv)}), {0.05, 0.3});
+    ASSERT_GT(set.patches.size(), 8u);
+    for (const Patch& p : set.patches)
+        for (int k = 0; k < 4; ++k) {
+            Vec2 want = uv_of(p.p[k]);
+            EXPECT_NEAR(p.uv[k].u, want.u, 1e-12);
+            EXPECT_NEAR(p.uv[k].v, want.v, 1e-12);
+        }
+}
+
+TEST(InterpolateCorners, BilinearOnQuadsBarycentricOnTriangles) {
+    std::array<RGB, 4> c = {RGB{1, 0, 0}, RGB{0, 2, 0}, RGB{0, 0, 4}, RGB{8, 8, 8}};
+    RGB q = interpolate_corners(4, c, 0.25, 0.5);
+    // (1-u)(1-v) = 0.375, u(1-v) = 0.125, uv = 0.125, (1-u)v = 0.375.
+    EXPECT_DOUBLE_EQ(q.x, 0.375 * 1 + 0.375 * 8);
+    EXPECT_DOUBLE_EQ(q.y, 0.125 * 2 + 0.375 * 8);
+    EXPECT_DOUBLE_EQ(q.z, 0.125 * 4 + 0.375 * 8);
+    RGB t = interpolate_corners(3, c, 0.25, 0.5);  // weights 0.25, 0.25, 0.5; corner 3 unused
+    EXPECT_DOUBLE_EQ(t.x, 0.25);
+    EXPECT_DOUBLE_EQ(t.y, 0.5);
+    EXPECT_DOUBLE_EQ(t.z, 2.0);
+}
+
+}  // namespace
+}  // namespace hirad
