@@ -28,6 +28,7 @@
 #include "links.h"
 #include "patches.h"
 #include "reconstruct.h"
+#include "reference.h"
 #include "render.h"
 #include "scene.h"
 #include "solvers.h"
@@ -400,6 +401,31 @@ public:
 
     uint64_t rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
 
+    // Monte Carlo reference: exitant radiance at (s, t) on the given patches, with its
+    // standard error; independent of links and of the solution.
+    nb::dict reference(In<int32_t> patch, In<double> st, int paths, int min_bounces, uint64_t seed) const {
+        require_mesh();
+        const size_t n = patch.shape(0);
+        if (st.ndim() != 2 || st.shape(0) != n || st.shape(1) != 2) throw std::invalid_argument("st: shape (n, 2)");
+        std::vector<uint32_t> ids(n);
+        std::vector<Vec2> coords(n);
+        for (size_t q = 0; q < n; ++q) {
+            if (patch.data()[q] < 0 || size_t(patch.data()[q]) >= patches_.patches.size())
+                throw nb::index_error("patch index out of range");
+            ids[q] = static_cast<uint32_t>(patch.data()[q]);
+            coords[q] = {st.data()[2 * q], st.data()[2 * q + 1]};
+        }
+        std::vector<ReferenceEstimate> est;
+        run_reporting([&] { est = reference_radiance(patches_.patches, *visibility_, ids, coords, {paths, min_bounces, seed}); },
+                      [] {});
+        std::vector<RGB> l(n), e(n);
+        for (size_t q = 0; q < n; ++q) { l[q] = est[q].radiance; e[q] = est[q].standard_error; }
+        nb::dict d;
+        d["radiance"] = rgb_array(l);
+        d["standard_error"] = rgb_array(e);
+        return d;
+    }
+
 private:
     void require_mesh() const {
         if (!visibility_) throw std::invalid_argument("call mesh() first");
@@ -599,7 +625,8 @@ NB_MODULE(_engine, m) {
         .def("vertex_values", &Model::vertex_values_of, "patch_values"_a)
         .def("form_factor", &Model::form_factor, "i"_a, "j"_a, "samples"_a, "seed"_a)
         .def("hemicube_row", &Model::hemicube_row, "i"_a, "resolution"_a, "points"_a)
-        .def("rays_cast", &Model::rays_cast);
+        .def("rays_cast", &Model::rays_cast)
+        .def("reference", &Model::reference, "patch"_a, "st"_a, "paths"_a, "min_bounces"_a, "seed"_a);
 
     nb::class_<SurfaceField>(m, "SurfaceField")
         .def(nb::init<In<double>, In<int32_t>, In<double>, In<double>>(), "corners"_a, "nv"_a, "corner_radiance"_a,

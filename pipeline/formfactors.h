@@ -24,8 +24,8 @@ double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly,
 // Closed forms (Howell's catalogue, C-11 and C-14), used as test oracles.
 // Two parallel a x b rectangles directly opposite at distance c.
 double parallel_rectangles_form_factor(double a, double b, double c);
-// From the l x w rectangle to the h x w rectangle, perpendicular, sharing the edge w
-// (Howell C-14 with H = h/l, W = w/l).
+// From the w x l rectangle to the h x l rectangle, perpendicular, sharing the edge of
+// length l (Howell C-14 with H = h/l, W = w/l).
 double perpendicular_rectangles_form_factor(double l, double h, double w);
 
 struct RayCastOptions {

@@ -16,11 +16,16 @@ Vec3 Patch::point(double s, double t) const {
 
 namespace {
 
-// Interpolates along an edge the same way whichever face asks, so that the points two faces
-// put on their shared edge are bit-identical and weld exactly.
-Vec3 edge_lerp(const Vec3& a, const Vec3& b, double t) {
+// The point i/n of the way from a to b, computed the same way whichever face asks and
+// whichever way round that face runs along the edge (from the lexicographically smaller end,
+// with the step counted in integers so that 1 - i/n is never rounded), so that the points two
+// faces put on their shared edge are bit-identical and weld exactly. The ends are the corners
+// themselves.
+Vec3 edge_point(const Vec3& a, const Vec3& b, int i, int n) {
+    if (i <= 0) return a;
+    if (i >= n) return b;
     bool a_first = a.x < b.x || (a.x == b.x && (a.y < b.y || (a.y == b.y && a.z <= b.z)));
-    return a_first ? a + (b - a) * t : b + (a - b) * (1 - t);
+    return a_first ? a + (b - a) * (double(i) / n) : b + (a - b) * (double(n - i) / n);
 }
 
 Vec2 lerp2(const Vec2& a, const Vec2& b, double t) { return {a.u + (b.u - a.u) * t, a.v + (b.v - a.v) * t}; }
@@ -87,10 +92,10 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
             }
             auto grid_point = [&](int i, int j) -> Vec3 {
                 double s = double(i) / nu, t = double(j) / nv;
-                if (j == 0) return edge_lerp(f.p[0], f.p[1], s);
-                if (j == nv) return edge_lerp(f.p[3], f.p[2], s);
-                if (i == 0) return edge_lerp(f.p[0], f.p[3], t);
-                if (i == nu) return edge_lerp(f.p[1], f.p[2], t);
+                if (j == 0) return edge_point(f.p[0], f.p[1], i, nu);
+                if (j == nv) return edge_point(f.p[3], f.p[2], i, nu);
+                if (i == 0) return edge_point(f.p[0], f.p[3], j, nv);
+                if (i == nu) return edge_point(f.p[1], f.p[2], j, nv);
                 return f.p[0] * ((1 - s) * (1 - t)) + f.p[1] * (s * (1 - t)) + f.p[2] * (s * t) + f.p[3] * ((1 - s) * t);
             };
             auto grid_uv = [&](int i, int j) -> Vec2 {
@@ -116,9 +121,9 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
             int k = std::max(1, static_cast<int>(std::ceil(longest / max_edge)));
             while (area / (double(k) * k) > max_area) ++k;
             auto tri_point = [&](int i, int j) -> Vec3 {
-                if (j == 0) return edge_lerp(f.p[0], f.p[1], double(i) / k);
-                if (i == 0) return edge_lerp(f.p[0], f.p[2], double(j) / k);
-                if (i + j == k) return edge_lerp(f.p[1], f.p[2], double(j) / k);
+                if (j == 0) return edge_point(f.p[0], f.p[1], i, k);
+                if (i == 0) return edge_point(f.p[0], f.p[2], j, k);
+                if (i + j == k) return edge_point(f.p[1], f.p[2], j, k);
                 return f.p[0] + (f.p[1] - f.p[0]) * (double(i) / k) + (f.p[2] - f.p[0]) * (double(j) / k);
             };
             auto tri_uv = [&](int i, int j) -> Vec2 {

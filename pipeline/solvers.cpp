@@ -132,7 +132,8 @@ Solution solve_jacobi(const RadiositySystem& sys, const SolverOptions& opt) {
         sol.iterations = it;
         sol.residual = r;
         bool go_on = !opt.on_iteration || opt.on_iteration({it, r, UINT32_MAX});
-        if (r <= opt.tolerance || !go_on) { sol.converged = r <= opt.tolerance; break; }
+        // Stop on b, the iterate whose residual was just measured.
+        if (r <= opt.tolerance || !go_on || it == opt.max_iterations) { sol.converged = r <= opt.tolerance; break; }
         b.swap(next);
     }
     sol.radiosity = std::move(b);

@@ -76,8 +76,8 @@ def test_every_field_is_documented() -> None:
 @pytest.mark.parametrize(
     ("name", "area", "edge", "samples", "output"),
     [
-        ("cornell.yaml", 0.0006, 0.03, 16, "cornell"),
-        ("cornell_10k.yaml", 0.00019, 0.016, 8, "cornell_10k"),
+        ("cornell.yaml", 0.0009, 0.038, 16, "cornell"),
+        ("cornell_10k.yaml", 0.00025, 0.02, 8, "cornell_10k"),
     ],
 )
 def test_example_configs_load(name: str, area: float, edge: float, samples: int, output: str) -> None:

@@ -13,10 +13,6 @@ configs, orchestrates the stages and writes the outputs.
 __version__ = "0.1.0"
 
 
-def __getattr__(name):
-    # Lazy so that `hirad.config` and `hirad.usd` import without building the engine.
-    if name in ("bake", "Result", "load_solution", "Solution"):
-        from . import bake as _bake
+from .bake import BakeError, Result, SurfaceSolution, bake, load_solution  # noqa: E402
 
-        return getattr(_bake, name)
-    raise AttributeError(name)
+__all__ = ["bake", "load_solution", "Result", "SurfaceSolution", "BakeError", "__version__"]

@@ -1087,6 +1087,10 @@ def write_solution_layer(
     try:
         if not layer.Export(tmp):
             raise SceneError(f"{output_path}: could not write the solution layer")
+        # mkstemp makes the file private (0600); give it the permissions any other new file gets.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, output_path)
     except BaseException:
         try:
