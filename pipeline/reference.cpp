@@ -98,7 +98,7 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
                 x = x + dir * hit.t;
                 n = h.normal;
             }
-            RGB value = p0.emission / kPi + l * kPi;
+            RGB value = p0.emission / kPi + l;
             sum += value;
             sum2 += mul(value, value);
         }

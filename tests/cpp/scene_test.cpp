@@ -97,14 +97,26 @@ std::vector<Frame> frames() {
     return out;
 }
 
+// Crossing-number test in the polygon's own 2D coordinates.
+bool inside_polygon(const std::vector<std::array<double, 2>>& q, double x, double y) {
+    bool in = false;
+    for (size_t k = 0, l = q.size() - 1; k < q.size(); l = k++) {
+        const auto &a = q[k], &b = q[l];
+        if ((a[1] > y) != (b[1] > y) && x < (b[0] - a[0]) * (y - a[1]) / (b[1] - a[1]) + a[0]) in = !in;
+    }
+    return in;
+}
+
 void expect_triangulated_like(const Scene& scene, const Frame& fr, const std::vector<std::array<double, 2>>& poly2d,
                               const char* what) {
     SCOPED_TRACE(what);
     const double area = 0.5 * shoelace2(poly2d);
     ASSERT_GT(area, 0);
     EXPECT_EQ(scene.stats.triangulated_faces, 1u);
-    // Any triangulation of a simple n-gon without new vertices has n - 2 triangles.
-    ASSERT_EQ(scene.faces.size(), poly2d.size() - 2);
+    // A triangulation of a simple n-gon without new vertices has n - 2 triangles; fewer
+    // survive when one of them is a zero-area sliver across collinear corners (dropped).
+    ASSERT_GE(scene.faces.size(), 1u);
+    ASSERT_LE(scene.faces.size(), poly2d.size() - 2);
     double total = 0;
     const Vec3 n = fr.normal();
     for (const Face& f : scene.faces) {
@@ -112,6 +124,10 @@ void expect_triangulated_like(const Scene& scene, const Frame& fr, const std::ve
         total += f.area();
         // Each triangle faces the way the polygon does (a flipped one would still add area).
         EXPECT_GT(dot(f.normal(), n), 1 - 1e-12);
+        // ... and lies inside the polygon (its centroid does; with the total area exact, no
+        // triangle can then spill over a reflex corner).
+        Vec3 c = (f.p[0] + f.p[1] + f.p[2]) / 3.0 - fr.origin;
+        EXPECT_TRUE(inside_polygon(poly2d, dot(c, fr.e1), dot(c, fr.e2)));
     }
     EXPECT_NEAR(total, area, 1e-12 * area);
 }
@@ -168,6 +184,8 @@ TEST(SceneBuild, LShapedHexagonTriangulatedWithExactArea) {
     for (const Frame& fr : frames()) {
         // Start the polygon at every corner: the reflex corner must never be clipped as an ear.
         for (size_t start = 0; start < q.size(); ++start) {
+            SCOPED_TRACE(testing::Message() << "frame normal " << fr.normal().x << " " << fr.normal().y << " "
+                                            << fr.normal().z << ", first corner " << start);
             Soup soup;
             std::vector<Vec3> corners;
             for (size_t k = 0; k < q.size(); ++k) corners.push_back(fr(q[(start + k) % q.size()][0], q[(start + k) % q.size()][1]));
@@ -184,6 +202,8 @@ TEST(SceneBuild, ConcaveUOctagonTriangulatedWithExactArea) {
     ASSERT_DOUBLE_EQ(0.5 * shoelace2(q), 5.0);
     for (const Frame& fr : frames()) {
         for (size_t start = 0; start < q.size(); ++start) {
+            SCOPED_TRACE(testing::Message() << "frame normal " << fr.normal().x << " " << fr.normal().y << " "
+                                            << fr.normal().z << ", first corner " << start);
             Soup soup;
             std::vector<Vec3> corners;
             for (size_t k = 0; k < q.size(); ++k) corners.push_back(fr(q[(start + k) % q.size()][0], q[(start + k) % q.size()][1]));

@@ -1,0 +1,84 @@
+"""Radiosity against the Monte Carlo reference on the Cornell box: per-surface mean radiance.
+
+For every surface (input mesh) of configs/cornell.yaml, the bake's area-weighted mean of
+B/pi is compared with a path-traced estimate of the mean exitant radiance over the same
+surface (a random point in every patch, weighted by its area, each with many paths;
+`Model.reference`). Prints both, the
+relative difference in luminance and the reference's standard error. Usage:
+
+    python bench/reference_cornell.py [CONFIG.yaml] [--points 64] [--paths 1024]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import hirad
+from hirad import _engine, usd
+from hirad.config import load_config
+
+ROOT = Path(__file__).resolve().parent.parent
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("config", nargs="?", type=Path, default=ROOT / "configs/cornell.yaml")
+    ap.add_argument("--points", type=int, default=64, help="points per patch = points // 64, at least 1")
+    ap.add_argument("--paths", type=int, default=1024)
+    args = ap.parse_args()
+
+    cfg = load_config(args.config)
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg.output = Path(tmp) / "out"
+        cfg.outputs.lightmaps.enabled = cfg.outputs.preview.enabled = cfg.outputs.usd = False
+        t0 = time.perf_counter()
+        result = hirad.bake(cfg)
+        bake_s = time.perf_counter() - t0
+    p = result.patches
+    b = result.patch_radiosity
+
+    scene = usd.read_scene(cfg.scene)
+    model = _engine.Model(scene.points, scene.face_vertex_counts, scene.face_vertex_indices, scene.face_mesh,
+                          scene.face_source, scene.face_reflectance, scene.face_emission, scene.corner_uv)
+    model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
+    # One point per patch at a random (s, t), repeated `points` times, each weighted by its
+    # patch's area: a stratified estimate of every surface's mean.
+    rng = np.random.default_rng(1)
+    reps = max(1, args.points // 64)
+    ids = np.tile(np.arange(len(b), dtype=np.int32), reps)
+    st = np.ascontiguousarray(rng.random((ids.size, 2)))
+    owner = p["mesh"][ids]
+    weight = p["area"][ids]
+    t0 = time.perf_counter()
+    ref = model.reference(ids, st, args.paths, 3, 7)
+    ref_s = time.perf_counter() - t0
+
+    print(f"bake {bake_s:.1f} s ({len(b)} patches); reference {ref_s:.1f} s "
+          f"({ids.size} points x {args.paths} paths)")
+    print(f"{'surface':<28}{'radiosity L':>13}{'reference L':>13}{'std err':>10}{'diff':>9}")
+    worst = 0.0
+    for m in np.unique(owner):
+        mine = np.nonzero(p["mesh"] == m)[0]
+        l_rad = (b[mine] / np.pi * p["area"][mine, None]).sum(axis=0) / p["area"][mine].sum()
+        sel = owner == m
+        w = weight[sel] / weight[sel].sum()
+        l_ref = (ref["radiance"][sel] * w[:, None]).sum(axis=0)
+        # Standard error of the weighted mean, from the per-point path errors (the points are
+        # stratified over the patches, so spatial variation adds little).
+        err = np.sqrt(((ref["standard_error"][sel] * w[:, None]) ** 2).sum(axis=0))
+        a, r, e = l_rad @ LUM, l_ref @ LUM, err @ LUM
+        diff = a / r - 1
+        if not scene.meshes[m].is_light and scene.face_emission[scene.face_mesh == m].max() == 0:
+            worst = max(worst, abs(diff))
+        print(f"{scene.meshes[m].name:<28}{a:>13.4f}{r:>13.4f}{e:>10.4f}{diff:>+9.2%}")
+    print(f"largest difference on a reflecting surface: {worst:.2%}")
+
+
+if __name__ == "__main__":
+    main()
