@@ -87,7 +87,20 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
             nv = std::max(nv, 1);
             const double lu = std::max(length(f.p[1] - f.p[0]), length(f.p[2] - f.p[3]));
             const double lv = std::max(length(f.p[3] - f.p[0]), length(f.p[2] - f.p[1]));
-            while (area / (double(nu) * nv) > max_area) {
+            // The area per unit (s, t) of a planar quad is affine in s and t, so the largest
+            // cell of the grid is one of the four corner cells: bound those, not the mean.
+            auto bilinear = [&](double s, double t) {
+                return f.p[0] * ((1 - s) * (1 - t)) + f.p[1] * (s * (1 - t)) + f.p[2] * (s * t) + f.p[3] * ((1 - s) * t);
+            };
+            auto cell_area = [&](int i, int j) {
+                Vec3 a = bilinear(double(i) / nu, double(j) / nv), b = bilinear(double(i + 1) / nu, double(j) / nv);
+                Vec3 c = bilinear(double(i + 1) / nu, double(j + 1) / nv), d = bilinear(double(i) / nu, double(j + 1) / nv);
+                return 0.5 * length(cross(c - a, d - b));
+            };
+            auto largest_cell = [&] {
+                return std::max({cell_area(0, 0), cell_area(nu - 1, 0), cell_area(0, nv - 1), cell_area(nu - 1, nv - 1)});
+            };
+            while (largest_cell() > max_area) {
                 if (lu / nu >= lv / nv) ++nu; else ++nv;
             }
             auto grid_point = [&](int i, int j) -> Vec3 {
