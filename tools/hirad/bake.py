@@ -238,6 +238,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
     if stats["faces"] == 0:
         raise BakeError(f"{cfg.scene}: no usable faces (all {stats['input_faces']} were degenerate or not finite)")
 
+    if not np.any(scene.face_emission > 0):
+        rep.warn(f"{cfg.scene}: nothing emits light (no emissiveColor, MeshLightAPI or UsdLux area "
+                 "light): every radiosity will be zero")
+
     with rep.stage("mesh patches"):
         model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
         patches = model.patch_arrays()

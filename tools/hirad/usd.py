@@ -233,6 +233,10 @@ def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+# UsdPreviewSurface itself and its MaterialX node definition share inputs and meaning.
+_PREVIEW_SURFACE_IDS = ("UsdPreviewSurface", "ND_UsdPreviewSurface_surfaceshader")
+
+
 class _MaterialResolver:
     """Evaluates bound UsdPreviewSurface materials into constant colours (with caching)."""
 
@@ -252,10 +256,14 @@ class _MaterialResolver:
             return self._mat_cache[key]
         result: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         shader = self._surface_shader(material)
-        if shader is not None and shader.GetShaderId() == "UsdPreviewSurface":
+        if shader is not None and shader.GetShaderId() in _PREVIEW_SURFACE_IDS:
             diffuse = self._eval_color_input(shader, "diffuseColor", key)
             emissive = self._eval_color_input(shader, "emissiveColor", key)
             result = (diffuse, emissive)
+        else:
+            kind = shader.GetShaderId() if shader is not None else "no universal or MaterialX surface"
+            self.warnings.append(f"{key}: material '{kind}' is not UsdPreviewSurface; "
+                                 "its meshes use displayColor or the default reflectance")
         self._mat_cache[key] = result
         return result
 
@@ -263,7 +271,10 @@ class _MaterialResolver:
     @staticmethod
     def _surface_shader(material: UsdShade.Material) -> UsdShade.Shader | None:
         try:
+            # The universal output first, then MaterialX's (a MaterialX UsdPreviewSurface node).
             src = material.ComputeSurfaceSource()
+            if not (src[0] if isinstance(src, (tuple, list)) else src):
+                src = material.ComputeSurfaceSource("mtlx")
         except Exception:  # pragma: no cover
             return None
         shader = src[0] if isinstance(src, (tuple, list)) else src
