@@ -63,6 +63,16 @@ def test_result_type(cornell):
     assert r.corners.shape == (n, 4, 3)
 
 
+def test_report_carries_the_residual_per_iteration(cornell):
+    solver = cornell["result"].report["solver"]
+    history = solver["residual_history"]
+    assert 1 < len(history) <= 200
+    assert history[-1] == [solver["iterations"], solver["residual"]]
+    assert history[0][0] == 1 and history[0][1] > solver["tolerance"]
+    assert solver["residual"] <= solver["tolerance"]
+    assert [i for i, _ in history] == sorted({i for i, _ in history})
+
+
 # ---------------------------------------------------------------------------------------------
 # bad input through the API: exceptions, and nothing left behind
 # ---------------------------------------------------------------------------------------------

@@ -354,6 +354,9 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
             "tolerance": cfg.solver.tolerance,
             "converged": solved["converged"],
             "rows_computed": solved["rows_computed"],
+            # The relative residual per iteration, thinned to at most 200 (iteration, residual)
+            # pairs so long shooting runs stay readable; the last iteration is always kept.
+            "residual_history": _thin(solved["residual_history"], 200),
         },
         "energy_balance": balance,
         "outputs": outputs,
@@ -363,6 +366,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
         _write_json(staging / "report.json", report)
     result.report = report
     return result
+
+
+def _thin(history: list, most: int) -> list:
+    n = len(history)
+    keep = sorted(set(np.linspace(0, n - 1, min(n, most)).round().astype(int).tolist())) if n else []
+    return [[i + 1, history[i]] for i in keep]
 
 
 def _energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray) -> dict:
