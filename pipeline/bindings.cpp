@@ -307,7 +307,6 @@ public:
                 else throw std::invalid_argument("unknown solver '" + method + "'");
             }, tick);
         }
-        solution_ = sol.radiosity;
         nb::dict d;
         d["radiosity"] = rgb_array(sol.radiosity);
         d["iterations"] = sol.iterations;
@@ -480,7 +479,6 @@ private:
     std::unique_ptr<Visibility> visibility_;
     std::unique_ptr<LinkMatrix> links_;
     DisplayMesh display_;
-    std::vector<RGB> solution_;
 };
 
 // A stored solution as a queryable surface: what `hirad render` and `hirad probe` use.

@@ -298,10 +298,11 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
                     patches=patches)
 
     outputs: dict[str, object] = {}
-    meshes = _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
+    meshes, mesh_patches = _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
     if cfg.outputs.lightmaps.enabled:
         with rep.stage("lightmaps"):
-            outputs["lightmaps"] = _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, staging)
+            outputs["lightmaps"] = _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes,
+                                                    mesh_patches, staging)
     if cfg.outputs.usd:
         with rep.stage("write USD"):
             path = staging / "solution.usda"
@@ -386,10 +387,11 @@ def _energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.nda
             "relative_error": error.tolist(), "max_relative_error": float(error.max())}
 
 
-def _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h) -> list:
-    """One PatchMeshData per input mesh, with that mesh's display points re-indexed."""
+def _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h):
+    """One PatchMeshData per input mesh, with that mesh's display points re-indexed, and the
+    patch indices of each."""
     corners, nv = display["corners"], patches["nv"]
-    out = []
+    out, ids_of = [], []
     order = np.argsort(patches["mesh"], kind="stable")
     bounds = np.searchsorted(patches["mesh"][order], np.arange(len(scene.meshes) + 1))
     for m in range(len(scene.meshes)):
@@ -403,19 +405,19 @@ def _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b
             mesh_index=m, points=display["points"][used], face_vertex_counts=counts,
             face_vertex_indices=local.astype(np.int32), vertex_radiance=vertex_radiance[used],
             vertex_irradiance=vertex_irradiance[used], face_radiance=b[ids] / np.pi, face_irradiance=h[ids]))
-        out[-1].patch_ids = ids  # used by the lightmap layout
-    return out
+        ids_of.append(ids)
+    return out, ids_of
 
 
-def _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, staging: Path) -> list[str]:
+def _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_patches,
+                     staging: Path) -> list[str]:
     """One EXR per mesh of incident radiance H/pi: over the mesh's own UVs when it has them,
     else a chart per patch on a grid (texels_per_patch square, one texel of padding)."""
     lm = cfg.outputs.lightmaps
     (staging / "lightmaps").mkdir()
     written = []
     corners_all, nv_all = display["corners"], patches["nv"]
-    for pm in meshes:
-        ids = pm.patch_ids
+    for pm, ids in zip(meshes, mesh_patches):
         info = scene.meshes[pm.mesh_index]
         values = np.ascontiguousarray(vertex_irradiance[corners_all[ids]] / np.pi)
         nv = np.ascontiguousarray(nv_all[ids], dtype=np.int32)
