@@ -43,20 +43,28 @@ def main() -> None:
     p = result.patches
     b = result.patch_radiosity
 
+    # The reference runs on the input faces (it needs no meshing): a random point in every
+    # patch of the bake, repeated points // 64 times, each weighted by its patch's area.
     scene = usd.read_scene(cfg.scene)
     model = _engine.Model(scene.points, scene.face_vertex_counts, scene.face_vertex_indices, scene.face_mesh,
                           scene.face_source, scene.face_reflectance, scene.face_emission, scene.corner_uv)
-    model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
-    # One point per patch at a random (s, t), repeated `points` times, each weighted by its
-    # patch's area: a stratified estimate of every surface's mean.
+    model.mesh(1e9, 1e9)
     rng = np.random.default_rng(1)
     reps = max(1, args.points // 64)
-    ids = np.tile(np.arange(len(b), dtype=np.int32), reps)
-    st = np.ascontiguousarray(rng.random((ids.size, 2)))
+    ids = np.tile(np.arange(len(b)), reps)
+    s, t = rng.random(ids.size), rng.random(ids.size)
+    c = p["corners"][ids]
+    tri = p["nv"][ids] == 3
+    fold = tri & (s + t > 1)
+    s, t = np.where(fold, 1 - s, s), np.where(fold, 1 - t, t)
+    quad_pts = (c[:, 0] * ((1 - s) * (1 - t))[:, None] + c[:, 1] * (s * (1 - t))[:, None]
+                + c[:, 2] * (s * t)[:, None] + c[:, 3] * ((1 - s) * t)[:, None])
+    tri_pts = c[:, 0] + (c[:, 1] - c[:, 0]) * s[:, None] + (c[:, 2] - c[:, 0]) * t[:, None]
+    points = np.ascontiguousarray(np.where(tri[:, None], tri_pts, quad_pts))
     owner = p["mesh"][ids]
     weight = p["area"][ids]
     t0 = time.perf_counter()
-    ref = model.reference(ids, st, args.paths, 3, 7)
+    ref = model.reference_at(points, np.ascontiguousarray(p["normal"][ids]), args.paths, 3, 7, 1e-4)
     ref_s = time.perf_counter() - t0
 
     print(f"bake {bake_s:.1f} s ({len(b)} patches); reference {ref_s:.1f} s "

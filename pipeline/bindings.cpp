@@ -24,11 +24,14 @@
 #include "exr.h"
 #include "formfactors.h"
 #include "hemicube.h"
+#include "hierarchical_solver.h"
+#include "hierarchy.h"
 #include "lightmaps.h"
 #include "links.h"
 #include "patches.h"
 #include "reconstruct.h"
 #include "reference.h"
+#include "refine.h"
 #include "render.h"
 #include "scene.h"
 #include "solvers.h"
@@ -400,6 +403,127 @@ public:
 
     uint64_t rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
 
+    // Hierarchical radiosity with clustering: refine (from the root's self-link), solve with
+    // push-pull, refine again with the new radiosity, until no link splits or max_rounds. The
+    // leaves then replace the patches, so outputs and display work as for the flat method.
+    nb::dict solve_hierarchical(double epsilon, double min_area, int samples, uint64_t seed, double tolerance,
+                                uint64_t max_iterations, int max_rounds, nb::object progress) {
+        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+        if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
+        links_.reset();
+        Hierarchy h(scene_);
+        auto vis = std::make_unique<Visibility>(h.faces);
+        double emitted = 0;
+        for (const Patch& f : h.faces) emitted += luminance(f.emission) * f.area;
+        RefineOptions ropt{epsilon * emitted, min_area, samples, seed};
+        Refiner refiner(h, *vis, ropt);
+        std::atomic<int> round{0};
+        std::atomic<uint64_t> link_count{0};
+        std::atomic<uint64_t> iteration{0};
+        std::atomic<double> residual{1.0};
+        HierarchicalSolution sol;
+        std::vector<Link> links;
+        std::vector<uint64_t> links_per_round, splits_per_round;
+        std::vector<double> refine_seconds, solve_seconds;
+        RefineStats stats;
+        uint64_t total_iterations = 0;
+        std::vector<double> history;
+        bool settled = false;
+        run_reporting([&] {
+            auto now = [] { return std::chrono::steady_clock::now(); };
+            auto t0 = now();
+            links = refiner.initial_links(node_emission(h), stats);
+            refine_seconds.push_back(std::chrono::duration<double>(now() - t0).count());
+            std::vector<RGB> b = node_emission(h);
+            for (int r = 1;; ++r) {
+                round = r;
+                sort_links(links);
+                links_per_round.push_back(links.size());
+                link_count = links.size();
+                SolverOptions so;
+                so.tolerance = tolerance;
+                so.max_iterations = max_iterations;
+                so.on_iteration = [&](const IterationReport& rep) { iteration = rep.iteration; residual = rep.residual; return true; };
+                t0 = now();
+                // Start from the previous round's solution, extended to new nodes by their parents.
+                std::vector<RGB> start = b;
+                for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
+                sol = solve_push_pull(h, links, start, so);
+                solve_seconds.push_back(std::chrono::duration<double>(now() - t0).count());
+                total_iterations += sol.iterations;
+                history.insert(history.end(), sol.residual_history.begin(), sol.residual_history.end());
+                b = sol.radiosity;
+                if (r >= max_rounds) break;
+                t0 = now();
+                const uint64_t before = stats.split;
+                std::vector<Link> refined = refiner.refine(links, b, stats);
+                refine_seconds.push_back(std::chrono::duration<double>(now() - t0).count());
+                splits_per_round.push_back(stats.split - before);
+                if (stats.split == before) { settled = true; break; }
+                links.swap(refined);
+            }
+        }, [&] {
+            if (!progress.is_none()) progress(round.load(), link_count.load(), iteration.load(), residual.load());
+        });
+
+        // Leaves become the patches of the model.
+        std::vector<uint32_t> leaves = h.leaves();
+        std::vector<Patch> leaf_patches;
+        leaf_patches.reserve(leaves.size());
+        std::vector<RGB> b(leaves.size()), irr(leaves.size()), escaped(leaves.size());
+        for (size_t k = 0; k < leaves.size(); ++k) {
+            const Node& node = h.nodes[leaves[k]];
+            leaf_patches.push_back(node.shape);
+            b[k] = sol.radiosity[leaves[k]];
+            irr[k] = sol.irradiance[leaves[k]];
+            escaped[k] = b[k] * (node.area * std::max(0.0, 1.0 - sol.outgoing[leaves[k]]));
+        }
+        patches_ = weld_patches(std::move(leaf_patches));
+        visibility_ = std::make_unique<Visibility>(patches_.patches);
+        uint64_t clusters = 0;
+        for (const Node& node : h.nodes) clusters += node.cluster;
+        nb::dict d;
+        d["radiosity"] = rgb_array(b);
+        d["irradiance"] = rgb_array(irr);
+        d["escaped"] = rgb_array(escaped);
+        d["iterations"] = total_iterations;
+        d["residual"] = sol.residual;
+        d["converged"] = sol.converged;
+        d["residual_history"] = history;
+        d["rounds"] = round.load();
+        d["settled"] = settled;
+        d["links"] = links.size();
+        d["links_per_round"] = links_per_round;
+        d["splits_per_round"] = splits_per_round;
+        d["refine_seconds"] = refine_seconds;
+        d["solve_seconds"] = solve_seconds;
+        d["link_estimates"] = stats.evaluated;
+        d["elements"] = leaves.size();
+        d["nodes"] = h.nodes.size();
+        d["clusters"] = clusters;
+        d["rays"] = vis->rays_cast();
+        d["epsilon_watts"] = ropt.epsilon;
+        // The hierarchy and its links as plain arrays (for tests, inspection and the link store).
+        std::vector<int32_t> lr(links.size()), ls(links.size()), parent(h.nodes.size()), leaf_node(leaves.size());
+        std::vector<double> lg(links.size()), node_area(h.nodes.size());
+        std::vector<uint8_t> node_cluster(h.nodes.size());
+        for (size_t k = 0; k < links.size(); ++k) { lr[k] = links[k].receiver; ls[k] = links[k].source; lg[k] = links[k].coupling; }
+        for (size_t i = 0; i < h.nodes.size(); ++i) {
+            parent[i] = h.nodes[i].parent == kNoNode ? -1 : static_cast<int32_t>(h.nodes[i].parent);
+            node_area[i] = h.nodes[i].area;
+            node_cluster[i] = h.nodes[i].cluster;
+        }
+        for (size_t k = 0; k < leaves.size(); ++k) leaf_node[k] = static_cast<int32_t>(leaves[k]);
+        d["link_receiver"] = to_numpy(std::move(lr), {links.size()});
+        d["link_source"] = to_numpy(std::move(ls), {links.size()});
+        d["link_coupling"] = to_numpy(std::move(lg), {links.size()});
+        d["node_parent"] = to_numpy(std::move(parent), {h.nodes.size()});
+        d["node_area"] = to_numpy(std::move(node_area), {h.nodes.size()});
+        d["node_cluster"] = to_numpy(std::move(node_cluster), {h.nodes.size()});
+        d["leaf_node"] = to_numpy(std::move(leaf_node), {leaves.size()});
+        return d;
+    }
+
     // Monte Carlo reference: exitant radiance at (s, t) on the given patches, with its
     // standard error; independent of links and of the solution.
     nb::dict reference(In<int32_t> patch, In<double> st, int paths, int min_bounces, uint64_t seed) const {
@@ -423,6 +547,36 @@ public:
         d["radiance"] = rgb_array(l);
         d["standard_error"] = rgb_array(e);
         return d;
+    }
+
+    // The reference at arbitrary surface points: each point goes to the closest patch facing
+    // along its normal (any, when the normal is zero) within max_distance.
+    nb::dict reference_at(In<double> points, In<double> normals, int paths, int min_bounces, uint64_t seed,
+                          double max_distance) const {
+        require_mesh();
+        const size_t n = points.shape(0);
+        if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(0) != n)
+            throw std::invalid_argument("points and normals: shape (n, 3)");
+        std::vector<int32_t> ids(n);
+        std::vector<double> st(2 * n);
+        for (size_t q = 0; q < n; ++q) {
+            const double* p = points.data() + 3 * q;
+            const double* m = normals.data() + 3 * q;
+            RayHit hit = visibility_->closest_point({p[0], p[1], p[2]}, {m[0], m[1], m[2]}, max_distance);
+            if (hit.patch < 0)
+                throw std::invalid_argument("point " + std::to_string(q) + ": no surface within " +
+                                            std::to_string(max_distance) + " m");
+            ids[q] = hit.patch;
+            // Embree's (u, v) is the patch's own (s, t): barycentric on triangles, bilinear on
+            // parallelograms.
+            st[2 * q] = hit.u;
+            st[2 * q + 1] = hit.v;
+        }
+        size_t shape_ids[1] = {n};
+        size_t shape_st[2] = {n, 2};
+        In<int32_t> ids_view(ids.data(), 1, shape_ids, nb::handle());
+        In<double> st_view(st.data(), 2, shape_st, nb::handle());
+        return reference(ids_view, st_view, paths, min_bounces, seed);
     }
 
 private:
@@ -624,6 +778,10 @@ NB_MODULE(_engine, m) {
         .def("form_factor", &Model::form_factor, "i"_a, "j"_a, "samples"_a, "seed"_a)
         .def("hemicube_row", &Model::hemicube_row, "i"_a, "resolution"_a, "points"_a)
         .def("rays_cast", &Model::rays_cast)
+        .def("solve_hierarchical", &Model::solve_hierarchical, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
+             "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a.none())
+        .def("reference_at", &Model::reference_at, "points"_a, "normals"_a, "paths"_a, "min_bounces"_a, "seed"_a,
+             "max_distance"_a)
         .def("reference", &Model::reference, "patch"_a, "st"_a, "paths"_a, "min_bounces"_a, "seed"_a);
 
     nb::class_<SurfaceField>(m, "SurfaceField")

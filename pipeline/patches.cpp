@@ -169,4 +169,15 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
     return out;
 }
 
+PatchSet weld_patches(std::vector<Patch> patches) {
+    PatchSet out;
+    Welder welder{{}, out};
+    for (Patch& p : patches) {
+        for (int k = 0; k < p.nv; ++k) p.vertex[k] = welder.vertex(p.mesh, p.p[k]);
+        if (p.nv == 3) p.vertex[3] = p.vertex[2];
+    }
+    out.patches = std::move(patches);
+    return out;
+}
+
 }  // namespace hirad

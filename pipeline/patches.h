@@ -48,4 +48,8 @@ inline RGB interpolate_corners(int nv, const std::array<RGB, 4>& c, double u, do
 
 PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options);
 
+// A patch set over given patches (the leaves of a hierarchy), their corners welded per mesh
+// where the points are bit-identical.
+PatchSet weld_patches(std::vector<Patch> patches);
+
 }  // namespace hirad

@@ -242,51 +242,19 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
         rep.warn(f"{cfg.scene}: nothing emits light (no emissiveColor, MeshLightAPI or UsdLux area "
                  "light): every radiosity will be zero")
 
-    with rep.stage("mesh patches"):
-        model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
-        patches = model.patch_arrays()
+    if cfg.method == "hierarchical":
+        solved, patches = _solve_hierarchical(cfg, model, rep)
+        b, h, escaped = solved["radiosity"], solved["irradiance"], solved["escaped"]
+    else:
+        solved, patches, b, h, escaped = _solve_flat(cfg, model, scene, staging, rep)
     n = model.num_patches
-
     method = cfg.solver.method
     ff = cfg.formfactors
-    if method != "progressive":
-        with rep.stage("form factors", total=n) as update:
-            model.compute_links(ff.method, ff.samples, ff.hemicube_resolution, ff.hemicube_points, cfg.seed,
-                                lambda done: update(done, f"{done}/{n} patches"))
-
-    snapshot_dir = staging / "snapshots"
-    snapshot_cb = None
-    if method == "progressive" and cfg.solver.snapshots > 0:
-        snapshot_dir.mkdir()
-        snap_corners = model.display_mesh(cfg.reconstruction.crease_angle)["corners"]
-
-        def snapshot_cb(shot: int, display: np.ndarray) -> None:
-            # The image displayed at each iteration: B + rho * ambient, as Cohen et al. show it.
-            radiance = (model.vertex_values(display) / np.pi)[snap_corners]
-            sol = SurfaceSolution(patches["corners"], patches["nv"], radiance, radiance,
-                                  cameras=scene.cameras, up_axis=scene.up_axis)
-            img = sol.render(cfg.outputs.preview.camera, 256, 256, 1)
-            images.write_png(snapshot_dir / f"shot_{shot:08d}.png", img)
-
-    with rep.stage("solve", total=1.0) as update:
-        def on_progress(iteration: int, residual: float) -> None:
-            if residual <= 0:
-                done = 1.0
-            else:
-                done = 0.0 if residual >= 1 else min(1.0, np.log(residual) / np.log(cfg.solver.tolerance))
-            update(done, f"iteration {iteration}, residual {residual:.2e}")
-
-        solved = model.solve(method, cfg.solver.tolerance, cfg.solver.max_iterations, ff.samples, cfg.seed,
-                             cfg.solver.snapshots, snapshot_cb, on_progress)
+    snapshot_cb = solved.pop("snapshots_written", None)
     if not solved["converged"]:
         rep.warn(f"solver stopped after {solved['iterations']} iterations at residual "
                  f"{solved['residual']:.3e}, above the tolerance {cfg.solver.tolerance:g}")
-    b = solved["radiosity"]
-
-    with rep.stage("irradiance"):
-        transport = model.transport(b, ff.samples, cfg.seed)
-    h = transport["irradiance"]
-    balance = _energy_balance(patches, b, h, transport["escaped"])
+    balance = _energy_balance(patches, b, h, escaped)
 
     with rep.stage("reconstruct"):
         display = model.display_mesh(cfg.reconstruction.crease_angle)
@@ -327,6 +295,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
     stats = model.stats()
     report = {
         "hirad_version": __version__,
+        "method": cfg.method,
         "config": str(source) if source is not None else None,
         "config_fingerprint": cfg.fingerprint(),
         "scene": str(cfg.scene),
@@ -341,24 +310,29 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
             "emitter_meshes": sum(1 for m in scene.meshes if m.is_light) + len({
                 int(scene.face_mesh[f]) for f in np.nonzero(scene.face_emission.max(axis=1) > 0)[0]
                 if not scene.meshes[int(scene.face_mesh[f])].is_light}),
-            "links": stats["links"],
+            "links": solved.get("links", stats["links"]),
             "link_bytes": stats["link_bytes"],
-            "rays": stats["rays"],
+            "rays": stats["rays"] + solved.get("rays", 0),
             "skipped": {k: stats[k] for k in ("degenerate_faces", "nonfinite_faces")},
             "nonmanifold_edges": stats["nonmanifold_edges"],
         },
         "solver": {
             "method": method,
-            "form_factors": ff.method if method != "progressive" else "raycast, on the fly",
+            "form_factors": ("hierarchical links" if cfg.method == "hierarchical"
+                             else ff.method if method != "progressive" else "raycast, on the fly"),
             "iterations": solved["iterations"],
             "residual": solved["residual"],
             "tolerance": cfg.solver.tolerance,
             "converged": solved["converged"],
-            "rows_computed": solved["rows_computed"],
+            "rows_computed": solved.get("rows_computed", 0),
             # The relative residual per iteration, thinned to at most 200 (iteration, residual)
             # pairs so long shooting runs stay readable; the last iteration is always kept.
             "residual_history": _thin(solved["residual_history"], 200),
         },
+        "hierarchy": None if cfg.method != "hierarchical" else {
+            k: solved[k] for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
+                                   "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
+                                   "epsilon_watts")},
         "energy_balance": balance,
         "outputs": outputs,
         "warnings": rep.warnings,
@@ -373,6 +347,72 @@ def _thin(history: list, most: int) -> list:
     n = len(history)
     keep = sorted(set(np.linspace(0, n - 1, min(n, most)).round().astype(int).tolist())) if n else []
     return [[i + 1, history[i]] for i in keep]
+
+
+def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
+    """The classic method: patches from `meshing`, links between every pair that can exchange
+    light, the configured solver, then irradiance and escaped power per patch."""
+    with rep.stage("mesh patches"):
+        model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
+        patches = model.patch_arrays()
+    n = model.num_patches
+    method = cfg.solver.method
+    ff = cfg.formfactors
+    if method != "progressive":
+        with rep.stage("form factors", total=n) as update:
+            model.compute_links(ff.method, ff.samples, ff.hemicube_resolution, ff.hemicube_points, cfg.seed,
+                                lambda done: update(done, f"{done}/{n} patches"))
+
+    snapshot_cb = None
+    if method == "progressive" and cfg.solver.snapshots > 0:
+        snapshot_dir = staging / "snapshots"
+        snapshot_dir.mkdir()
+        snap_corners = model.display_mesh(cfg.reconstruction.crease_angle)["corners"]
+
+        def snapshot_cb(shot: int, display: np.ndarray) -> None:
+            # The image displayed at each iteration: B + rho * ambient, as Cohen et al. show it.
+            radiance = (model.vertex_values(display) / np.pi)[snap_corners]
+            sol = SurfaceSolution(patches["corners"], patches["nv"], radiance, radiance,
+                                  cameras=scene.cameras, up_axis=scene.up_axis)
+            img = sol.render(cfg.outputs.preview.camera, 256, 256, 1)
+            images.write_png(snapshot_dir / f"shot_{shot:08d}.png", img)
+
+    with rep.stage("solve", total=1.0) as update:
+        solved = model.solve(method, cfg.solver.tolerance, cfg.solver.max_iterations, ff.samples, cfg.seed,
+                             cfg.solver.snapshots, snapshot_cb, _solve_progress(cfg, update))
+    b = solved["radiosity"]
+    with rep.stage("irradiance"):
+        transport = model.transport(b, ff.samples, cfg.seed)
+    solved["snapshots_written"] = snapshot_cb
+    return solved, patches, b, transport["irradiance"], transport["escaped"]
+
+
+def _solve_hierarchical(cfg: Config, model, rep: Reporter):
+    """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
+    the leaf elements become the model's patches."""
+    hc = cfg.hierarchy
+    with rep.stage("hierarchical solve", total=1.0) as update:
+        def on_progress(round_: int, links: int, iteration: int, residual: float) -> None:
+            _solve_progress(cfg, update)(iteration, residual)
+            update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
+
+        solved = model.solve_hierarchical(hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance,
+                                          cfg.solver.max_iterations, hc.max_rounds, on_progress)
+    if not solved["settled"] and solved["rounds"] >= hc.max_rounds:
+        rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
+    return solved, model.patch_arrays()
+
+
+def _solve_progress(cfg: Config, update):
+    """Progress of an iterative solve as the fraction of the way, in log residual, to the
+    tolerance."""
+    def on_progress(iteration: int, residual: float) -> None:
+        if residual <= 0:
+            done = 1.0
+        else:
+            done = 0.0 if residual >= 1 else min(1.0, np.log(residual) / np.log(cfg.solver.tolerance))
+        update(done, f"iteration {iteration}, residual {residual:.2e}")
+    return on_progress
 
 
 def _energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray) -> dict:

@@ -194,6 +194,34 @@ class FormFactorConfig(BaseModel):
         return value
 
 
+class HierarchyConfig(BaseModel):
+    """Hierarchical radiosity with clustering (used when method is 'hierarchical')."""
+
+    model_config = _MODEL_CONFIG
+
+    epsilon: StrictFloat = Field(
+        default=1e-4,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "Refinement threshold: a link is split while the power it carries exceeds this"
+            " fraction of the scene's emitted power (0 refines every link to min_area)."
+        ),
+    )
+    min_area: StrictFloat = Field(
+        default=1e-3, gt=0.0, description="Smallest element area, in m^2; elements are not split below it."
+    )
+    samples: StrictInt = Field(
+        default=16, ge=1, le=4096, description="Point pairs per link estimate (rounded to a square)."
+    )
+    max_rounds: StrictInt = Field(
+        default=6,
+        ge=1,
+        le=100,
+        description="Most refine-solve rounds; rounds stop earlier once no link wants to split.",
+    )
+
+
 class SolverConfig(BaseModel):
     """How the radiosity system (I - R F) B = E is solved."""
 
@@ -355,6 +383,16 @@ class Config(BaseModel):
     formfactors: FormFactorConfig = Field(
         default_factory=FormFactorConfig, description="Form factor computation."
     )
+    method: Literal["flat", "hierarchical"] = Field(
+        default="flat",
+        description=(
+            "'flat': patches from `meshing`, every pair linked (the classic method, the"
+            " reference); 'hierarchical': adaptive elements and cluster links from `hierarchy`."
+        ),
+    )
+    hierarchy: HierarchyConfig = Field(
+        default_factory=HierarchyConfig, description="Hierarchical radiosity settings."
+    )
     solver: SolverConfig = Field(default_factory=SolverConfig, description="Radiosity solver.")
     reconstruction: ReconstructionConfig = Field(
         default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
@@ -370,6 +408,16 @@ class Config(BaseModel):
         if not path.is_file():
             raise ValueError(f"scene is not a file: {path}")
         return path
+
+    @field_validator("solver", mode="after")
+    @classmethod
+    def _hierarchical_solver(cls, value: SolverConfig, info: ValidationInfo) -> SolverConfig:
+        # On the hierarchy hirad solves by gathering with push-pull (Jacobi's method).
+        if info.data.get("method") == "hierarchical" and value.method != "jacobi":
+            raise ValueError(
+                f"method: hierarchical solves with solver.method: jacobi (push-pull), not {value.method!r}"
+            )
+        return value
 
     @field_validator("output", mode="before")
     @classmethod

@@ -1,0 +1,193 @@
+#include "refine.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "formfactors.h"
+
+namespace hirad {
+
+Refiner::Refiner(Hierarchy& hierarchy, const Visibility& visibility, const RefineOptions& options)
+    : h_(hierarchy), vis_(visibility), opt_(options) {}
+
+bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
+    // Clusters that are close compared with their size cannot be summarised by a few point
+    // pairs (the kernel varies too much across them): such links are always split.
+    const Node& na = h_.nodes[a];
+    const Node& nb = h_.nodes[b];
+    if (!na.cluster && !nb.cluster) return false;
+    double gap2 = 0;
+    for (int k = 0; k < 3; ++k) {
+        double d = std::max({0.0, na.lo[k] - nb.hi[k], nb.lo[k] - na.hi[k]});
+        gap2 += d * d;
+    }
+    const double size = std::max(na.cluster ? na.diagonal() : 0.0, nb.cluster ? nb.diagonal() : 0.0);
+    return std::sqrt(gap2) < 0.5 * size;
+}
+
+Link Refiner::estimate(uint32_t r, uint32_t s) const {
+    Link link;
+    link.receiver = r;
+    link.source = s;
+    const Node& nr = h_.nodes[r];
+    const Node& ns = h_.nodes[s];
+    const int g = std::max(1, static_cast<int>(std::lround(std::sqrt(double(opt_.samples)))));
+    const int n = g * g;
+    const double lift = 1e-5 * vis_.scene_size();
+    Rng rng(hash_pair(std::min(r, s), std::max(r, s), opt_.seed ^ 0x11E7ull));
+    std::vector<Vec3> from, to;
+    std::vector<double> weight;
+    from.reserve(n);
+    to.reserve(n);
+    weight.reserve(n);
+    double unoccluded = 0;
+    // With an element at one end, points on the other end see it through the exact
+    // point-to-polygon form factor (A_x F(dA_x -> polygon)); with clusters at both ends the
+    // point-to-point kernel between stratified points is used.
+    const bool polygon_source = !ns.cluster;
+    const bool polygon_receiver = !polygon_source && !nr.cluster;
+    const uint32_t sampled = polygon_source ? r : (polygon_receiver ? s : r);
+    const Node& target = polygon_source ? ns : nr;
+    const double area = h_.nodes[sampled].area;
+    for (int k = 0; k < n; ++k) {
+        const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
+        Vec3 x, nx;
+        h_.sample(sampled, rng.uniform(), s0, t0, x, nx);
+        const double s1 = rng.uniform(), t1 = rng.uniform();
+        if (polygon_source || polygon_receiver) {
+            double f = point_polygon_form_factor(x, nx, target.shape.p.data(), target.shape.nv, target.shape.normal);
+            if (f <= 0) continue;
+            double w = f * area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            to.push_back(target.shape.point(s1, t1) + target.shape.normal * lift);
+            weight.push_back(w);
+        } else {
+            Vec3 y, ny;
+            h_.sample(s, rng.uniform(), s1, t1, y, ny);
+            Vec3 d = y - x;
+            double r2 = dot(d, d);
+            if (r2 <= 0) continue;
+            double cx = dot(nx, d), cy = -dot(ny, d);
+            if (cx <= 0 || cy <= 0) continue;
+            double w = cx * cy / (kPi * r2 * r2) * nr.area * ns.area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            to.push_back(y + ny * lift);
+            weight.push_back(w);
+        }
+    }
+    std::vector<uint8_t> visible(from.size());
+    vis_.segments_visible(from.data(), to.data(), from.size(), visible.data());
+    double g_sum = 0;
+    size_t arrived = 0;
+    for (size_t k = 0; k < from.size(); ++k)
+        if (visible[k]) { g_sum += weight[k]; ++arrived; }
+    link.coupling = static_cast<float>(g_sum);
+    link.unoccluded = static_cast<float>(unoccluded);
+    link.visibility = from.empty() ? 0.0f : static_cast<float>(double(arrived) / from.size());
+    return link;
+}
+
+Refiner::Action Refiner::decide(const Link& link, const std::vector<RGB>& radiosity) const {
+    if (link.receiver == link.source) return h_.nodes[link.receiver].cluster ? Action::SplitSelf : Action::Drop;
+    const bool receiver_splits = h_.can_subdivide(link.receiver, opt_.min_area);
+    const bool source_splits = h_.can_subdivide(link.source, opt_.min_area);
+    auto split_larger = [&] {
+        const double ar = h_.nodes[link.receiver].area, as = h_.nodes[link.source].area;
+        if (receiver_splits && (!source_splits || ar >= as)) return Action::SplitReceiver;
+        return Action::SplitSource;
+    };
+    // Receivers are always elements: irradiance gathered at a cluster would have to be shared
+    // out among surfaces that face every which way, which no single number can do. Sources may
+    // stay clusters: the estimate sees each source surface with its own normal.
+    if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
+    if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
+    if (link.unoccluded <= 0) return Action::Drop;
+    // Power the link carries (luminance of B_S times G). Unless every sample ray arrived, the
+    // estimate is uncertain up to the unoccluded transfer, so partly visible links refine
+    // towards the shadow boundary, and a link none of whose rays arrived is only dropped when
+    // even its unoccluded transfer is negligible.
+    const double b = std::max(0.0, luminance(radiosity[link.source]));
+    const double error = b * (link.visibility < 1 ? link.unoccluded : link.coupling);
+    if (error <= opt_.epsilon || (!receiver_splits && !source_splits))
+        return link.coupling > 0 ? Action::Keep : Action::Drop;
+    return split_larger();
+}
+
+std::vector<Link> Refiner::initial_links(const std::vector<RGB>& radiosity, RefineStats& stats) {
+    if (h_.nodes.empty()) return {};
+    Link self;
+    self.receiver = self.source = h_.root;
+    return run({self}, {1}, radiosity, stats);
+}
+
+std::vector<Link> Refiner::refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats) {
+    return run(links, std::vector<uint8_t>(links.size(), 1), radiosity, stats);
+}
+
+std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> evaluated,
+                               const std::vector<RGB>& radiosity_in, RefineStats& stats) {
+    std::vector<Link> kept;
+    std::vector<RGB> radiosity = radiosity_in;
+    while (!frontier.empty()) {
+        // 1. Estimate the links that are new, in parallel.
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
+            if (evaluated[k] || frontier[k].receiver == frontier[k].source) return;
+            if (h_.nodes[frontier[k].receiver].cluster || must_split_clusters(frontier[k].receiver, frontier[k].source))
+                return;
+            frontier[k] = estimate(frontier[k].receiver, frontier[k].source);
+        });
+        for (size_t k = 0; k < frontier.size(); ++k)
+            if (!evaluated[k] && frontier[k].receiver != frontier[k].source && !h_.nodes[frontier[k].receiver].cluster)
+                ++stats.evaluated;
+        // 2. Decide, in parallel; 3. grow the nodes that split and queue the children's links,
+        // in frontier order so the result does not depend on threads.
+        std::vector<Action> action(frontier.size());
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) { action[k] = decide(frontier[k], radiosity); });
+        std::vector<Link> next;
+        for (size_t k = 0; k < frontier.size(); ++k) {
+            const Link& l = frontier[k];
+            switch (action[k]) {
+                case Action::Keep: kept.push_back(l); break;
+                case Action::Drop: break;
+                case Action::SplitSelf: {
+                    const Node node = h_.nodes[l.receiver];
+                    for (uint32_t a = 0; a < node.child_count; ++a)
+                        for (uint32_t b = 0; b < node.child_count; ++b) {
+                            Link c;
+                            c.receiver = node.first_child + a;
+                            c.source = node.first_child + b;
+                            next.push_back(c);
+                        }
+                    ++stats.split;
+                    break;
+                }
+                case Action::SplitReceiver:
+                case Action::SplitSource: {
+                    const uint32_t end = action[k] == Action::SplitReceiver ? l.receiver : l.source;
+                    h_.subdivide(end);
+                    const Node node = h_.nodes[end];
+                    for (uint32_t c = 0; c < node.child_count; ++c) {
+                        Link child;
+                        child.receiver = action[k] == Action::SplitReceiver ? node.first_child + c : l.receiver;
+                        child.source = action[k] == Action::SplitSource ? node.first_child + c : l.source;
+                        next.push_back(child);
+                    }
+                    ++stats.split;
+                    break;
+                }
+            }
+        }
+        // New nodes inherit their parent's radiosity for the oracle.
+        for (size_t i = radiosity.size(); i < h_.nodes.size(); ++i) radiosity.push_back(radiosity[h_.nodes[i].parent]);
+        frontier.swap(next);
+        evaluated.assign(frontier.size(), 0);
+    }
+    stats.rays = vis_.rays_cast();
+    return kept;
+}
+
+}  // namespace hirad

@@ -1,0 +1,71 @@
+// Links of hierarchical radiosity and the refinement that creates them.
+//
+// A link carries light from a source node to a receiver node: H_receiver += G / A_receiver *
+// B_source, where G = integral over both node surfaces of cos cos V / (pi r^2) is estimated
+// with the surfaces' own normals (so a cluster is treated as the surfaces it holds, not as a
+// flat patch). Links are plain data: no pointers, ready to be written to disk in chunks.
+//
+// Receivers are always elements (a cluster cannot share gathered irradiance fairly among
+// surfaces facing different ways); sources may be clusters. Refinement is brightness weighted: a link whose transported power B_S * G exceeds epsilon
+// is replaced by links to the children of its larger end. For a partly occluded link the
+// unoccluded transfer is used, so links refine towards shadow boundaries. It starts from the
+// root's self-link and runs level by level, the estimates of each level in parallel.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "hierarchy.h"
+#include "visibility.h"
+
+namespace hirad {
+
+struct Link {
+    uint32_t receiver = 0;
+    uint32_t source = 0;
+    float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver
+    float unoccluded = 0;     // G without visibility
+    float visibility = 0;     // fraction of the sample rays that arrived
+    float error = 0;          // the oracle's value when the link was last checked, W
+};
+
+struct RefineOptions {
+    double epsilon = 1e-3;     // W: the largest power a link may carry before it is split
+    double min_area = 1e-4;    // m^2: elements are not split below this
+    int samples = 16;          // point pairs per link estimate
+    uint64_t seed = 1;
+};
+
+struct RefineStats {
+    uint64_t evaluated = 0;    // link estimates computed
+    uint64_t split = 0;        // links replaced by their children's links
+    uint64_t rays = 0;
+};
+
+class Refiner {
+public:
+    Refiner(Hierarchy& hierarchy, const Visibility& visibility, const RefineOptions& options);
+
+    // Links from scratch, starting at the root's self-link, judged with node radiosity
+    // `radiosity` (per node; emission alone on the first round).
+    std::vector<Link> initial_links(const std::vector<RGB>& radiosity, RefineStats& stats);
+
+    // Checks every link against the current radiosity; splits those that carry too much.
+    // Returns the new link set; `stats.split` counts the links that were split.
+    std::vector<Link> refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats);
+
+    // The estimate for one pair (exposed for tests).
+    Link estimate(uint32_t receiver, uint32_t source) const;
+
+private:
+    enum class Action : uint8_t { Keep, Drop, SplitReceiver, SplitSource, SplitSelf };
+    Action decide(const Link& link, const std::vector<RGB>& radiosity) const;
+    bool must_split_clusters(uint32_t a, uint32_t b) const;
+    std::vector<Link> run(std::vector<Link> frontier, std::vector<uint8_t> evaluated, const std::vector<RGB>& radiosity,
+                          RefineStats& stats);
+
+    Hierarchy& h_;
+    const Visibility& vis_;
+    RefineOptions opt_;
+};
+
+}  // namespace hirad
