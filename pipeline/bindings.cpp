@@ -371,11 +371,28 @@ public:
         }
         for (size_t i = 0; i < n; ++i)
             for (int k = 0; k < 4; ++k) corners[4 * i + k] = static_cast<int32_t>(display_.corners[i][k]);
+        const size_t nf = display_.faces.size();
+        std::vector<int32_t> faces(nf * 4), face_patch(nf);
+        std::vector<uint8_t> face_nv(display_.face_nv), codes(nf * 4);
+        for (size_t f = 0; f < nf; ++f) {
+            for (int k = 0; k < 4; ++k) {
+                faces[4 * f + k] = static_cast<int32_t>(display_.faces[f][k]);
+                codes[4 * f + k] = display_.face_code[f][k];
+            }
+            face_patch[f] = static_cast<int32_t>(display_.face_patch[f]);
+        }
+        std::vector<uint8_t> anchored(np);
+        for (size_t v = 0; v < np; ++v) anchored[v] = !display_.anchors[v].empty();
         nb::dict d;
         d["points"] = to_numpy(std::move(pts), {np, 3});
         d["point_mesh"] = to_numpy(std::move(pm), {np});
         d["corners"] = to_numpy(std::move(corners), {n, 4});
         d["boundary"] = to_numpy(std::move(boundary), {np});
+        d["faces"] = to_numpy(std::move(faces), {nf, 4});
+        d["face_nv"] = to_numpy(std::move(face_nv), {nf});
+        d["face_patch"] = to_numpy(std::move(face_patch), {nf});
+        d["face_code"] = to_numpy(std::move(codes), {nf, 4});
+        d["anchored"] = to_numpy(std::move(anchored), {np});
         return d;
     }
 
@@ -466,6 +483,14 @@ public:
             if (!progress.is_none()) progress(round.load(), link_count.load(), iteration.load(), residual.load());
         });
 
+        // Balance 2:1 for a display without cracks; new leaves carry their parent's values.
+        const uint64_t balanced = h.balance();
+        for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
+            const uint32_t parent = h.nodes[i].parent;
+            sol.radiosity.push_back(sol.radiosity[parent]);
+            sol.irradiance.push_back(sol.irradiance[parent]);
+            sol.outgoing.push_back(sol.outgoing[parent]);
+        }
         // Leaves become the patches of the model.
         std::vector<uint32_t> leaves = h.leaves();
         std::vector<Patch> leaf_patches;
@@ -503,6 +528,7 @@ public:
         d["clusters"] = clusters;
         d["rays"] = vis->rays_cast();
         d["epsilon_watts"] = ropt.epsilon;
+        d["balance_splits"] = balanced;
         // The hierarchy and its links as plain arrays (for tests, inspection and the link store).
         std::vector<int32_t> lr(links.size()), ls(links.size()), parent(h.nodes.size()), leaf_node(leaves.size());
         std::vector<double> lg(links.size()), node_area(h.nodes.size());

@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <numeric>
+#include <string>
+#include <unordered_set>
 
 namespace hirad {
 
@@ -195,6 +198,45 @@ std::vector<uint32_t> Hierarchy::leaves() const {
         for (int k = node.child_count; k-- > 0;) stack.push_back(node.first_child + k);
     }
     return out;
+}
+
+namespace {
+
+std::string corner_key(uint32_t mesh, const Vec3& p) {
+    std::string key(sizeof(uint32_t) + sizeof(Vec3), '\0');
+    Vec3 q = p + Vec3{0, 0, 0};
+    std::memcpy(&key[0], &mesh, sizeof(uint32_t));
+    std::memcpy(&key[sizeof(uint32_t)], &q, sizeof(Vec3));
+    return key;
+}
+
+}  // namespace
+
+uint64_t Hierarchy::balance() {
+    uint64_t split = 0;
+    for (;;) {
+        const std::vector<uint32_t> leaf = leaves();
+        std::unordered_set<std::string> corners;
+        for (uint32_t i : leaf)
+            for (int k = 0; k < nodes[i].shape.nv; ++k) corners.insert(corner_key(nodes[i].shape.mesh, nodes[i].shape.p[k]));
+        std::vector<uint32_t> marked;
+        for (uint32_t i : leaf) {
+            const Patch& s = nodes[i].shape;
+            for (int k = 0; k < s.nv; ++k) {
+                const Vec3& a = s.p[k];
+                const Vec3& b = s.p[(k + 1) % s.nv];
+                const Vec3 m = mid(a, b);
+                if (!corners.count(corner_key(s.mesh, m))) continue;
+                if (corners.count(corner_key(s.mesh, mid(a, m))) || corners.count(corner_key(s.mesh, mid(m, b)))) {
+                    marked.push_back(i);
+                    break;
+                }
+            }
+        }
+        if (marked.empty()) return split;
+        for (uint32_t i : marked) subdivide(i);
+        split += marked.size();
+    }
 }
 
 }  // namespace hirad

@@ -53,6 +53,11 @@ public:
 
     // Leaf elements in depth-first order.
     std::vector<uint32_t> leaves() const;
+
+    // 2:1 balance for display: splits leaves until no leaf edge has more than one vertex of
+    // finer neighbours on it (at its midpoint). New nodes come after all existing ones; the
+    // number of leaves split is returned.
+    uint64_t balance();
 };
 
 }  // namespace hirad

@@ -260,17 +260,18 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
         display = model.display_mesh(cfg.reconstruction.crease_angle)
         vertex_radiance = model.vertex_values(b) / np.pi
         vertex_irradiance = model.vertex_values(h)
-    corners = display["corners"]
-    result = Result(patches["corners"], patches["nv"], vertex_radiance[corners], vertex_irradiance[corners],
+    faces = display["faces"]
+    result = Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
+                    vertex_radiance[faces], vertex_irradiance[faces],
                     cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
                     patches=patches)
 
     outputs: dict[str, object] = {}
-    meshes, mesh_patches = _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
+    meshes, mesh_faces = _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
     if cfg.outputs.lightmaps.enabled:
         with rep.stage("lightmaps"):
             outputs["lightmaps"] = _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes,
-                                                    mesh_patches, staging)
+                                                    mesh_faces, staging)
     if cfg.outputs.usd:
         with rep.stage("write USD"):
             path = staging / "solution.usda"
@@ -332,7 +333,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
         "hierarchy": None if cfg.method != "hierarchical" else {
             k: solved[k] for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                    "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
-                                   "epsilon_watts")},
+                                   "epsilon_watts", "balance_splits")},
         "energy_balance": balance,
         "outputs": outputs,
         "warnings": rep.warnings,
@@ -428,37 +429,52 @@ def _energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.nda
 
 
 def _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h):
-    """One PatchMeshData per input mesh, with that mesh's display points re-indexed, and the
-    patch indices of each."""
-    corners, nv = display["corners"], patches["nv"]
-    out, ids_of = [], []
-    order = np.argsort(patches["mesh"], kind="stable")
-    bounds = np.searchsorted(patches["mesh"][order], np.arange(len(scene.meshes) + 1))
+    """One PatchMeshData per input mesh from the display faces (patches, or fans of triangles
+    where a patch has T-vertices), its points re-indexed; with each, its display faces."""
+    faces, face_nv, face_patch = display["faces"], display["face_nv"], display["face_patch"]
+    face_mesh = patches["mesh"][face_patch]
+    out, faces_of = [], []
+    order = np.argsort(face_mesh, kind="stable")
+    bounds = np.searchsorted(face_mesh[order], np.arange(len(scene.meshes) + 1))
     for m in range(len(scene.meshes)):
-        ids = order[bounds[m]:bounds[m + 1]]
-        if ids.size == 0:
+        fids = order[bounds[m]:bounds[m + 1]]
+        if fids.size == 0:
             continue
-        counts = nv[ids].astype(np.int32)
-        flat = np.concatenate([corners[i, :nv[i]] for i in ids])
+        counts = face_nv[fids].astype(np.int32)
+        flat = np.concatenate([faces[f, :face_nv[f]] for f in fids])
         used, local = np.unique(flat, return_inverse=True)
+        pids = face_patch[fids]
         out.append(usd.PatchMeshData(
             mesh_index=m, points=display["points"][used], face_vertex_counts=counts,
             face_vertex_indices=local.astype(np.int32), vertex_radiance=vertex_radiance[used],
-            vertex_irradiance=vertex_irradiance[used], face_radiance=b[ids] / np.pi, face_irradiance=h[ids]))
-        ids_of.append(ids)
-    return out, ids_of
+            vertex_irradiance=vertex_irradiance[used], face_radiance=b[pids] / np.pi, face_irradiance=h[pids]))
+        faces_of.append(fids)
+    return out, faces_of
 
 
-def _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_patches,
+def _corner_uv(uv: np.ndarray, nv: int, code: int) -> np.ndarray:
+    """UV of a display face corner from its patch's corner UVs (see DisplayMesh::face_code)."""
+    if code < 4:
+        return uv[code]
+    if code < 8:
+        k = code - 4
+        return 0.5 * (uv[k] + uv[(k + 1) % nv])
+    return uv[:nv].mean(axis=0)
+
+
+def _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
                      staging: Path) -> list[str]:
     """One EXR per mesh of incident radiance H/pi: over the mesh's own UVs when it has them,
-    else a chart per patch on a grid (texels_per_patch square, one texel of padding)."""
+    else a chart per patch on a grid (texels_per_patch square, one texel of padding). Charts
+    are baked per patch from its corner values, which is what anchoring gives the T-vertices
+    on its edges."""
     lm = cfg.outputs.lightmaps
     (staging / "lightmaps").mkdir()
     written = []
     corners_all, nv_all = display["corners"], patches["nv"]
-    for pm, ids in zip(meshes, mesh_patches):
+    for pm, fids in zip(meshes, mesh_faces):
         info = scene.meshes[pm.mesh_index]
+        ids = np.unique(display["face_patch"][fids])
         values = np.ascontiguousarray(vertex_irradiance[corners_all[ids]] / np.pi)
         nv = np.ascontiguousarray(nv_all[ids], dtype=np.int32)
         if info.has_uv:
@@ -472,7 +488,11 @@ def _write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, me
         _engine.write_exr(str(staging / name), np.ascontiguousarray(baked["rgb"], dtype=np.float32),
                           [("hirad:units", "incident radiance W/(m^2 sr)"), ("hirad:mesh", info.path),
                            ("hirad:version", __version__)])
-        pm.lightmap_uv = np.concatenate([uv[k, :nv[k]] for k in range(len(ids))])
+        slot = {int(p): k for k, p in enumerate(ids)}
+        pm.lightmap_uv = np.array([
+            _corner_uv(uv[slot[int(display["face_patch"][f])]], int(nv_all[display["face_patch"][f]]),
+                       int(display["face_code"][f][c]))
+            for f in fids for c in range(display["face_nv"][f])])
         pm.lightmap_path = name
         written.append(name)
     return written
