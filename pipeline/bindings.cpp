@@ -424,7 +424,14 @@ public:
     // push-pull, refine again with the new radiosity, until no link splits or max_rounds. The
     // leaves then replace the patches, so outputs and display work as for the flat method.
     nb::dict solve_hierarchical(double epsilon, double min_area, int samples, uint64_t seed, double tolerance,
-                                uint64_t max_iterations, int max_rounds, nb::object progress) {
+                                uint64_t max_iterations, int max_rounds, nb::object progress, const std::string& solver) {
+        using HSolver = HierarchicalSolution (*)(const Hierarchy&, const std::vector<Link>&, const std::vector<RGB>&,
+                                                 const SolverOptions&);
+        HSolver solve_fn = solver == "jacobi" ? &solve_push_pull
+                           : solver == "gauss_seidel" ? &solve_gauss_seidel_push_pull
+                           : solver == "southwell" ? &solve_southwell_push_pull
+                                                   : nullptr;
+        if (!solve_fn) throw std::invalid_argument("hierarchical solver must be jacobi, gauss_seidel or southwell, not '" + solver + "'");
         if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
         if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
         links_.reset();
@@ -465,7 +472,7 @@ public:
                 // Start from the previous round's solution, extended to new nodes by their parents.
                 std::vector<RGB> start = b;
                 for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
-                sol = solve_push_pull(h, links, start, so);
+                sol = solve_fn(h, links, start, so);
                 solve_seconds.push_back(std::chrono::duration<double>(now() - t0).count());
                 total_iterations += sol.iterations;
                 history.insert(history.end(), sol.residual_history.begin(), sol.residual_history.end());
@@ -805,7 +812,7 @@ NB_MODULE(_engine, m) {
         .def("hemicube_row", &Model::hemicube_row, "i"_a, "resolution"_a, "points"_a)
         .def("rays_cast", &Model::rays_cast)
         .def("solve_hierarchical", &Model::solve_hierarchical, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
-             "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a.none())
+             "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a.none() = nb::none(), "solver"_a = "jacobi")
         .def("reference_at", &Model::reference_at, "points"_a, "normals"_a, "paths"_a, "min_bounces"_a, "seed"_a,
              "max_distance"_a)
         .def("reference", &Model::reference, "patch"_a, "st"_a, "paths"_a, "min_bounces"_a, "seed"_a);

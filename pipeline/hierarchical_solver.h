@@ -37,4 +37,18 @@ std::vector<RGB> node_emission(const Hierarchy& h);
 HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>& links,
                                      const std::vector<RGB>& start, const SolverOptions& options);
 
+// Gauss-Seidel on the hierarchy: face by face, gather the links received anywhere in the
+// face's element tree and push-pull that tree at once, so later faces already see the new
+// radiosity. The residual is measured as for Jacobi (one more gather per sweep).
+HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                                  const std::vector<RGB>& start, const SolverOptions& options);
+
+// Southwell on the hierarchy: shoot the face whose element tree holds the most unshot power
+// through every link whose source is in that tree or is a cluster above it (the cluster's
+// links carry the face's share, A_face / A_cluster), push the received irradiance down the
+// receivers' trees and add it to their unshot radiosity. The residual is the unshot
+// radiosity, sqrt(sum A dB^2) / sqrt(sum A E^2) over the leaves.
+HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                               const std::vector<RGB>& start, const SolverOptions& options);
+
 }  // namespace hirad

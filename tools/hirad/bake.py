@@ -398,7 +398,7 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter):
             update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
 
         solved = model.solve_hierarchical(hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance,
-                                          cfg.solver.max_iterations, hc.max_rounds, on_progress)
+                                          cfg.solver.max_iterations, hc.max_rounds, on_progress, cfg.solver.method)
     if not solved["settled"] and solved["rounds"] >= hc.max_rounds:
         rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
     return solved, model.patch_arrays()

@@ -412,10 +412,11 @@ class Config(BaseModel):
     @field_validator("solver", mode="after")
     @classmethod
     def _hierarchical_solver(cls, value: SolverConfig, info: ValidationInfo) -> SolverConfig:
-        # On the hierarchy hirad solves by gathering with push-pull (Jacobi's method).
-        if info.data.get("method") == "hierarchical" and value.method != "jacobi":
+        # On the hierarchy: gathering (Jacobi, Gauss-Seidel) or shooting (Southwell), with push-pull.
+        if info.data.get("method") == "hierarchical" and value.method not in ("jacobi", "gauss_seidel", "southwell"):
             raise ValueError(
-                f"method: hierarchical solves with solver.method: jacobi (push-pull), not {value.method!r}"
+                "method: hierarchical solves with solver.method jacobi, gauss_seidel or southwell"
+                f" (with push-pull), not {value.method!r}"
             )
         return value
 
