@@ -91,6 +91,13 @@ Link Refiner::estimate(uint32_t r, uint32_t s) const {
     return link;
 }
 
+double Refiner::link_error(const Link& link, const std::vector<RGB>& radiosity) const {
+    // Power the link carries (luminance of B_S times G). Unless every sample ray arrived, the
+    // estimate is uncertain up to the unoccluded transfer.
+    const double b = std::max(0.0, luminance(radiosity[link.source]));
+    return b * (link.visibility < 1 ? link.unoccluded : link.coupling);
+}
+
 Refiner::Action Refiner::decide(const Link& link, const std::vector<RGB>& radiosity) const {
     if (link.receiver == link.source) return h_.nodes[link.receiver].cluster ? Action::SplitSelf : Action::Drop;
     const bool receiver_splits = h_.can_subdivide(link.receiver, opt_.min_area);
@@ -106,12 +113,9 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<RGB>& radios
     if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
     if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
     if (link.unoccluded <= 0) return Action::Drop;
-    // Power the link carries (luminance of B_S times G). Unless every sample ray arrived, the
-    // estimate is uncertain up to the unoccluded transfer, so partly visible links refine
-    // towards the shadow boundary, and a link none of whose rays arrived is only dropped when
-    // even its unoccluded transfer is negligible.
-    const double b = std::max(0.0, luminance(radiosity[link.source]));
-    const double error = b * (link.visibility < 1 ? link.unoccluded : link.coupling);
+    // Partly visible links refine towards the shadow boundary, and a link none of whose rays
+    // arrived is only dropped when even its unoccluded transfer is negligible.
+    const double error = link_error(link, radiosity);
     if (error <= opt_.epsilon || (!receiver_splits && !source_splits))
         return link.coupling > 0 ? Action::Keep : Action::Drop;
     return split_larger();
@@ -151,7 +155,10 @@ std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> 
         for (size_t k = 0; k < frontier.size(); ++k) {
             const Link& l = frontier[k];
             switch (action[k]) {
-                case Action::Keep: kept.push_back(l); break;
+                case Action::Keep:
+                    kept.push_back(l);
+                    kept.back().error = static_cast<float>(link_error(l, radiosity));
+                    break;
                 case Action::Drop: break;
                 case Action::SplitSelf: {
                     const Node node = h_.nodes[l.receiver];

@@ -25,7 +25,8 @@ struct Link {
     float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver
     float unoccluded = 0;     // G without visibility
     float visibility = 0;     // fraction of the sample rays that arrived
-    float error = 0;          // the oracle's value when the link was last checked, W
+    float error = 0;          // the oracle's estimate of the power the link carries when it was
+                              // last checked (B_source x G, unoccluded G if partly visible), W
 };
 
 struct RefineOptions {
@@ -59,6 +60,7 @@ public:
 private:
     enum class Action : uint8_t { Keep, Drop, SplitReceiver, SplitSource, SplitSelf };
     Action decide(const Link& link, const std::vector<RGB>& radiosity) const;
+    double link_error(const Link& link, const std::vector<RGB>& radiosity) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
     std::vector<Link> run(std::vector<Link> frontier, std::vector<uint8_t> evaluated, const std::vector<RGB>& radiosity,
                           RefineStats& stats);

@@ -1,0 +1,465 @@
+"""Hierarchical radiosity: counts, scaling, and error against the Monte Carlo reference.
+
+Figures are printed, not asserted. Subcommands (each also runs alone):
+
+    python bench/hierarchy.py counts   [--hall PATH]      # 1. counts and stage times, per bake a child process
+    python bench/hierarchy.py family   [--epsilon E --min-area A]   # 2. generated scenes, 1x .. 10x input faces
+    python bench/hierarchy.py accuracy [--points 400]     # 3. error vs wall time, flat and hierarchical, Cornell box
+    python bench/hierarchy.py hall     [--points 200]     # 4. Modern Hall: error and wall time, hierarchical
+    python bench/hierarchy.py all
+
+The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
+(skipped with a message when absent). Monte Carlo references are cached in
+$TMPDIR/hirad_bench (delete the folder to recompute them). Every timing line states the
+1-minute load average at its start, because the machine may be shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+CORNELL = ROOT / "configs/cornell_hierarchical.yaml"
+CORNELL_SCENE = ROOT / "configs/scenes/cornell_box.usda"
+HALL = ROOT.parent / "shared/data/modern_hall/usd/modern_hall.usda"
+CACHE = Path(tempfile.gettempdir()) / "hirad_bench"
+LUM = np.array([0.2126, 0.7152, 0.0722])
+OUTPUTS_OFF = {"usd": False, "lightmaps": {"enabled": False}, "preview": {"enabled": False}, "report": True}
+
+
+def load() -> str:
+    return f"load {os.getloadavg()[0]:.2f}"
+
+
+def hier_config(scene: Path, epsilon: float, min_area: float, samples: int = 16, solver: str = "jacobi",
+                tolerance: float = 1e-4, max_rounds: int = 6) -> dict:
+    return {"scene": str(scene), "method": "hierarchical",
+            "hierarchy": {"epsilon": epsilon, "min_area": min_area, "samples": samples, "max_rounds": max_rounds},
+            "solver": {"method": solver, "tolerance": tolerance}, "outputs": dict(OUTPUTS_OFF)}
+
+
+def flat_config(scene: Path, max_area: float, max_edge: float, samples: int = 16, tolerance: float = 1e-4) -> dict:
+    return {"scene": str(scene), "method": "flat",
+            "meshing": {"max_patch_area": max_area, "max_edge_length": max_edge},
+            "formfactors": {"method": "raycast", "samples": samples},
+            "solver": {"method": "southwell", "tolerance": tolerance}, "outputs": dict(OUTPUTS_OFF)}
+
+
+# --------------------------------------------------------------------------------------------
+# Child-process bakes (as bench/run.py): wall time, report.json, peak RSS from wait4.
+
+def child_bake(cfg: dict) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = dict(cfg, output=str(Path(tmp) / "out"))
+        path = Path(tmp) / "config.yaml"
+        path.write_text(yaml.safe_dump(cfg))
+        out = Path(tmp) / "report.json"
+        cmd = [sys.executable, "-m", "hirad.cli", "bake", str(path), "--json", "--quiet"]
+        t0 = time.perf_counter()
+        with open(out, "w") as f:
+            proc = subprocess.Popen(cmd, stdout=f)
+            _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        if status != 0:
+            raise SystemExit(f"bake of {cfg['scene']} failed (status {status})")
+        report = json.loads(out.read_text())
+    report["peak_rss_mib"] = usage.ru_maxrss / 1024
+    report["child_wall_s"] = wall
+    return report
+
+
+def print_hierarchy_report(name: str, r: dict, started_load: str) -> None:
+    h, c, t = r["hierarchy"], r["counts"], r["timings_s"]
+    links, el = c["links"], h["elements"]
+    print(f"\n== {name}: {c['input_faces']} input faces, {c['faces']} faces ({started_load} at start)")
+    print(f"  links {links:,}  elements (leaves) {el:,}  links/element {links / el:.1f}  nodes {h['nodes']:,}  "
+          f"clusters {h['clusters']:,}  rounds {h['rounds']} (settled {h['settled']})  "
+          f"link estimates {h['link_estimates']:,}  rays {c['rays']:,}")
+    print(f"  solver {r['solver']['method']}: {r['solver']['iterations']} iterations, residual "
+          f"{r['solver']['residual']:.2e}; energy balance {r['energy_balance']['max_relative_error']:.2e}; "
+          f"epsilon {h['epsilon_watts']:.3g} W; balance splits {h.get('balance_splits')}")
+    print(f"  {'round':>5}{'links':>12}{'splits':>10}{'refine s':>10}{'solve s':>9}")
+    rs, ss = h["refine_seconds"], h["solve_seconds"]
+    for i in range(max(len(rs), len(h["links_per_round"]))):
+        lk = h["links_per_round"][i] if i < len(h["links_per_round"]) else None
+        sp = h["splits_per_round"][i] if i < len(h["splits_per_round"]) else None
+        print(f"  {i + 1:>5}{(f'{lk:,}' if lk is not None else '-'):>12}{(f'{sp:,}' if sp is not None else '-'):>10}"
+              f"{(rs[i] if i < len(rs) else float('nan')):>10.2f}{(ss[i] if i < len(ss) else float('nan')):>9.2f}")
+    print(f"  refine {sum(rs):.2f} s, solve {sum(ss):.2f} s; stages {json.dumps(t)}")
+    print(f"  total wall (child process, incl. Python start-up) {r['child_wall_s']:.2f} s; "
+          f"bake total {t['total']:.2f} s; peak RSS {r['peak_rss_mib']:.0f} MiB; threads {r['threads']}")
+    if r.get("warnings"):
+        print(f"  warnings: {r['warnings']}")
+
+
+def cmd_counts(args) -> None:
+    print("# 1. Counts and stage times (outputs off: report only; one child process per bake)")
+    cfg = yaml.safe_load(CORNELL.read_text())
+    cfg["scene"] = str((CORNELL.parent / cfg["scene"]).resolve())
+    cfg["outputs"] = dict(OUTPUTS_OFF)
+    ld = load()
+    print_hierarchy_report(f"cornell_hierarchical.yaml (epsilon {cfg['hierarchy']['epsilon']:g}, "
+                           f"min_area {cfg['hierarchy']['min_area']:g})", child_bake(cfg), ld)
+    if not args.hall.exists():
+        print(f"\n{args.hall} is absent: Modern Hall skipped")
+        return
+    hc = hier_config(args.hall, args.epsilon, args.min_area)
+    ld = load()
+    print_hierarchy_report(f"modern_hall (epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples 16, "
+                           "jacobi tol 1e-4)", child_bake(hc), ld)
+
+
+# --------------------------------------------------------------------------------------------
+# 2. Generated scene family: a room with a grid of boxes; the light stays the same.
+
+def _quad(a, b, c, d, want_normal) -> list:
+    pts = [np.asarray(p, float) for p in (a, b, c, d)]
+    n = np.cross(pts[1] - pts[0], pts[2] - pts[0])
+    return pts if n @ np.asarray(want_normal, float) > 0 else pts[::-1]
+
+
+def _box_faces(x0, z0, s, h) -> list:
+    x1, z1 = x0 + s, z0 + s
+    return [
+        _quad((x0, h, z0), (x1, h, z0), (x1, h, z1), (x0, h, z1), (0, 1, 0)),
+        _quad((x0, 0, z0), (x1, 0, z0), (x1, h, z0), (x0, h, z0), (0, 0, -1)),
+        _quad((x0, 0, z1), (x1, 0, z1), (x1, h, z1), (x0, h, z1), (0, 0, 1)),
+        _quad((x0, 0, z0), (x0, 0, z1), (x0, h, z1), (x0, h, z0), (-1, 0, 0)),
+        _quad((x1, 0, z0), (x1, 0, z1), (x1, h, z1), (x1, h, z0), (1, 0, 0)),
+    ]
+
+
+def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_h=0.6) -> None:
+    """A closed room (W x H x D m, Y up, faces inward) with a 1.5 m square ceiling light and
+    nx x nz boxes (5 faces each) spread over the floor."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+
+    W, H, D = room
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.Xform.Define(stage, "/World")
+
+    def mesh(name, quads, color, emission=None):
+        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        pts = [Gf.Vec3f(*map(float, p)) for q in quads for p in q]
+        m.CreatePointsAttr(Vt.Vec3fArray(pts))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray([4] * len(quads)))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray(list(range(4 * len(quads)))))
+        mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+        sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/PreviewSurface")
+        sh.CreateIdAttr("UsdPreviewSurface")
+        sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+        if emission is not None:
+            sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
+        mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
+        if emission is not None:
+            UsdLux.MeshLightAPI.Apply(m.GetPrim())
+
+    walls = [
+        _quad((0, 0, 0), (W, 0, 0), (W, 0, D), (0, 0, D), (0, 1, 0)),       # floor
+        _quad((0, H, 0), (W, H, 0), (W, H, D), (0, H, D), (0, -1, 0)),      # ceiling
+        _quad((0, 0, 0), (W, 0, 0), (W, H, 0), (0, H, 0), (0, 0, 1)),
+        _quad((0, 0, D), (W, 0, D), (W, H, D), (0, H, D), (0, 0, -1)),
+        _quad((0, 0, 0), (0, 0, D), (0, H, D), (0, H, 0), (1, 0, 0)),
+        _quad((W, 0, 0), (W, 0, D), (W, H, D), (W, H, 0), (-1, 0, 0)),
+    ]
+    mesh("room", walls, (0.7, 0.7, 0.7))
+    boxes = []
+    margin = 0.6
+    for i in range(nx):
+        for k in range(nz):
+            x = margin + (W - 2 * margin - box) * (i + 0.5) / nx
+            z = margin + (D - 2 * margin - box) * (k + 0.5) / nz
+            boxes += _box_faces(x, z, box, box_h)
+    if boxes:
+        mesh("boxes", boxes, (0.5, 0.45, 0.35))
+    c, s, y = (W / 2, D / 2), 0.75, H - 0.005
+    mesh("light", [_quad((c[0] - s, y, c[1] - s), (c[0] + s, y, c[1] - s), (c[0] + s, y, c[1] + s),
+                         (c[0] - s, y, c[1] + s), (0, -1, 0))], (0.8, 0.8, 0.8), emission=(5.0, 5.0, 5.0))
+    stage.GetRootLayer().Save()
+
+
+FAMILY = [(1, (3, 4)), (2, (5, 5)), (5, (8, 8)), (10, (11, 11))]  # scale, boxes nx x nz
+
+
+def cmd_family(args) -> None:
+    print(f"# 2. Scene family: 8 x 3 x 8 m room, 1.5 m ceiling light, rows of 0.3 x 0.3 x 0.6 m boxes; "
+          f"hierarchical, epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples 16, jacobi tol 1e-4")
+    print(f"{'scale':>6}{'boxes':>7}{'faces':>7}{'x faces':>9}{'elements':>10}{'links':>12}{'links/el':>9}"
+          f"{'nodes':>9}{'rounds':>7}{'refine s':>9}{'solve s':>8}{'wall s':>8}{'RSS MiB':>8}  load")
+    base = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for scale, (nx, nz) in FAMILY:
+            scene = Path(tmp) / f"room_{scale}x.usda"
+            write_room(scene, nx, nz)
+            ld = load()
+            r = child_bake(hier_config(scene, args.epsilon, args.min_area))
+            h, c = r["hierarchy"], r["counts"]
+            base = base or c["input_faces"]
+            print(f"{scale:>5}x{nx * nz:>7}{c['input_faces']:>7}{c['input_faces'] / base:>9.1f}{h['elements']:>10,}"
+                  f"{c['links']:>12,}{c['links'] / h['elements']:>9.1f}{h['nodes']:>9,}{h['rounds']:>7}"
+                  f"{sum(h['refine_seconds']):>9.2f}{sum(h['solve_seconds']):>8.2f}{r['child_wall_s']:>8.2f}"
+                  f"{r['peak_rss_mib']:>8.0f}  {ld}")
+
+
+# --------------------------------------------------------------------------------------------
+# Reference points and the Monte Carlo reference.
+
+def unsplit_model(scene_path: Path):
+    from hirad import _engine, usd
+    s = usd.read_scene(scene_path)
+    m = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
+                      s.face_reflectance, s.face_emission, s.corner_uv)
+    m.mesh(1e9, 1e9)
+    return s, m
+
+
+def sample_points(patches: dict, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n points uniform by area on the reflecting (non-emitting, reflectance > 0) faces, kept 2 %
+    away from the face edges (towards the centroid); returns points, normals, face index."""
+    rng = np.random.default_rng(seed)
+    ok = (patches["emission"].max(axis=1) == 0) & (patches["reflectance"].max(axis=1) > 0)
+    tris, owner = [], []
+    for i in np.nonzero(ok)[0]:
+        c = patches["corners"][i]
+        tris.append(c[[0, 1, 2]])
+        owner.append(i)
+        if patches["nv"][i] == 4:
+            tris.append(c[[0, 2, 3]])
+            owner.append(i)
+    tris, owner = np.array(tris), np.array(owner)
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    pick = rng.choice(len(tris), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    fold = u + v > 1
+    u, v = np.where(fold, 1 - u, u), np.where(fold, 1 - v, v)
+    t = tris[pick]
+    pts = t[:, 0] + (t[:, 1] - t[:, 0]) * u[:, None] + (t[:, 2] - t[:, 0]) * v[:, None]
+    pts = t.mean(axis=1) + 0.98 * (pts - t.mean(axis=1))
+    normals = patches["normal"][owner[pick]]
+    return np.ascontiguousarray(pts), np.ascontiguousarray(normals), owner[pick]
+
+
+def reference(model, points, normals, target_rel_se: float, first_paths: int, max_paths: int, seed: int,
+              key: str) -> dict:
+    """Path-traced exitant radiance at the points: a first pass of first_paths paths per point,
+    then, per point, more paths (in power-of-two groups) until its luminance's relative standard
+    error is estimated at or below target_rel_se, at most max_paths in all. Cached on disk."""
+    h = hashlib.sha1(np.ascontiguousarray(points).tobytes() + key.encode()
+                     + f"{target_rel_se},{first_paths},{max_paths},{seed}".encode()).hexdigest()[:16]
+    CACHE.mkdir(exist_ok=True)
+    path = CACHE / f"ref_{h}.npz"
+    if path.exists():
+        d = np.load(path)
+        return {k: d[k] for k in d.files}
+    t0 = time.perf_counter()
+    ld = load()
+    r = model.reference_at(points, normals, first_paths, 3, seed, 1e-4)
+    rad, se = r["radiance"], r["standard_error"]
+    npaths = np.full(len(points), first_paths, float)
+    lum, sel = rad @ LUM, se @ LUM
+    rel = np.where(lum > 0, sel / np.maximum(lum, 1e-300), 0.0)
+    need = np.minimum(max_paths, first_paths * (rel / target_rel_se) ** 2 * 1.1)
+    extra = need - first_paths
+    groups: dict[int, list[int]] = {}
+    for i in np.nonzero(extra > 0)[0]:
+        groups.setdefault(int(2 ** math.ceil(math.log2(extra[i]))), []).append(int(i))
+    for g, (paths, idx) in enumerate(sorted(groups.items())):
+        idx = np.array(idx)
+        paths = min(paths, max_paths - first_paths)
+        r2 = model.reference_at(np.ascontiguousarray(points[idx]), np.ascontiguousarray(normals[idx]), paths, 3,
+                                seed + 1 + g, 1e-4)
+        n1, n2 = npaths[idx, None], float(paths)
+        var1, var2 = se[idx] ** 2 * n1, r2["standard_error"] ** 2 * n2      # per-path variances
+        mean = (rad[idx] * n1 + r2["radiance"] * n2) / (n1 + n2)
+        # pooled per-path variance including the difference of the means
+        var = ((n1 - 1) * var1 + (n2 - 1) * var2 + n1 * n2 / (n1 + n2) * (rad[idx] - r2["radiance"]) ** 2) \
+            / (n1 + n2 - 1)
+        rad[idx], se[idx] = mean, np.sqrt(var / (n1 + n2))
+        npaths[idx] += n2
+    out = {"radiance": rad, "standard_error": se, "paths": npaths, "seconds": np.array(time.perf_counter() - t0),
+           "load": np.array(float(ld.split()[1]))}
+    np.savez(path, **out)
+    return out
+
+
+def rel_errors(values: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    return (values @ LUM) / (ref @ LUM) - 1
+
+
+def describe_reference(ref: dict, keep: np.ndarray) -> str:
+    rel = (ref["standard_error"] @ LUM) / (ref["radiance"] @ LUM)
+    rel = rel[keep]
+    return (f"reference: {int(ref['paths'][keep].sum()):,} paths in {float(ref['seconds']):.0f} s "
+            f"(load {float(ref['load']):.2f}), {int(ref['paths'][keep].min()):,}..{int(ref['paths'][keep].max()):,} "
+            f"per point; relative standard error of luminance per point: median {np.median(rel):.2%}, "
+            f"RMS {np.sqrt(np.mean(rel ** 2)):.2%}, max {rel.max():.2%}")
+
+
+def timed_bake(cfg_dict: dict, base_dir: Path):
+    import hirad
+    from hirad.config import config_from_dict
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = config_from_dict(dict(cfg_dict, output=str(Path(tmp) / "out")), base_dir)
+        t0 = time.perf_counter()
+        result = hirad.bake(cfg)
+        return result, time.perf_counter() - t0
+
+
+# --------------------------------------------------------------------------------------------
+# 3. Error against the reference versus wall time, Cornell box.
+
+FLAT_LADDER = [(0.009, 0.12), (0.0027, 0.066), (0.0009, 0.038), (0.00026, 0.021)]
+EPSILONS = [1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6]
+
+
+def loglog_time_at(times: list[float], errors: list[float], target: float) -> float | None:
+    """Time at which the piecewise log-log curve (in run order) first reaches `target` error."""
+    lt, le = np.log(times), np.log(errors)
+    if errors[0] <= target:
+        return times[0]
+    for i in range(1, len(times)):
+        if errors[i] <= target:
+            f = (math.log(target) - le[i - 1]) / (le[i] - le[i - 1])
+            return float(math.exp(lt[i - 1] + f * (lt[i] - lt[i - 1])))
+    return None
+
+
+def cmd_accuracy(args) -> None:
+    print(f"# 3. Cornell box: RMS relative error of luminance at {args.points} fixed surface points against "
+          "the Monte Carlo reference, versus wall time of hirad.bake (in process, outputs off)")
+    _, model = unsplit_model(CORNELL_SCENE)
+    pts, nrm, _ = sample_points(model.patch_arrays(), args.points, seed=12345)
+    ref = reference(model, pts, nrm, args.target_se, 8192, args.max_paths, 99, "cornell")
+    lum = ref["radiance"] @ LUM
+    keep = lum > 0.01 * np.median(lum)   # points under the blocks (on the floor face) see no light
+    print(f"points: {keep.sum()} of {args.points} kept ({(~keep).sum()} with reference luminance below 1 % "
+          f"of the median: on the floor under a block)")
+    print(describe_reference(ref, keep))
+    rel_se = (ref["standard_error"] @ LUM)[keep] / lum[keep]
+    curves = {}
+    print(f"{'method':<14}{'setting':<26}{'patches/leaves':>15}{'links':>12}{'wall s':>8}{'RMS err':>9}"
+          f"{'(- ref noise)':>14}{'mean err':>10}{'max |err|':>10}  load")
+    for kind in ("flat", "hierarchical"):
+        rows = []
+        settings = FLAT_LADDER if kind == "flat" else EPSILONS
+        for s in settings:
+            if kind == "flat":
+                cfg, label = flat_config(CORNELL_SCENE, *s), f"area {s[0]:g} edge {s[1]:g}"
+            else:
+                cfg, label = hier_config(CORNELL_SCENE, s, args.min_area), f"eps {s:g} min_area {args.min_area:g}"
+            ld = load()
+            result, wall = timed_bake(cfg, ROOT)
+            e = rel_errors(result.radiance_at(pts, nrm), ref["radiance"])[keep]
+            rms = float(np.sqrt(np.mean(e ** 2)))
+            rms_c = float(np.sqrt(max(0.0, np.mean(e ** 2) - np.mean(rel_se ** 2))))
+            c = result.report["counts"]
+            print(f"{kind:<14}{label:<26}{c['patches']:>15,}{c['links']:>12,}{wall:>8.2f}{rms:>9.2%}{rms_c:>14.2%}"
+                  f"{np.mean(e):>+10.2%}{np.abs(e).max():>10.2%}  {ld}")
+            rows.append((wall, rms))
+            del result
+        curves[kind] = rows
+    ft, fe = zip(*curves["flat"])
+    ht, he = zip(*curves["hierarchical"])
+    best_i = int(np.argmin(fe))
+    best, t_flat = fe[best_i], ft[best_i]
+    t_flat_first = loglog_time_at(list(ft), list(fe), best)
+    t_h = loglog_time_at(list(ht), list(he), best)
+    print(f"flat best error {best:.2%} at {t_flat:.2f} s (first reached, log-log interpolated: {t_flat_first:.2f} s)")
+    if t_h is None:
+        print(f"hierarchical never reaches {best:.2%} (best {min(he):.2%} at {ht[int(np.argmin(he))]:.2f} s)")
+    else:
+        print(f"hierarchical reaches {best:.2%} at {t_h:.2f} s: {t_flat_first / t_h:.1f}x sooner (target >= 10x)")
+    for target in sorted({round(x, 4) for x in fe}, reverse=True):
+        a, b = loglog_time_at(list(ft), list(fe), target), loglog_time_at(list(ht), list(he), target)
+        if a and b:
+            print(f"  error {target:.2%}: flat {a:.2f} s, hierarchical {b:.2f} s, ratio {a / b:.1f}x")
+
+
+# --------------------------------------------------------------------------------------------
+# 4. Modern Hall accuracy.
+
+def cmd_hall(args) -> None:
+    if not args.hall.exists():
+        print(f"# 4. {args.hall} is absent: Modern Hall skipped")
+        return
+    print(f"# 4. Modern Hall: hierarchical (epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples 16, "
+          f"jacobi tol 1e-4), RMS relative error of luminance at lit reflecting surface points")
+    scene, model = unsplit_model(args.hall)
+    patches = model.patch_arrays()
+    cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4242)
+    ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 77, "hall")
+    lum = ref["radiance"] @ LUM
+    lit = np.nonzero(lum > 0.01 * np.median(lum))[0][: args.points]
+    print(f"points: {len(lit)} of {len(cand)} candidates (uniform by area on non-emitting faces) with reference "
+          f"luminance above 1 % of the median; the first {args.points} kept")
+    keep = np.zeros(len(cand), bool)
+    keep[lit] = True
+    print(describe_reference(ref, keep))
+    pts, nrm = cand[keep], cnrm[keep]
+    rel_se = (ref["standard_error"] @ LUM)[keep] / lum[keep]
+    ld = load()
+    result, wall = timed_bake(hier_config(args.hall, args.epsilon, args.min_area), ROOT)
+    e = rel_errors(result.radiance_at(pts, nrm), ref["radiance"][keep])
+    h, c = result.report["hierarchy"], result.report["counts"]
+    rms = float(np.sqrt(np.mean(e ** 2)))
+    rms_c = float(np.sqrt(max(0.0, np.mean(e ** 2) - np.mean(rel_se ** 2))))
+    print(f"bake: {wall:.1f} s wall ({ld} at start), {h['elements']:,} elements, {c['links']:,} links, "
+          f"{h['rounds']} rounds (settled {h['settled']}), {result.report['solver']['iterations']} iterations")
+    print(f"RMS relative error {rms:.2%} (reference noise removed in quadrature: {rms_c:.2%}); mean {np.mean(e):+.2%}; "
+          f"median |err| {np.median(np.abs(e)):.2%}; 90th pct |err| {np.quantile(np.abs(e), 0.9):.2%}; "
+          f"max |err| {np.abs(e).max():.2%}")
+    # What dominates: the error per surface (mesh) and the largest point errors.
+    fm = scene.face_mesh[patches["source_face"][cface[keep]]] if "source_face" in patches else None
+    if fm is not None:
+        print(f"  {'mesh':<28}{'points':>7}{'RMS err':>9}{'mean err':>10}{'share of MSE':>13}")
+        tot = np.sum(e ** 2)
+        for m in np.unique(fm):
+            s = fm == m
+            print(f"  {scene.meshes[m].name:<28}{s.sum():>7}{np.sqrt(np.mean(e[s] ** 2)):>9.2%}{np.mean(e[s]):>+10.2%}"
+                  f"{np.sum(e[s] ** 2) / tot:>13.1%}")
+    worst = np.argsort(-np.abs(e))[:5]
+    for i in worst:
+        print(f"  worst: point {np.round(pts[i], 3).tolist()} normal {np.round(nrm[i], 2).tolist()} "
+              f"L_ref {lum[keep][i]:.4g} (se {rel_se[i]:.1%}) error {e[i]:+.1%}")
+    print(f"target: under 300 s and under 5 % RMS -> {'met' if wall < 300 and rms < 0.05 else 'missed'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "all"])
+    ap.add_argument("--hall", type=Path, default=HALL)
+    ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
+    ap.add_argument("--min-area", type=float, default=None,
+                    help="m^2 (default 1e-3; 2e-4 for the Cornell ladder of 'accuracy')")
+    ap.add_argument("--points", type=int, default=None, help="accuracy: 400, hall: 200")
+    ap.add_argument("--target-se", type=float, default=0.003, help="Cornell reference: relative standard error")
+    ap.add_argument("--hall-target-se", type=float, default=0.01, help="Hall reference: relative standard error")
+    ap.add_argument("--max-paths", type=int, default=262144, help="most paths per reference point")
+    args = ap.parse_args()
+    parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
+    for part in parts:
+        a = argparse.Namespace(**vars(args))
+        a.min_area = args.min_area if args.min_area is not None else (2e-4 if part == "accuracy" else 1e-3)
+        a.points = args.points if args.points is not None else (400 if part == "accuracy" else 200)
+        print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
+        {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall}[part](a)
+        print()
+
+
+if __name__ == "__main__":
+    main()
