@@ -343,7 +343,9 @@ public:
                 for (const auto& [j, g] : row) { acc += b[j] * double(g); g_sum += g; }
                 const double a = patches_.patches[i].area;
                 h[i] = acc / a;
-                escaped[i] = b[i] * std::max(0.0, a - g_sum);
+                // Not clamped: sampling makes some rows sum a little above 1, others below, and
+                // only the signed values add up to the power that really leaves the scene.
+                escaped[i] = b[i] * (a - g_sum);
             });
         }, [] {});
         nb::dict d;
@@ -508,7 +510,8 @@ public:
             leaf_patches.push_back(node.shape);
             b[k] = sol.radiosity[leaves[k]];
             irr[k] = sol.irradiance[leaves[k]];
-            escaped[k] = b[k] * (node.area * std::max(0.0, 1.0 - sol.outgoing[leaves[k]]));
+            // Signed, as for the flat method: the per-leaf shares only add up unclamped.
+            escaped[k] = b[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
         }
         patches_ = weld_patches(std::move(leaf_patches));
         visibility_ = std::make_unique<Visibility>(patches_.patches);

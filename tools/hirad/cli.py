@@ -143,31 +143,23 @@ def probe(solution: Path = typer.Argument(..., help="solution.usda written by `h
     _run_guarded(go)
 
 
-def _read_points(path: Path):
-    from .bake import BakeError
+@app.command()
+def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML config (its scene)"),
+              points: Path = typer.Argument(..., help="CSV of x,y,z[,nx,ny,nz] in metres (a header line is allowed)"),
+              paths: int = typer.Option(1024, "--paths", min=1, help="Paths per point"),
+              seed: int = typer.Option(1, "--seed", min=0, help="Random seed"),
+              output: Optional[Path] = typer.Option(None, "--output", "-o", help="CSV to write [stdout]"),
+              max_distance: float = typer.Option(0.05, help="Farthest surface accepted for a point, metres")):
+    """Path-traced reference radiance (with standard errors) at sensor points; no radiosity."""
+    from .reference import write_reference_csv
 
-    if not path.is_file():
-        raise BakeError(f"{path}: file not found")
-    pts, nrm, lines = [], [], []
-    with open(path, newline="") as f:
-        for line_no, row in enumerate(csv.reader(f), start=1):
-            cells = [c.strip() for c in row if c.strip()]
-            if not cells or cells[0].startswith("#"):
-                continue
-            try:
-                values = [float(c) for c in cells]
-            except ValueError:
-                if line_no == 1:
-                    continue  # header
-                raise BakeError(f"{path}:{line_no}: not a number in {row}") from None
-            if len(values) not in (3, 6) or not np.all(np.isfinite(values)):
-                raise BakeError(f"{path}:{line_no}: expected x,y,z or x,y,z,nx,ny,nz (finite numbers)")
-            pts.append(values[:3])
-            nrm.append(values[3:] if len(values) == 6 else [0.0, 0.0, 0.0])
-            lines.append(line_no)
-    if not pts:
-        raise BakeError(f"{path}: no points")
-    return np.array(pts), np.array(nrm), lines
+    _run_guarded(lambda: write_reference_csv(scene, points, output, paths, seed, max_distance, sys.stdout))
+
+
+def _read_points(path: Path):
+    from .reference import read_points
+
+    return read_points(path)
 
 
 def main() -> None:

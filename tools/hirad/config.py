@@ -200,7 +200,7 @@ class HierarchyConfig(BaseModel):
     model_config = _MODEL_CONFIG
 
     epsilon: StrictFloat = Field(
-        default=1e-4,
+        default=1e-5,
         ge=0.0,
         lt=1.0,
         description=(

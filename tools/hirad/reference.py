@@ -1,0 +1,124 @@
+"""Monte Carlo reference radiance at surface points, independent of any radiosity solution.
+
+The scene's faces are used as they are (no meshing into patches), and the exitant radiance at
+the surface point closest to each query point is estimated by path tracing
+(`Model.reference_at`), with its standard error. This is the ground truth that flat and
+hierarchical bakes can be compared with (`hirad reference` on the command line).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from . import _engine, usd
+from .bake import BakeError
+from .config import load_config
+
+MIN_BOUNCES = 3  # bounces before Russian roulette may end a path
+UNSPLIT = 1e9    # meshing limits that keep every face as one patch
+
+
+def read_points(path: Path):
+    """Points (n,3), normals (n,3) (zeros where not given) and the line of each, from a CSV of
+    x,y,z[,nx,ny,nz] in metres; a header line, blank lines and '#' comments are skipped."""
+    path = Path(path)
+    if not path.is_file():
+        raise BakeError(f"{path}: file not found")
+    pts, nrm, lines = [], [], []
+    with open(path, newline="") as f:
+        for line_no, row in enumerate(csv.reader(f), start=1):
+            cells = [c.strip() for c in row if c.strip()]
+            if not cells or cells[0].startswith("#"):
+                continue
+            try:
+                values = [float(c) for c in cells]
+            except ValueError:
+                if line_no == 1:
+                    continue  # header
+                raise BakeError(f"{path}:{line_no}: not a number in {row}") from None
+            if len(values) not in (3, 6) or not np.all(np.isfinite(values)):
+                raise BakeError(f"{path}:{line_no}: expected x,y,z or x,y,z,nx,ny,nz (finite numbers)")
+            pts.append(values[:3])
+            nrm.append(values[3:] if len(values) == 6 else [0.0, 0.0, 0.0])
+            lines.append(line_no)
+    if not pts:
+        raise BakeError(f"{path}: no points")
+    return np.array(pts), np.array(nrm), lines
+
+
+def scene_of(path: str | os.PathLike) -> usd.SceneArrays:
+    """The scene of a USD file, or of a YAML config's `scene` (with its materials settings)."""
+    path = Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        cfg = load_config(path)
+        return usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
+                              uv_primvars=tuple(cfg.materials.uv_primvars))
+    return usd.read_scene(path)
+
+
+def unsplit_model(scene: usd.SceneArrays):
+    """An engine Model of the scene's faces, each face one patch."""
+    model = _engine.Model(
+        np.ascontiguousarray(scene.points, dtype=np.float64),
+        np.ascontiguousarray(scene.face_vertex_counts, dtype=np.int32),
+        np.ascontiguousarray(scene.face_vertex_indices, dtype=np.int32),
+        np.ascontiguousarray(scene.face_mesh, dtype=np.int32),
+        np.ascontiguousarray(scene.face_source, dtype=np.int32),
+        np.ascontiguousarray(scene.face_reflectance, dtype=np.float64),
+        np.ascontiguousarray(scene.face_emission, dtype=np.float64),
+        None)
+    if model.stats()["faces"] == 0:
+        raise BakeError(f"{scene.source_path or 'scene'}: no usable faces")
+    model.mesh(UNSPLIT, UNSPLIT)
+    return model
+
+
+def reference_at(scene_path: str | os.PathLike, points, normals=None, paths: int = 1024, seed: int = 1,
+                 max_distance: float = 0.05, lines: Optional[Sequence[int]] = None,
+                 points_file: Optional[str] = None) -> dict:
+    """Path-traced exitant radiance W/(m^2 sr) at the surface closest to each point (within
+    max_distance metres, facing along its normal when one is given): dict radiance (n,3) and
+    standard_error (n,3). `lines` and `points_file` only name the points in errors."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    nrm = (np.zeros_like(pts) if normals is None
+           else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3)))
+    if nrm.shape != pts.shape:
+        raise ValueError(f"normals: expected shape {pts.shape}, got {nrm.shape}")
+    if paths < 1:
+        raise ValueError(f"paths must be >= 1, got {paths}")
+    model = unsplit_model(scene_of(scene_path))
+    try:
+        ref = model.reference_at(pts, nrm, int(paths), MIN_BOUNCES, int(seed), float(max_distance))
+    except ValueError as e:
+        m = re.match(r"point (\d+): (.*)", str(e))
+        if not m:
+            raise
+        k = int(m.group(1))
+        where = f"{points_file}:{lines[k]}" if points_file and lines else f"point {k}"
+        raise BakeError(f"{where}: {m.group(2)} ({pts[k].tolist()})") from None
+    return {"radiance": np.asarray(ref["radiance"]), "standard_error": np.asarray(ref["standard_error"])}
+
+
+def write_reference_csv(scene_path: Path, points_path: Path, output: Optional[Path], paths: int, seed: int,
+                        max_distance: float, stream=None) -> None:
+    """`hirad reference`: reads the points, estimates, writes x,y,z,radiance_rgb,stderr_rgb to
+    `output` (atomically: a .partial file renamed into place) or to `stream`."""
+    pts, nrm, lines = read_points(points_path)
+    ref = reference_at(scene_path, pts, nrm, paths, seed, max_distance, lines, str(points_path))
+    rows = [["x", "y", "z", "radiance_r", "radiance_g", "radiance_b", "stderr_r", "stderr_g", "stderr_b"]]
+    for k in range(len(pts)):
+        rows.append([*map(repr, pts[k].tolist()), *(f"{v:.6g}" for v in ref["radiance"][k]),
+                     *(f"{v:.3g}" for v in ref["standard_error"][k])])
+    if output:
+        tmp = output.with_name(output.name + ".partial")
+        with open(tmp, "w", newline="") as f:
+            csv.writer(f).writerows(rows)
+        os.replace(tmp, output)
+    else:
+        csv.writer(stream).writerows(rows)
