@@ -24,6 +24,7 @@
 #include "exr.h"
 #include "formfactors.h"
 #include "hemicube.h"
+#include "gather.h"
 #include "hierarchical_solver.h"
 #include "hierarchy.h"
 #include "lightmaps.h"
@@ -437,8 +438,11 @@ public:
         if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
         if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
         links_.reset();
-        Hierarchy h(scene_);
-        auto vis = std::make_unique<Visibility>(h.faces);
+        solved_.reset();
+        auto state = std::make_unique<SolvedHierarchy>(scene_);
+        Hierarchy& h = state->hierarchy;
+        state->visibility = std::make_unique<Visibility>(h.faces);
+        Visibility* vis = state->visibility.get();
         double emitted = 0;
         for (const Patch& f : h.faces) emitted += luminance(f.emission) * f.area;
         RefineOptions ropt{epsilon * emitted, min_area, samples, seed};
@@ -515,6 +519,9 @@ public:
         }
         patches_ = weld_patches(std::move(leaf_patches));
         visibility_ = std::make_unique<Visibility>(patches_.patches);
+        state->links = links;
+        state->radiosity = sol.radiosity;
+        state->leaves = leaves;
         uint64_t clusters = 0;
         for (const Node& node : h.nodes) clusters += node.cluster;
         nb::dict d;
@@ -557,6 +564,58 @@ public:
         d["node_area"] = to_numpy(std::move(node_area), {h.nodes.size()});
         d["node_cluster"] = to_numpy(std::move(node_cluster), {h.nodes.size()});
         d["leaf_node"] = to_numpy(std::move(leaf_node), {leaves.size()});
+        solved_ = std::move(state);
+        return d;
+    }
+
+    // Final gather at surface points after a hierarchical solve (see gather.h): each point
+    // is matched to the nearest leaf facing along its normal, then every link reaching that
+    // leaf is re-evaluated at the point. Returns leaf (-1 if none within max_distance),
+    // irradiance and radiance.
+    nb::dict gather(In<double> points, In<double> normals, int rays, int cluster_samples, uint64_t seed,
+                    double max_distance) const {
+        if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
+        const size_t n = points.shape(0);
+        if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(0) != n ||
+            normals.shape(1) != 3)
+            throw std::invalid_argument("points and normals: shape (n, 3)");
+        std::vector<int32_t> patch(n, -1);
+        std::vector<double> irr(n * 3, 0.0), rad(n * 3, 0.0);
+        {
+            nb::gil_scoped_release release;
+            std::vector<uint32_t> leaf;
+            std::vector<Vec3> x;
+            std::vector<uint64_t> key;
+            std::vector<size_t> slot;
+            std::vector<RayHit> hits(n);
+            tbb::parallel_for(size_t(0), n, [&](size_t q) {
+                const double* p = points.data() + 3 * q;
+                const double* m = normals.data() + 3 * q;
+                hits[q] = visibility_->closest_point({p[0], p[1], p[2]}, {m[0], m[1], m[2]}, max_distance);
+            });
+            for (size_t q = 0; q < n; ++q) {
+                if (hits[q].patch < 0) continue;
+                patch[q] = hits[q].patch;
+                const double* p = points.data() + 3 * q;
+                leaf.push_back(solved_->leaves[hits[q].patch]);
+                x.push_back({p[0], p[1], p[2]});
+                key.push_back(q);
+                slot.push_back(q);
+            }
+            GatherOptions go{rays, cluster_samples, seed};
+            Gatherer g(solved_->hierarchy, solved_->links, solved_->radiosity, *solved_->visibility, go);
+            std::vector<RGB> e(leaf.size()), l(leaf.size());
+            g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data());
+            for (size_t k = 0; k < leaf.size(); ++k) {
+                const Patch& s = solved_->hierarchy.nodes[leaf[k]].shape;
+                l[k] = (s.emission + mul(s.reflectance, e[k])) / kPi;
+                for (int c = 0; c < 3; ++c) { irr[3 * slot[k] + c] = e[k][c]; rad[3 * slot[k] + c] = l[k][c]; }
+            }
+        }
+        nb::dict d;
+        d["patch"] = to_numpy(std::move(patch), {n});
+        d["irradiance"] = to_numpy(std::move(irr), {n, 3});
+        d["radiance"] = to_numpy(std::move(rad), {n, 3});
         return d;
     }
 
@@ -664,10 +723,21 @@ private:
         return LinkMatrix::from_upper(n, upper);
     }
 
+    // What a hierarchical solve leaves behind for the final gather.
+    struct SolvedHierarchy {
+        explicit SolvedHierarchy(const Scene& scene) : hierarchy(scene) {}
+        Hierarchy hierarchy;
+        std::unique_ptr<Visibility> visibility;  // over hierarchy.faces
+        std::vector<Link> links;                 // sorted by receiver
+        std::vector<RGB> radiosity;              // per node
+        std::vector<uint32_t> leaves;            // node of each patch
+    };
+
     Scene scene_;
     PatchSet patches_;
     std::unique_ptr<Visibility> visibility_;
     std::unique_ptr<LinkMatrix> links_;
+    std::unique_ptr<SolvedHierarchy> solved_;
     DisplayMesh display_;
 };
 
@@ -814,6 +884,8 @@ NB_MODULE(_engine, m) {
         .def("form_factor", &Model::form_factor, "i"_a, "j"_a, "samples"_a, "seed"_a)
         .def("hemicube_row", &Model::hemicube_row, "i"_a, "resolution"_a, "points"_a)
         .def("rays_cast", &Model::rays_cast)
+        .def("gather", &Model::gather, "points"_a, "normals"_a, "rays"_a = 4, "cluster_samples"_a = 8, "seed"_a = 1,
+             "max_distance"_a = 1e30)
         .def("solve_hierarchical", &Model::solve_hierarchical, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
              "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a.none() = nb::none(), "solver"_a = "jacobi")
         .def("reference_at", &Model::reference_at, "points"_a, "normals"_a, "paths"_a, "min_bounces"_a, "seed"_a,

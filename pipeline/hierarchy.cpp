@@ -183,6 +183,29 @@ void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point,
     normal = f.normal;
 }
 
+uint32_t Hierarchy::leaf_at(uint32_t i, double s, double t) const {
+    // Children follow subdivide(): quads by parameter quadrant; triangles by the corner
+    // triangle holding the point, the inverted middle one (3) mapping (s, t) to (1-2s, 1-2t).
+    if (nodes[i].shape.nv == 3 && s + t > 1) { s = 1 - s; t = 1 - t; }
+    while (!nodes[i].leaf()) {
+        const Node& node = nodes[i];
+        int k;
+        if (node.shape.nv == 4) {
+            const bool right = s >= 0.5, top = t >= 0.5;
+            k = right ? (top ? 2 : 1) : (top ? 3 : 0);
+            s = right ? 2 * s - 1 : 2 * s;
+            t = top ? 2 * t - 1 : 2 * t;
+        } else if (s >= 0.5) { k = 1; s = 2 * s - 1; t = 2 * t; }
+        else if (t >= 0.5) { k = 2; s = 2 * s; t = 2 * t - 1; }
+        else if (s + t <= 0.5) { k = 0; s = 2 * s; t = 2 * t; }
+        else { k = 3; s = 1 - 2 * s; t = 1 - 2 * t; }
+        s = std::min(std::max(s, 0.0), 1.0);
+        t = std::min(std::max(t, 0.0), 1.0);
+        i = node.first_child + k;
+    }
+    return i;
+}
+
 std::vector<uint32_t> Hierarchy::leaves() const {
     std::vector<uint32_t> out;
     if (nodes.empty()) return out;

@@ -51,6 +51,9 @@ public:
     // element; on a cluster, a face chosen with probability proportional to its area by `pick`.
     void sample(uint32_t node, double pick, double s, double t, Vec3& point, Vec3& normal) const;
 
+    // The leaf below element `node` that holds its point (s, t) (Patch::point's coordinates).
+    uint32_t leaf_at(uint32_t node, double s, double t) const;
+
     // Leaf elements in depth-first order.
     std::vector<uint32_t> leaves() const;
 

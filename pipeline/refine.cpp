@@ -27,7 +27,7 @@ bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
     return std::sqrt(gap2) < 0.5 * size;
 }
 
-Link Refiner::estimate(uint32_t r, uint32_t s) const {
+Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     Link link;
     link.receiver = r;
     link.source = s;
@@ -36,7 +36,7 @@ Link Refiner::estimate(uint32_t r, uint32_t s) const {
     const int g = std::max(1, static_cast<int>(std::lround(std::sqrt(double(opt_.samples)))));
     const int n = g * g;
     const double lift = 1e-5 * vis_.scene_size();
-    Rng rng(hash_pair(std::min(r, s), std::max(r, s), opt_.seed ^ 0x11E7ull));
+    Rng rng(hash_pair(std::min(r, s), std::max(r, s), opt_.seed ^ 0x11E7ull ^ (stream * 0x9E3779B97F4A7C15ull)));
     std::vector<Vec3> from, to;
     std::vector<double> weight;
     from.reserve(n);
@@ -91,14 +91,17 @@ Link Refiner::estimate(uint32_t r, uint32_t s) const {
     return link;
 }
 
-double Refiner::link_error(const Link& link, const std::vector<RGB>& radiosity) const {
-    // Power the link carries (luminance of B_S times G). Unless every sample ray arrived, the
-    // estimate is uncertain up to the unoccluded transfer.
-    const double b = std::max(0.0, luminance(radiosity[link.source]));
-    return b * (link.visibility < 1 ? link.unoccluded : link.coupling);
+double Refiner::link_error(const Link& link, const std::vector<double>& peak) const {
+    // Power the link could carry: the brightest radiosity below the source (luminance) times
+    // G. The link transports the source's mean radiosity, so where the source's surfaces
+    // differ (a cluster whose bright faces look at the receiver while its dark ones look
+    // away) the error is up to (B_max - B_min) G, which B_max G bounds. The unoccluded G
+    // stands for G: where visibility is partial the estimate is uncertain up to it (so such
+    // links refine towards shadow boundaries), and where it is full the two are equal.
+    return peak[link.source] * link.unoccluded;
 }
 
-Refiner::Action Refiner::decide(const Link& link, const std::vector<RGB>& radiosity) const {
+Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& peak) const {
     if (link.receiver == link.source) return h_.nodes[link.receiver].cluster ? Action::SplitSelf : Action::Drop;
     const bool receiver_splits = h_.can_subdivide(link.receiver, opt_.min_area);
     const bool source_splits = h_.can_subdivide(link.source, opt_.min_area);
@@ -115,9 +118,10 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<RGB>& radios
     if (link.unoccluded <= 0) return Action::Drop;
     // Partly visible links refine towards the shadow boundary, and a link none of whose rays
     // arrived is only dropped when even its unoccluded transfer is negligible.
-    const double error = link_error(link, radiosity);
-    if (error <= opt_.epsilon || (!receiver_splits && !source_splits))
-        return link.coupling > 0 ? Action::Keep : Action::Drop;
+    const double error = link_error(link, peak);
+    // Kept whatever its own rays saw: dropping the links none of whose oracle rays arrived
+    // would bias the transport dark; a link whose transport estimate is zero is dropped later.
+    if (error <= opt_.epsilon || (!receiver_splits && !source_splits)) return Action::Keep;
     return split_larger();
 }
 
@@ -135,7 +139,14 @@ std::vector<Link> Refiner::refine(const std::vector<Link>& links, const std::vec
 std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> evaluated,
                                const std::vector<RGB>& radiosity_in, RefineStats& stats) {
     std::vector<Link> kept;
-    std::vector<RGB> radiosity = radiosity_in;
+    // Per node the brightest luminance below it; children come after their parents.
+    std::vector<double> peak(h_.nodes.size());
+    for (size_t i = h_.nodes.size(); i-- > 0;) {
+        const Node& node = h_.nodes[i];
+        double b = std::max(0.0, luminance(radiosity_in[i]));
+        for (uint32_t c = 0; c < node.child_count; ++c) b = std::max(b, peak[node.first_child + c]);
+        peak[i] = b;
+    }
     while (!frontier.empty()) {
         // 1. Estimate the links that are new, in parallel.
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
@@ -147,17 +158,24 @@ std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> 
         for (size_t k = 0; k < frontier.size(); ++k)
             if (!evaluated[k] && frontier[k].receiver != frontier[k].source && !h_.nodes[frontier[k].receiver].cluster)
                 ++stats.evaluated;
-        // 2. Decide, in parallel; 3. grow the nodes that split and queue the children's links,
+        // 2. Decide, in parallel; 4. grow the nodes that split and queue the children's links,
         // in frontier order so the result does not depend on threads.
         std::vector<Action> action(frontier.size());
-        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) { action[k] = decide(frontier[k], radiosity); });
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) { action[k] = decide(frontier[k], peak); });
+        // 3. The links kept from this pass's estimates get their independent transport estimate.
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
+            if (action[k] == Action::Keep && !evaluated[k])
+                frontier[k].coupling = estimate(frontier[k].receiver, frontier[k].source, 1).coupling;
+        });
+        for (size_t k = 0; k < frontier.size(); ++k) stats.evaluated += action[k] == Action::Keep && !evaluated[k];
         std::vector<Link> next;
         for (size_t k = 0; k < frontier.size(); ++k) {
             const Link& l = frontier[k];
             switch (action[k]) {
                 case Action::Keep:
+                    if (!(l.coupling > 0)) break;
                     kept.push_back(l);
-                    kept.back().error = static_cast<float>(link_error(l, radiosity));
+                    kept.back().error = static_cast<float>(link_error(l, peak));
                     break;
                 case Action::Drop: break;
                 case Action::SplitSelf: {
@@ -188,8 +206,8 @@ std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> 
                 }
             }
         }
-        // New nodes inherit their parent's radiosity for the oracle.
-        for (size_t i = radiosity.size(); i < h_.nodes.size(); ++i) radiosity.push_back(radiosity[h_.nodes[i].parent]);
+        // New nodes inherit their parent's bound for the oracle.
+        for (size_t i = peak.size(); i < h_.nodes.size(); ++i) peak.push_back(peak[h_.nodes[i].parent]);
         frontier.swap(next);
         evaluated.assign(frontier.size(), 0);
     }

@@ -6,8 +6,10 @@
 // flat patch). Links are plain data: no pointers, ready to be written to disk in chunks.
 //
 // Receivers are always elements (a cluster cannot share gathered irradiance fairly among
-// surfaces facing different ways); sources may be clusters. Refinement is brightness weighted: a link whose transported power B_S * G exceeds epsilon
-// is replaced by links to the children of its larger end. For a partly occluded link the
+// surfaces facing different ways); sources may be clusters. Refinement is brightness weighted:
+// a link whose power bound B_max(S) * G exceeds epsilon (B_max: the brightest surface below
+// the source, so that sources of uneven radiosity are split) is replaced by links to the
+// children of its larger end. For a partly occluded link the
 // unoccluded transfer is used, so links refine towards shadow boundaries. It starts from the
 // root's self-link and runs level by level, the estimates of each level in parallel.
 #pragma once
@@ -19,14 +21,17 @@
 
 namespace hirad {
 
+// The oracle decides on one estimate (unoccluded, visibility) and the link transports another,
+// independent one (coupling): deciding and keeping on the same noisy number would keep the
+// links whose estimate came out low and split those that came out high, a bias towards dark.
 struct Link {
     uint32_t receiver = 0;
     uint32_t source = 0;
     float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver
-    float unoccluded = 0;     // G without visibility
-    float visibility = 0;     // fraction of the sample rays that arrived
-    float error = 0;          // the oracle's estimate of the power the link carries when it was
-                              // last checked (B_source x G, unoccluded G if partly visible), W
+    float unoccluded = 0;     // G without visibility (the oracle's estimate)
+    float visibility = 0;     // fraction of the oracle estimate's rays that arrived
+    float error = 0;          // the oracle's bound on the power the link carries when it was
+                              // last checked (B_max(source) x G, unoccluded G if partly visible), W
 };
 
 struct RefineOptions {
@@ -54,13 +59,14 @@ public:
     // Returns the new link set; `stats.split` counts the links that were split.
     std::vector<Link> refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats);
 
-    // The estimate for one pair (exposed for tests).
-    Link estimate(uint32_t receiver, uint32_t source) const;
+    // The estimate for one pair (exposed for tests). Different `stream`s draw independent
+    // samples.
+    Link estimate(uint32_t receiver, uint32_t source, uint64_t stream = 0) const;
 
 private:
     enum class Action : uint8_t { Keep, Drop, SplitReceiver, SplitSource, SplitSelf };
-    Action decide(const Link& link, const std::vector<RGB>& radiosity) const;
-    double link_error(const Link& link, const std::vector<RGB>& radiosity) const;
+    Action decide(const Link& link, const std::vector<double>& peak) const;
+    double link_error(const Link& link, const std::vector<double>& peak) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
     std::vector<Link> run(std::vector<Link> frontier, std::vector<uint8_t> evaluated, const std::vector<RGB>& radiosity,
                           RefineStats& stats);

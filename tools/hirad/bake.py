@@ -147,6 +147,20 @@ class Result(SurfaceSolution):
     patch_radiosity: np.ndarray | None = None   # (P,3) B, W/m^2
     patch_irradiance: np.ndarray | None = None  # (P,3) H, W/m^2
     patches: dict = field(default_factory=dict)
+    _model: object = None   # the engine model of a hierarchical bake, kept for the final gather
+
+    def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8,
+               seed: int = 1) -> dict:
+        """Final gather at surface points from the solved hierarchy (hierarchical bakes only):
+        every link that reaches a point's element is re-evaluated at the point itself, with
+        exact point-to-polygon form factors and Embree visibility. Returns dict of patch
+        (-1 if no surface faces along the normal), irradiance (W/m^2) and radiance
+        (W/(m^2 sr))."""
+        if self._model is None:
+            raise BakeError("gather needs a hierarchical bake (method: hierarchical)")
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+        return self._model.gather(pts, nrm, rays, cluster_samples, seed)
 
 
 def load_solution(path: str | os.PathLike) -> SurfaceSolution:
@@ -264,7 +278,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
     result = Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
                     vertex_radiance[faces], vertex_irradiance[faces],
                     cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
-                    patches=patches)
+                    patches=patches, _model=model if cfg.method == "hierarchical" else None)
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = _patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)

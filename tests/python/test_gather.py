@@ -1,0 +1,135 @@
+"""The final gather (Model.gather after a hierarchical solve) against physics: closed-form
+point form factors, the furnace (the links that reach a point must cover its hemisphere exactly
+once), an umbra, the Monte Carlo reference, and determinism."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import box_faces, make_model, parallel_squares, quad
+
+from hirad import _engine
+
+
+def corner_form_factor(a, b, c):
+    """Point below the corner of an a x b rectangle at distance c, parallel (closed form)."""
+    A, B = a / c, b / c
+    return (A / np.sqrt(1 + A * A) * np.arctan(B / np.sqrt(1 + A * A))
+            + B / np.sqrt(1 + B * B) * np.arctan(A / np.sqrt(1 + B * B))) / (2 * np.pi)
+
+
+def point_to_square(x, y, d, size=1.0):
+    """Form factor from a point (x, y) of the plane z = 0 facing +z to the square [0,size]^2 at
+    height d, parallel: the four rectangles the point's foot splits it into."""
+    total = 0.0
+    for w in (x, size - x):
+        for h in (y, size - y):
+            if w > 0 and h > 0:
+                total += corner_form_factor(w, h, d)
+    return total
+
+
+def solve(m, epsilon, min_area, samples=16, max_rounds=6):
+    return m.solve_hierarchical(epsilon, min_area, samples, 1, 1e-10, 100000, max_rounds, None, "jacobi")
+
+
+def test_gather_under_a_square_emitter_is_the_closed_form_point_form_factor():
+    # Bottom square (rho 0.5) lit by a black top square emitting E = pi: one bounce, so
+    # H(x) = E F(x -> top) exactly, while the bottom's elements only hold their mean.
+    m = make_model(parallel_squares(1.0), reflectance=[[0.5] * 3, [0.0] * 3], emission=[[0.0] * 3, [np.pi] * 3])
+    solve(m, 1e-2, 0.05)   # coarse on purpose: leaves of 1/16 m^2 or more
+    xy = np.array([[0.5, 0.5], [0.1, 0.1], [0.05, 0.6], [0.83, 0.27], [0.97, 0.97]])
+    pts = np.ascontiguousarray(np.c_[xy, np.zeros(len(xy))])
+    nrm = np.ascontiguousarray(np.tile([0.0, 0.0, 1.0], (len(xy), 1)))
+    g = m.gather(pts, nrm)
+    expected = np.array([np.pi * point_to_square(x, y, 1.0) for x, y in xy])
+    assert np.all(g["patch"] >= 0)
+    np.testing.assert_allclose(g["irradiance"][:, 0], expected, rtol=2e-3)
+    np.testing.assert_allclose(g["radiance"][:, 1], 0.5 * expected / np.pi, rtol=2e-3)
+    # The element values do not resolve the fall-off from centre to corner (the test's point).
+    p = m.patch_arrays()
+    assert len(p["area"]) < 64
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.9])
+def test_gather_in_a_furnace_sees_every_direction_once(rho):
+    # Closed box, every face E = 1 and rho: B = 1 / (1 - rho) everywhere, so at any point the
+    # gather is (E + rho H) / pi with H = B: only if the links reaching the point (its leaf's
+    # and its ancestors') cover the hemisphere exactly once.
+    m = make_model(box_faces(), rho, 1.0)
+    r = solve(m, {0.5: 2e-5, 0.9: 1e-4}[rho], 0.0155, samples=144)   # test_hierarchy's furnace
+    b = r["radiosity"]
+    rng = np.random.default_rng(7)
+    pts, nrm = [], []
+    for face in box_faces():
+        n = np.cross(face[1] - face[0], face[3] - face[0])
+        n /= np.linalg.norm(n)
+        for s, t in rng.random((10, 2)) * 0.96 + 0.02:
+            pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
+            nrm.append(n)
+    g = m.gather(np.ascontiguousarray(pts), np.ascontiguousarray(nrm), rays=16)
+    assert np.all(g["patch"] >= 0)
+    # H(x) carries the solved B's own error (under 0.6 % here, test_hierarchy's furnace) once.
+    assert np.abs(b * (1 - rho) - 1).max() < 0.006
+    err = np.abs(g["irradiance"] * (1 - rho) - 1)
+    assert err.max() < 0.01, f"rho {rho}: max relative error {err.max():.4f}"
+    np.testing.assert_allclose(g["radiance"], (1 + rho * g["irradiance"]) / np.pi, rtol=1e-12)
+
+
+def test_gather_in_an_umbra_is_zero_and_beside_it_the_closed_form():
+    # A black emitter (E = pi) [0,1]^2 at z = 1 facing down, a black blocker [0.2,0.8]^2 at
+    # z = 0.5 facing down, a white floor [-1,2]^2 at z = 0. From the floor's centre the emitter
+    # spans slopes up to 0.5, the blocker up to 0.6: it hides all of it (H = 0 exactly). From
+    # (-0.9, 0.5) the rays to the emitter cross z = 0.5 at x <= 0.05: it hides none of it.
+    emitter = quad([0, 0, 1], [0, 1, 0], [1, 0, 0])
+    blocker = quad([0.2, 0.2, 0.5], [0, 0.6, 0], [0.6, 0, 0])
+    floor = quad([-1, -1, 0], [3, 0, 0], [0, 3, 0])
+    m = make_model([floor, blocker, emitter], reflectance=[[0.5] * 3, [0.0] * 3, [0.0] * 3],
+                   emission=[[0.0] * 3, [0.0] * 3, [np.pi] * 3])
+    solve(m, 1e-3, 0.01)
+    pts = np.array([[0.5, 0.5, 0.0], [-0.9, 0.5, 0.0]])
+    nrm = np.array([[0.0, 0.0, 1.0]] * 2)
+    g = m.gather(pts, nrm, rays=16)
+    assert g["irradiance"][0].max() == 0.0
+    # Beside it: the emitter seen from (-0.9, 0.5): rectangles of the plane shifted by x.
+    far = np.pi * (corner_form_factor(1.9, 0.5, 1.0) - corner_form_factor(0.9, 0.5, 1.0)) * 2
+    np.testing.assert_allclose(g["irradiance"][1], far, rtol=5e-3)
+
+
+def test_gather_agrees_with_the_monte_carlo_reference_in_an_open_room():
+    # An open box (no ceiling) lit by a square emitter above it: several bounces, occlusion by
+    # the walls; the reference path-traces the same polygons independently of any links.
+    faces = box_faces(omit=("z1",))
+    emitter = quad([0.25, 0.25, 0.95], [0, 0.5, 0], [0.5, 0, 0])
+    refl = [[0.7, 0.2, 0.2], [0.2, 0.7, 0.2], [0.6, 0.6, 0.6], [0.6, 0.6, 0.6], [0.7, 0.7, 0.7], [0.0] * 3]
+    emis = [[0.0] * 3] * 5 + [[10.0] * 3]
+    m = make_model(faces + [emitter], refl, emis)
+    solve(m, 3e-5, 0.002)
+    rng = np.random.default_rng(3)
+    pts = np.c_[rng.uniform(0.1, 0.9, (8, 2)), np.zeros(8)]          # floor
+    pts = np.r_[pts, np.c_[np.zeros(6), rng.uniform(0.1, 0.9, (6, 2))]]  # wall x = 0
+    nrm = np.r_[np.tile([0.0, 0, 1], (8, 1)), np.tile([1.0, 0, 0], (6, 1))]
+    pts, nrm = np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
+    g = m.gather(pts, nrm, rays=16)
+    ref = m.reference_at(pts, nrm, 20000, 3, 5, 1e-4)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    rel = np.abs(g["radiance"] @ lum / (ref["radiance"] @ lum) - 1)
+    rel_se = (ref["standard_error"] @ lum) / (ref["radiance"] @ lum)
+    assert np.all(rel <= 3 * rel_se + 0.03), (rel, rel_se)
+
+
+def test_gather_is_deterministic_and_needs_a_hierarchical_solve():
+    m = make_model(parallel_squares(1.0), reflectance=[[0.5] * 3, [0.0] * 3], emission=[[0.0] * 3, [np.pi] * 3])
+    with pytest.raises(ValueError, match="hierarchical solve"):
+        m.gather(np.zeros((1, 3)), np.array([[0.0, 0, 1]]))
+    solve(m, 1e-3, 0.01)
+    pts = np.ascontiguousarray(np.c_[np.random.default_rng(1).random((50, 2)), np.zeros(50)])
+    nrm = np.ascontiguousarray(np.tile([0.0, 0, 1], (50, 1)))
+    a = m.gather(pts, nrm, rays=16)
+    try:
+        _engine.set_threads(1)
+        b = m.gather(pts, nrm, rays=16)
+    finally:
+        _engine.set_threads(0)
+    assert np.array_equal(a["irradiance"], b["irradiance"]) and a["irradiance"].max() > 0
