@@ -8,7 +8,8 @@ HIRAD   := $(VENV)/bin/hirad
 CPP_SRC := $(wildcard pipeline/*.h pipeline/*.cpp formats/*.h formats/*.cpp) CMakeLists.txt
 CPP_TESTS := $(wildcard tests/cpp/*.cpp)
 DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
-                libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time
+                libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time \
+                libzstd-dev libxxhash-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 JOBS := $(shell nproc)
 
@@ -54,6 +55,28 @@ py-test: engine
 
 bench: engine
 	$(PY) bench/run.py
+
+# The link store's libFuzzer target (not part of `test`): built with clang and sanitizers,
+# run for 60 s. New inputs go to a scratch directory, never into the seed corpus.
+FUZZ_PACKAGES := clang libclang-rt-14-dev libzstd-dev libxxhash-dev
+FUZZ_FLAGS := -std=c++17 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined
+.PHONY: fuzz
+
+.stamp-apt-fuzz: Makefile
+	@if dpkg-query -W -f='$${Status}\n' $(FUZZ_PACKAGES) 2>/dev/null | grep -vq "install ok installed" \
+	    || [ $$(dpkg-query -W -f='$${Status}\n' $(FUZZ_PACKAGES) 2>/dev/null | wc -l) -lt $(words $(FUZZ_PACKAGES)) ]; then \
+	  echo "installing Debian packages: $(FUZZ_PACKAGES)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(FUZZ_PACKAGES); \
+	fi
+	@touch $@
+
+build/fuzz/linkstore_fuzz: .stamp-apt-fuzz tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp formats/linkstore.h
+	@mkdir -p build/fuzz
+	clang++ $(FUZZ_FLAGS) -Iformats tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp -lzstd -lxxhash -o $@
+
+fuzz: build/fuzz/linkstore_fuzz
+	rm -rf build/fuzz/scratch && mkdir -p build/fuzz/scratch
+	build/fuzz/linkstore_fuzz -max_total_time=60 -artifact_prefix=build/fuzz/ build/fuzz/scratch tests/fuzz/corpus/linkstore
 
 clean:
 	rm -rf build out .stamp-*

@@ -1,0 +1,189 @@
+// The on-disk link store: the links of hierarchical radiosity, out of core.
+//
+// A store is a directory holding one chunk file per range [source_begin, source_end) of
+// source groups (the engine's partition of the source nodes: blocks of input faces in
+// cluster order; which group a source belongs to is the engine's to check) and a manifest
+// that lists them. A store without a committed manifest is never used.
+//
+//   <dir>/manifest                              written last, atomically, by commit()
+//   <dir>/chunk-<begin:08x>-<end:08x>.hlc       one per write_chunk() call
+//
+// All integers are little-endian, written byte by byte (no struct is written as is).
+// Checksums are XXH3_64bits (seed 0).
+//
+// Chunk file: a 64-byte header, then the compressed payload.
+//    0  char[8]  magic "HRDLINKC"
+//    8  u32      format version (kLinkStoreVersion)
+//   12  u32      chunk index: the chunk's position in the manifest (0xffffffff until commit()
+//                assigns it, because chunks may be written in any order)
+//   16  u32      source_begin
+//   20  u32      source_end
+//   24  u64      link count n
+//   32  u64      compressed payload size (the file is exactly 64 + this many bytes)
+//   40  u64      uncompressed payload size (always 24 n)
+//   48  u64      checksum of the compressed payload
+//   56  u64      checksum of header bytes [0, 56)
+// Records are sorted by source, then receiver, strictly (no two links join the same pair);
+// the writer sorts them. The payload is one zstd frame. Before compression the records are
+// cut into blocks of kBlockLinks (the last one shorter) and each record becomes six 32-bit
+// words: receiver - (previous receiver if the source is the previous record's, else 0),
+// source - previous source (source_begin before the first record), the bits of coupling,
+// unoccluded XOR coupling (zero when the link is fully visible), visibility and error. A
+// block stores byte 0 of every record's word 0, then byte 1 of word 0, ..., byte 3 of word 5
+// (24 byte planes). This makes the float bytes of similar magnitude line up and the deltas
+// mostly zero: about 6 bytes per link on refiner output instead of 13 for zstd of raw records.
+//
+// Manifest: a 40-byte header, 64 bytes per chunk, then a checksum of all preceding bytes.
+//    0  char[8]  magic "HRDLINKM"
+//    8  u32      format version
+//   12  u32      node count: every receiver and source index is below it
+//   16  u32      element count
+//   20  u32      chunk count
+//   24  u64      scene fingerprint
+//   32  u64      config fingerprint
+//   per chunk, sorted by source_begin, group ranges not empty and not overlapping:
+//    0  char[32] file name, NUL padded (must be chunk_file_name(begin, end))
+//   32  u32      source_begin
+//   36  u32      source_end
+//   40  u64      link count
+//   48  u64      compressed payload size
+//   56  u64      checksum of the compressed payload
+//   end u64      checksum of every byte before it
+//
+// Errors: problems with the files throw std::runtime_error naming the file, the chunk index
+// and what is wrong; bad arguments to the writer throw std::invalid_argument, and misuse
+// (write_chunk after commit, commit twice) std::logic_error.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+namespace hirad {
+
+// One link as stored; the same fields in the same order as hirad::Link (pipeline/refine.h),
+// so the engine can memcpy between the two.
+struct LinkRecord {
+    uint32_t receiver;
+    uint32_t source;
+    float coupling;     // G, m^2: finite, >= 0
+    float unoccluded;   // G without visibility: finite, >= 0
+    float visibility;   // in [0, 1]
+    float error;        // the refinement oracle's power estimate: finite
+};
+static_assert(sizeof(LinkRecord) == 24, "LinkRecord must be 24 bytes without padding");
+static_assert(std::is_trivially_copyable_v<LinkRecord>, "LinkRecord must be memcpy-able");
+
+constexpr uint32_t kLinkStoreVersion = 1;
+constexpr size_t kChunkHeaderSize = 64;
+constexpr uint32_t kBlockLinks = 4096;
+constexpr uint64_t kMaxLinksPerChunk = uint64_t(1) << 24;  // 384 MiB decoded
+constexpr uint32_t kMaxChunks = uint32_t(1) << 20;
+
+// What the engine compares to decide whether a store can be reused.
+struct LinkStoreInfo {
+    uint64_t scene_fingerprint = 0;
+    uint64_t config_fingerprint = 0;
+    uint32_t node_count = 0;
+    uint32_t element_count = 0;  // at most node_count
+};
+
+// A manifest entry.
+struct ChunkEntry {
+    uint32_t source_begin = 0;
+    uint32_t source_end = 0;
+    uint64_t link_count = 0;
+    uint64_t compressed_size = 0;  // payload bytes after the header
+    uint64_t checksum = 0;         // of the compressed payload
+};
+
+struct LinkStoreManifest {
+    LinkStoreInfo info;
+    std::vector<ChunkEntry> chunks;  // sorted by source_begin
+};
+
+// Writes a store. write_chunk() may be called from several threads at once; commit() once,
+// after every write_chunk() has returned. Not for two writers on one directory.
+class LinkStoreWriter {
+public:
+    // Creates `dir` if absent. A directory holding an earlier store (or the leftovers of an
+    // uncommitted one) is cleared, its manifest first, so that new chunks are never paired
+    // with the old manifest. A directory holding anything else is refused.
+    LinkStoreWriter(const std::string& dir, const LinkStoreInfo& info);
+
+    // Stores the links of the source groups [source_begin, source_end) (in any order; they
+    // are sorted here) as one chunk, written to a temporary name, fsynced and renamed. Ranges
+    // must not overlap earlier calls'. Throws std::invalid_argument for an invalid link
+    // (index out of range, duplicate pair, bad value).
+    void write_chunk(uint32_t source_begin, uint32_t source_end, const LinkRecord* links, size_t count);
+    void write_chunk(uint32_t source_begin, uint32_t source_end, const std::vector<LinkRecord>& links) {
+        write_chunk(source_begin, source_end, links.data(), links.size());
+    }
+
+    // Numbers the chunks by source_begin, writes the manifest to a temporary file, fsyncs it,
+    // renames it into place and fsyncs the directory. Refused after a failed write_chunk().
+    void commit();
+
+private:
+    struct Slot {
+        ChunkEntry entry;
+        bool written = false;
+    };
+    std::string dir_;
+    LinkStoreInfo info_;
+    std::mutex mutex_;                // guards the members below
+    std::map<uint32_t, Slot> slots_;  // by source_begin; reserved before the chunk is written
+    bool failed_ = false;
+    bool committed_ = false;
+};
+
+// Reads a committed store. Every method is const and keeps no mutable state, so read_chunk()
+// may be called concurrently from several threads (e.g. a prefetching one).
+class LinkStoreReader {
+public:
+    // Reads and validates the manifest.
+    explicit LinkStoreReader(const std::string& dir);
+
+    const LinkStoreInfo& info() const { return manifest_.info; }
+    const LinkStoreManifest& manifest() const { return manifest_; }
+    size_t chunk_count() const { return manifest_.chunks.size(); }
+    const ChunkEntry& chunk(size_t k) const { return manifest_.chunks.at(k); }
+    std::string chunk_path(size_t k) const;
+    uint64_t total_links() const;
+    uint64_t total_compressed_bytes() const;  // payloads, without the headers
+
+    // The links of chunk k, sorted by source then receiver. `out` is resized; its capacity is
+    // reused, so a buffer kept across calls is not reallocated once it is large enough.
+    void read_chunk(size_t k, std::vector<LinkRecord>& out) const;
+    // Into a caller's buffer of `capacity` records (at least chunk(k).link_count); returns
+    // the number of links.
+    size_t read_chunk(size_t k, LinkRecord* out, size_t capacity) const;
+
+private:
+    std::string dir_;
+    LinkStoreManifest manifest_;
+};
+
+// The format layer under the writer and the reader, from memory (the fuzz target and the
+// tests use it directly). `path` only names the file in error messages.
+std::string chunk_file_name(uint32_t source_begin, uint32_t source_end);
+std::vector<uint8_t> encode_manifest(const LinkStoreManifest& manifest);
+// Validates everything: magic, version, checksum, size, counts, every entry.
+LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::string& path);
+// A chunk file's bytes for `count` links. Does not validate the links (the writer does), so
+// that tests can make invalid stores; `entry` receives the chunk's manifest entry.
+std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_t source_end,
+                                  const LinkRecord* sorted_links, size_t count, ChunkEntry& entry);
+// Validates a chunk file's bytes against entry k of a manifest that decode_manifest()
+// accepted (header against the entry field by field, checksums, sizes, every record) and
+// decodes the links into out[0, link_count).
+void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
+                  const std::string& path, LinkRecord* out);
+// Writes a buffer to `path` (created or truncated) and fsyncs it; throws naming the path
+// and the OS error. The writer writes every file through it.
+void write_file_synced(const std::string& path, const uint8_t* data, size_t size);
+
+}  // namespace hirad

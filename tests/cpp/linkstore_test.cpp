@@ -1,0 +1,566 @@
+// The on-disk link store: round trips, determinism, corruption of every kind detected with a
+// message naming the file, the store's life cycle (commit, re-creation) and write errors.
+#include "linkstore.h"
+
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#define XXH_INLINE_ALL  // header-only: the tests forge checksums to reach deeper checks
+#include <xxhash.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <functional>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <random>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace hirad {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::vector<uint8_t> slurp(const fs::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+void spit(const fs::path& p, const std::vector<uint8_t>& bytes) {
+    std::ofstream f(p, std::ios::binary | std::ios::trunc);
+    f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+}
+
+void put32(uint8_t* p, uint32_t v) {
+    for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
+}
+void put64(uint8_t* p, uint64_t v) {
+    for (int i = 0; i < 8; ++i) p[i] = uint8_t(v >> (8 * i));
+}
+
+// Rewrites the trailing checksum of a manifest after its bytes were edited.
+void reseal_manifest(std::vector<uint8_t>& m) { put64(m.data() + m.size() - 8, XXH3_64bits(m.data(), m.size() - 8)); }
+
+::testing::AssertionResult Contains(const std::string& text, const std::string& part) {
+    if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << "\n  message: " << text << "\n  lacks:   " << part;
+}
+
+std::string error_of(const std::function<void()>& f) {
+    try {
+        f();
+    } catch (const std::runtime_error& e) {
+        return e.what();
+    }
+    return "(no std::runtime_error)";
+}
+
+struct Chunk {
+    uint32_t begin, end;
+    std::vector<LinkRecord> links;  // sorted by source, then receiver
+};
+
+bool by_source_receiver(const LinkRecord& a, const LinkRecord& b) {
+    return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
+}
+
+// Distinct random pairs with sources in [begin, end), values spanning many magnitudes and
+// the edge cases (zero, negative zero, subnormal, visibility exactly 0 and 1).
+std::vector<LinkRecord> random_links(std::mt19937_64& rng, uint32_t node_count, uint32_t begin, uint32_t end,
+                                     size_t count) {
+    std::uniform_int_distribution<uint32_t> src(begin, end - 1), rcv(0, node_count - 1);
+    std::uniform_real_distribution<float> u(0, 1);
+    std::set<std::pair<uint32_t, uint32_t>> pairs;
+    while (pairs.size() < count) pairs.insert({src(rng), rcv(rng)});
+    std::vector<LinkRecord> links;
+    for (const auto& [s, r] : pairs) {
+        LinkRecord l{r, s, 0, 0, 0, 0};
+        l.unoccluded = std::ldexp(u(rng), -int(rng() % 30));
+        const int kind = int(rng() % 4);
+        l.visibility = kind == 0 ? 1.0f : kind == 1 ? 0.0f : u(rng);
+        l.coupling = l.unoccluded * l.visibility;
+        l.error = (u(rng) - 0.25f) * 10;
+        links.push_back(l);
+    }
+    links[0].coupling = -0.0f;
+    links.back().unoccluded = std::numeric_limits<float>::denorm_min();
+    std::sort(links.begin(), links.end(), by_source_receiver);
+    return links;
+}
+
+constexpr LinkStoreInfo kInfo{0x1234567890abcdefull, 0xfedcba0987654321ull, 1000, 700};
+
+// Chunks of consecutive group ranges (one empty), 1..600 links each.
+std::vector<Chunk> make_chunks(size_t n, uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::vector<Chunk> chunks;
+    uint32_t begin = 3;
+    for (size_t i = 0; i < n; ++i) {
+        const uint32_t end = begin + 1 + uint32_t(rng() % 40);
+        chunks.push_back({begin, end, i == 2 ? std::vector<LinkRecord>{} :
+                                                random_links(rng, kInfo.node_count, begin, end, 1 + rng() % 600)});
+        begin = end + uint32_t(rng() % 3);  // sometimes a gap: sources without links
+    }
+    return chunks;
+}
+
+// Writes `chunks` in the order `order` from `threads` threads, then commits. A worker's
+// exception is rethrown here.
+void write_store(const fs::path& dir, const std::vector<Chunk>& chunks, std::vector<size_t> order, int threads) {
+    LinkStoreWriter w(dir.string(), kInfo);
+    std::atomic<size_t> next{0};
+    std::vector<std::exception_ptr> errors(static_cast<size_t>(threads));
+    std::vector<std::thread> pool;
+    for (int t = 0; t < threads; ++t)
+        pool.emplace_back([&, t] {
+            try {
+                for (size_t i; (i = next++) < order.size();) {
+                    const Chunk& c = chunks[order[i]];
+                    std::vector<LinkRecord> shuffled = c.links;  // the writer must sort
+                    std::reverse(shuffled.begin(), shuffled.end());
+                    w.write_chunk(c.begin, c.end, shuffled);
+                }
+            } catch (...) {
+                errors[size_t(t)] = std::current_exception();
+            }
+        });
+    for (auto& t : pool) t.join();
+    for (const auto& e : errors)
+        if (e) std::rethrow_exception(e);
+    w.commit();
+}
+
+std::vector<size_t> iota(size_t n) {
+    std::vector<size_t> v(n);
+    for (size_t i = 0; i < n; ++i) v[i] = i;
+    return v;
+}
+
+bool same_bits(const std::vector<LinkRecord>& a, const std::vector<LinkRecord>& b) {
+    return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(LinkRecord)) == 0);
+}
+
+class LinkStoreTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+        dir_ = fs::temp_directory_path() /
+               ("hirad_linkstore_" + std::to_string(::getpid()) + "_" + info->test_suite_name() + "_" + info->name());
+        fs::remove_all(dir_);
+        fs::create_directories(dir_);
+    }
+    void TearDown() override {
+        std::error_code ec;
+        fs::permissions(dir_ / "store", fs::perms::owner_all, fs::perm_options::add, ec);
+        fs::remove_all(dir_);
+    }
+    // A committed store of `n` chunks at dir_/store.
+    std::vector<Chunk> small_store(size_t n = 3) {
+        std::vector<Chunk> chunks = make_chunks(n, 7);
+        write_store(store(), chunks, iota(n), 1);
+        return chunks;
+    }
+    fs::path store() const { return dir_ / "store"; }
+    fs::path dir_;
+};
+
+using LinkStore = LinkStoreTest;
+using LinkStoreCorruption = LinkStoreTest;
+using LinkStoreWriterChecks = LinkStoreTest;
+using LinkStoreLifecycle = LinkStoreTest;
+using LinkStoreWriteErrors = LinkStoreTest;
+
+TEST_F(LinkStore, RoundTripOfManyChunksWrittenFromSeveralThreads) {
+    const std::vector<Chunk> chunks = make_chunks(40, 1);
+    std::vector<size_t> order = iota(chunks.size());
+    std::shuffle(order.begin(), order.end(), std::mt19937_64(5));
+    write_store(store(), chunks, order, 4);
+
+    LinkStoreReader r(store().string());
+    EXPECT_EQ(r.info().scene_fingerprint, kInfo.scene_fingerprint);
+    EXPECT_EQ(r.info().config_fingerprint, kInfo.config_fingerprint);
+    EXPECT_EQ(r.info().node_count, kInfo.node_count);
+    EXPECT_EQ(r.info().element_count, kInfo.element_count);
+    ASSERT_EQ(r.chunk_count(), chunks.size());
+    uint64_t links = 0, payload = 0;
+    for (size_t k = 0; k < chunks.size(); ++k) {
+        // Manifest order is by source_begin, whatever the write order.
+        EXPECT_EQ(r.chunk(k).source_begin, chunks[k].begin);
+        EXPECT_EQ(r.chunk(k).source_end, chunks[k].end);
+        links += chunks[k].links.size();
+        payload += fs::file_size(r.chunk_path(k)) - kChunkHeaderSize;
+    }
+    EXPECT_EQ(r.total_links(), links);
+    EXPECT_EQ(r.total_compressed_bytes(), payload);
+
+    // Bit-identical, sorted by source then receiver, read concurrently from four threads.
+    std::atomic<int> mismatches{0};
+    std::vector<std::thread> pool;
+    for (int t = 0; t < 4; ++t)
+        pool.emplace_back([&, t] {
+            std::vector<LinkRecord> out;
+            for (size_t i = 0; i < chunks.size(); ++i) {
+                const size_t k = (i * 7 + size_t(t) * 11) % chunks.size();
+                r.read_chunk(k, out);
+                if (!same_bits(out, chunks[k].links)) ++mismatches;
+            }
+        });
+    for (auto& t : pool) t.join();
+    EXPECT_EQ(mismatches.load(), 0);
+}
+
+TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
+    const std::vector<Chunk> chunks = small_store();
+    LinkStoreReader r(store().string());
+    std::vector<LinkRecord> out;
+    out.reserve(1000);
+    const LinkRecord* data = out.data();
+    for (size_t k = 0; k < chunks.size(); ++k) {
+        r.read_chunk(k, out);
+        EXPECT_TRUE(same_bits(out, chunks[k].links));
+        EXPECT_EQ(out.data(), data);  // large enough already: not reallocated
+    }
+    std::vector<LinkRecord> raw(chunks[0].links.size() + 5);
+    EXPECT_EQ(r.read_chunk(0, raw.data(), raw.size()), chunks[0].links.size());
+    raw.resize(chunks[0].links.size());
+    EXPECT_TRUE(same_bits(raw, chunks[0].links));
+    EXPECT_THROW(r.read_chunk(0, raw.data(), raw.size() - 1), std::invalid_argument);
+    EXPECT_THROW(r.read_chunk(chunks.size(), out), std::out_of_range);
+}
+
+TEST_F(LinkStore, ManifestAndChunkBytesDoNotDependOnTheWriteOrder) {
+    const std::vector<Chunk> chunks = make_chunks(12, 2);
+    std::vector<size_t> reverse = iota(chunks.size()), shuffled = iota(chunks.size());
+    std::reverse(reverse.begin(), reverse.end());
+    std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937_64(9));
+    write_store(dir_ / "a", chunks, iota(chunks.size()), 1);
+    write_store(dir_ / "b", chunks, reverse, 1);
+    write_store(dir_ / "c", chunks, shuffled, 3);
+    const std::vector<uint8_t> manifest = slurp(dir_ / "a" / "manifest");
+    ASSERT_GT(manifest.size(), 40u);
+    for (const char* other : {"b", "c"}) {
+        EXPECT_EQ(slurp(dir_ / other / "manifest"), manifest) << other;
+        for (const Chunk& c : chunks) {
+            const std::string name = chunk_file_name(c.begin, c.end);
+            EXPECT_EQ(slurp(dir_ / other / name), slurp(dir_ / "a" / name)) << other << " " << name;
+        }
+    }
+}
+
+TEST_F(LinkStoreCorruption, EveryFlippedChunkByteIsDetected) {
+    const std::vector<Chunk> chunks = small_store();
+    LinkStoreReader r(store().string());
+    const size_t k = 1;
+    const fs::path path = r.chunk_path(k);
+    const std::vector<uint8_t> good = slurp(path);
+    ASSERT_GT(good.size(), kChunkHeaderSize + 100);
+    std::vector<LinkRecord> out;
+    for (size_t i = 0; i < good.size(); ++i) {
+        std::vector<uint8_t> bad = good;
+        bad[i] ^= uint8_t(1u << (i % 8));
+        spit(path, bad);
+        const std::string msg = error_of([&] { r.read_chunk(k, out); });
+        ASSERT_TRUE(Contains(msg, path.filename().string() + ": chunk 1: ")) << "byte " << i;
+        if (i >= 8 && i < 12) EXPECT_TRUE(Contains(msg, "format version"));
+        if (i >= 12 && i < kChunkHeaderSize) EXPECT_TRUE(Contains(msg, "header checksum mismatch")) << i;
+        if (i >= kChunkHeaderSize) EXPECT_TRUE(Contains(msg, "payload checksum mismatch")) << i;
+    }
+    spit(path, good);
+    r.read_chunk(k, out);
+    EXPECT_TRUE(same_bits(out, chunks[k].links));
+}
+
+TEST_F(LinkStoreCorruption, EveryFlippedManifestByteIsDetected) {
+    small_store();
+    const fs::path path = store() / "manifest";
+    const std::vector<uint8_t> good = slurp(path);
+    for (size_t i = 0; i < good.size(); ++i) {
+        std::vector<uint8_t> bad = good;
+        bad[i] ^= 0x10;
+        spit(path, bad);
+        ASSERT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), path.string() + ": "))
+            << "byte " << i;
+    }
+}
+
+TEST_F(LinkStoreCorruption, TruncatedOrExtendedChunk) {
+    small_store();
+    LinkStoreReader r(store().string());
+    const fs::path path = r.chunk_path(0);
+    const std::vector<uint8_t> good = slurp(path);
+    std::vector<LinkRecord> out;
+    for (size_t size : {size_t(0), size_t(10), kChunkHeaderSize, good.size() - 1}) {
+        spit(path, std::vector<uint8_t>(good.begin(), good.begin() + long(size)));
+        EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }),
+                             path.string() + ": chunk 0: truncated: expected " + std::to_string(good.size()) +
+                             " bytes, found " + std::to_string(size)));
+    }
+    std::vector<uint8_t> longer = good;
+    longer.push_back(0);
+    spit(path, longer);
+    EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }), "too long"));
+    fs::remove(path);
+    EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }), path.string() + ": chunk 0: cannot open"));
+}
+
+TEST_F(LinkStoreCorruption, ManifestEntryThatDisagreesWithTheChunkHeader) {
+    const std::vector<Chunk> chunks = small_store();
+    const std::string manifest_path = (store() / "manifest").string();
+    const std::vector<uint8_t> bytes = slurp(manifest_path);
+    const LinkStoreManifest good = decode_manifest(bytes.data(), bytes.size(), manifest_path);
+    auto expect = [&](LinkStoreManifest m, const std::string& what) {
+        spit(manifest_path, encode_manifest(m));
+        LinkStoreReader r(store().string());  // a consistent manifest on its own
+        std::vector<LinkRecord> out;
+        EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(1, out); }), r.chunk_path(1) + ": chunk 1: " + what));
+    };
+    LinkStoreManifest m = good;
+    m.chunks[1].link_count -= 1;
+    expect(m, "header disagrees with the manifest: link count " + std::to_string(chunks[1].links.size()) +
+                  " in the chunk, " + std::to_string(chunks[1].links.size() - 1) + " in the manifest");
+    m = good;
+    m.chunks[1].checksum ^= 1;
+    expect(m, "header disagrees with the manifest: payload checksum");
+    // A chunk numbered for another position: drop chunk 0 from the manifest.
+    m = good;
+    m.chunks.erase(m.chunks.begin());
+    spit(manifest_path, encode_manifest(m));
+    std::vector<LinkRecord> out;
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader(store().string()).read_chunk(0, out); }),
+                         "chunk index 1 in the chunk, 0 in the manifest"));
+}
+
+TEST_F(LinkStoreCorruption, ChunkFilesSwappedWithEachOther) {
+    small_store();
+    LinkStoreReader r(store().string());
+    const std::vector<uint8_t> a = slurp(r.chunk_path(0)), b = slurp(r.chunk_path(1));
+    spit(r.chunk_path(0), b);
+    spit(r.chunk_path(1), a);
+    std::vector<LinkRecord> out;
+    for (size_t k : {0, 1}) EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(k, out); }), r.chunk_path(k)));
+}
+
+// Chunks that pass every checksum but hold invalid records (made with the format layer,
+// which does not validate): each is refused with the record and what is wrong.
+TEST_F(LinkStoreCorruption, InvalidRecordsInAWellFormedChunk) {
+    const uint32_t nodes = 10;
+    const LinkRecord ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
+    struct Case {
+        std::vector<LinkRecord> links;
+        std::string message;
+    };
+    const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+    const std::vector<Case> cases = {
+        {{ok, {10, 4, 0.5f, 0.5f, 1, 0}}, "link 1 (receiver 10, source 4): receiver index 10 >= node count 10"},
+        {{{1, 10, 0.5f, 0.5f, 1, 0}}, "source index 10 >= node count 10"},
+        {{{2, 4, 0.5f, 0.5f, 1, 0}, ok}, "sorted by source, then receiver"},
+        {{ok, ok}, "without duplicates"},
+        {{{1, 4, -1.0f, 0.5f, 1, 0}}, "coupling -1.000000 is not finite"},
+        {{{1, 4, 0.5f, inf, 1, 0}}, "unoccluded coupling inf"},
+        {{{1, 4, 0.5f, 0.5f, 1.5f, 0}}, "visibility 1.500000 is not in [0, 1]"},
+        {{{1, 4, 0.5f, 0.5f, nan, 0}}, "visibility nan"},
+        {{{1, 4, 0.5f, 0.5f, 1, nan}}, "error estimate nan is not finite"},
+    };
+    for (const Case& c : cases) {
+        LinkStoreManifest m{{1, 2, nodes, nodes}, {}};
+        ChunkEntry e;
+        const std::vector<uint8_t> bytes = encode_chunk(0, 4, 6, c.links.data(), c.links.size(), e);
+        m.chunks.push_back(e);
+        std::vector<LinkRecord> out(c.links.size());
+        const std::string msg = error_of([&] { decode_chunk(bytes.data(), bytes.size(), m, 0, "x.hlc", out.data()); });
+        EXPECT_TRUE(Contains(msg, "x.hlc: chunk 0: link "));
+        EXPECT_TRUE(Contains(msg, c.message));
+        // The same through the files.
+        const fs::path dir = dir_ / "bad";
+        fs::create_directories(dir);
+        write_file_synced((dir / chunk_file_name(4, 6)).string(), bytes.data(), bytes.size());
+        const std::vector<uint8_t> mb = encode_manifest(m);
+        write_file_synced((dir / "manifest").string(), mb.data(), mb.size());
+        const std::string from_file = error_of([&] { LinkStoreReader(dir.string()).read_chunk(0, out); });
+        EXPECT_TRUE(Contains(from_file, (dir / chunk_file_name(4, 6)).string() + ": chunk 0: link "));
+        EXPECT_TRUE(Contains(from_file, c.message));
+    }
+}
+
+// Sizes read from a file are checked against hard limits before anything is allocated.
+TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
+    LinkStoreManifest m{{1, 2, 100, 50}, {{0, 10, 5, 40, 0}, {10, 20, 5, 40, 0}}};
+    const std::vector<uint8_t> good = encode_manifest(m);
+    EXPECT_NO_THROW(decode_manifest(good.data(), good.size(), "m"));
+    auto refused = [](std::vector<uint8_t> bytes, const std::string& what) {
+        reseal_manifest(bytes);
+        const std::string msg = error_of([&] { decode_manifest(bytes.data(), bytes.size(), "m"); });
+        EXPECT_EQ(msg.rfind("m: ", 0), 0u) << msg;
+        EXPECT_TRUE(Contains(msg, what));
+    };
+    std::vector<uint8_t> b = good;
+    put32(b.data() + 20, 0xffffffff);  // chunk count
+    refused(b, "4294967295 chunks, more than the maximum");
+    b = good;
+    b[20] = 3;  // three chunks claimed, two present
+    refused(b, "truncated: expected 240 bytes, found 176 for 3 chunks");
+    b = good;
+    put64(b.data() + 40 + 40, uint64_t(1) << 40);  // chunk 0's link count
+    refused(b, "chunk 0 (chunk-00000000-0000000a.hlc): 1099511627776 links");
+    b = good;
+    put64(b.data() + 40 + 48, uint64_t(1) << 40);  // chunk 0's compressed size
+    refused(b, "compressed size 1099511627776 impossible");
+    b = good;
+    b[40 + 64 + 32] = 9;  // chunk 1 begins at 9, inside chunk 0
+    refused(b, "chunk 1 (chunk-00000009-00000014.hlc): the file name does not match");
+    m.chunks[1].source_begin = 9;  // named consistently, still overlapping
+    refused(encode_manifest(m), "overlaps");
+    m.chunks[1] = {20, 20, 5, 40, 0};
+    refused(encode_manifest(m), "group range [20, 20) is empty");
+    m.chunks.pop_back();
+    m.info.element_count = 101;
+    refused(encode_manifest(m), "element count 101 > node count 100");
+    EXPECT_TRUE(Contains(error_of([] { decode_manifest(nullptr, 0, "m"); }),
+                         "m: truncated: expected 48 bytes, found 0"));
+}
+
+TEST_F(LinkStoreWriterChecks, RefusesInvalidLinksAndRanges) {
+    LinkStoreWriter w(store().string(), kInfo);
+    const LinkRecord ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
+    auto refused = [&](uint32_t begin, uint32_t end, std::vector<LinkRecord> links, const std::string& what) {
+        try {
+            w.write_chunk(begin, end, links);
+            ADD_FAILURE() << "accepted: " << what;
+        } catch (const std::invalid_argument& e) {
+            EXPECT_TRUE(Contains(e.what(), what));
+        }
+    };
+    refused(4, 6, {ok, {kInfo.node_count, 4, 0.5f, 0.5f, 1, 0}}, "receiver index 1000 >= node count 1000");
+    refused(4, 6, {{1, kInfo.node_count, 0.5f, 0.5f, 1, 0}}, "source index 1000 >= node count 1000");
+    refused(4, 6, {ok, ok}, "without duplicates");
+    refused(4, 6, {{1, 4, std::nanf(""), 0.5f, 1, 0}}, "coupling nan");
+    refused(4, 6, {{1, 4, 0.5f, -0.5f, 1, 0}}, "unoccluded coupling -0.5");
+    refused(4, 6, {{1, 4, 0.5f, 0.5f, -0.1f, 0}}, "visibility -0.1");
+    refused(4, 4, {}, "the group range is empty");
+    w.write_chunk(4, 6, {ok});
+    refused(5, 8, {}, "overlaps");
+    refused(0, 5, {}, "overlaps");
+    refused(4, 6, {ok}, "overlaps");
+    w.write_chunk(6, 8, {});  // adjacent is fine; refused calls left nothing behind
+    w.commit();
+    LinkStoreReader r(store().string());
+    ASSERT_EQ(r.chunk_count(), 2u);
+    std::vector<LinkRecord> out;
+    r.read_chunk(0, out);
+    EXPECT_TRUE(same_bits(out, {ok}));
+    EXPECT_THROW(w.commit(), std::logic_error);
+    EXPECT_THROW(w.write_chunk(20, 30, {}), std::logic_error);
+}
+
+TEST_F(LinkStoreLifecycle, DeletedManifestMeansNeverCommitted) {
+    small_store();
+    fs::remove(store() / "manifest");
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }),
+                         "manifest missing: store at " + store().string() + " was never committed"));
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r((dir_ / "nowhere").string()); }), "no link store here"));
+}
+
+TEST_F(LinkStoreLifecycle, UncommittedStoreIsRefused) {
+    const std::vector<Chunk> chunks = make_chunks(3, 4);
+    {
+        LinkStoreWriter w(store().string(), kInfo);
+        for (const Chunk& c : chunks) w.write_chunk(c.begin, c.end, c.links);
+    }  // dropped without commit(), as by a crash
+    EXPECT_TRUE(fs::exists(store() / chunk_file_name(chunks[0].begin, chunks[0].end)));
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
+}
+
+TEST_F(LinkStoreLifecycle, RecreatingOverACommittedStoreNeverPairsTheOldManifestWithNewChunks) {
+    const std::vector<Chunk> old_chunks = small_store();
+    const std::vector<Chunk> new_chunks = make_chunks(2, 99);  // the same first range, other links
+    ASSERT_EQ(new_chunks[0].begin, old_chunks[0].begin);
+    {
+        LinkStoreWriter w(store().string(), kInfo);
+        // The old store is gone as soon as the writer exists: manifest and chunks.
+        EXPECT_TRUE(fs::is_empty(store()));
+        EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
+        w.write_chunk(new_chunks[0].begin, new_chunks[0].end, new_chunks[0].links);
+        EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
+    }  // abandoned half way
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
+    write_store(store(), new_chunks, {1, 0}, 2);  // over the leftovers of the abandoned one
+    LinkStoreReader r(store().string());
+    ASSERT_EQ(r.chunk_count(), 2u);
+    std::vector<LinkRecord> out;
+    for (size_t k = 0; k < 2; ++k) {
+        r.read_chunk(k, out);
+        EXPECT_TRUE(same_bits(out, new_chunks[k].links));
+    }
+}
+
+TEST_F(LinkStoreLifecycle, DirectoryWithOtherFilesIsRefusedAndLeftAlone) {
+    fs::create_directories(store());
+    spit(store() / "notes.txt", {'h', 'i'});
+    spit(store() / "manifest", {'x'});
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreWriter w(store().string(), kInfo); }),
+                         store().string() + ": not a link store (it holds 'notes.txt')"));
+    EXPECT_TRUE(fs::exists(store() / "notes.txt"));
+    EXPECT_TRUE(fs::exists(store() / "manifest"));
+}
+
+TEST_F(LinkStoreWriteErrors, DiskFullNamesTheFileAndTheError) {
+    if (!fs::exists("/dev/full")) GTEST_SKIP() << "no /dev/full";
+    const std::vector<uint8_t> data(1 << 16, 7);
+    EXPECT_TRUE(Contains(error_of([&] { write_file_synced("/dev/full", data.data(), data.size()); }),
+                         std::string("/dev/full: write failed: ") + std::strerror(ENOSPC)));
+}
+
+TEST_F(LinkStoreWriteErrors, UnwritableLocationsNameThePath) {
+    // A store whose parent is a regular file (chmod would not stop root).
+    spit(dir_ / "plain", {'x'});
+    const std::string under_file = (dir_ / "plain" / "store").string();
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreWriter w(under_file, kInfo); }),
+                         under_file + ": cannot create the store directory: " + std::strerror(ENOTDIR)));
+
+    // The directory replaced by a file after the writer was made: the chunk fails, then commit.
+    const std::vector<Chunk> chunks = make_chunks(1, 3);
+    {
+        LinkStoreWriter w(store().string(), kInfo);
+        fs::remove_all(store());
+        spit(store(), {'x'});
+        const std::string tmp = (store() / chunk_file_name(chunks[0].begin, chunks[0].end)).string() + ".tmp";
+        EXPECT_TRUE(Contains(error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); }),
+                             tmp + ": cannot create: " + std::strerror(ENOTDIR)));
+        EXPECT_TRUE(Contains(error_of([&] { w.commit(); }), "cannot commit: a write_chunk failed"));
+    }
+    fs::remove(store());
+
+    if (::geteuid() != 0) {  // permissions bind only other users
+        LinkStoreWriter w(store().string(), kInfo);
+        fs::permissions(store(), fs::perms::owner_read | fs::perms::owner_exec);
+        EXPECT_TRUE(Contains(error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); }),
+                             store().string() + "/chunk-"));
+        fs::permissions(store(), fs::perms::owner_all);
+    }
+}
+
+TEST_F(LinkStoreWriteErrors, FailedCommitNamesTheManifestAndCanBeRetried) {
+    const std::vector<Chunk> chunks = make_chunks(2, 8);
+    LinkStoreWriter w(store().string(), kInfo);
+    for (const Chunk& c : chunks) w.write_chunk(c.begin, c.end, c.links);
+    fs::create_directories(store() / "manifest.tmp");  // the temporary name taken by a directory
+    EXPECT_TRUE(Contains(error_of([&] { w.commit(); }),
+                         (store() / "manifest.tmp").string() + ": cannot create: " + std::strerror(EISDIR)));
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
+    fs::remove(store() / "manifest.tmp");
+    w.commit();
+    EXPECT_EQ(LinkStoreReader(store().string()).total_links(), chunks[0].links.size() + chunks[1].links.size());
+}
+
+}  // namespace
+}  // namespace hirad
