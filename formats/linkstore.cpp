@@ -448,6 +448,14 @@ void write_file_synced(const std::string& path, const uint8_t* data, size_t size
     fd.close(path);
 }
 
+void commit_file(const std::string& path, const uint8_t* data, size_t size) {
+    const std::string tmp = path + ".tmp";
+    write_file_synced(tmp, data, size);
+    rename_file(tmp, path);
+    const size_t slash = path.find_last_of('/');
+    fsync_dir(slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash)));
+}
+
 // ---------------------------------------------------------------------------------------------
 // Writer
 
@@ -502,6 +510,8 @@ void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, co
         // Reserve the range before writing, so that overlapping concurrent calls are caught.
         std::lock_guard<std::mutex> lock(mutex_);
         if (committed_) throw std::logic_error(what + "the store is already committed");
+        for (size_t i = 0; i < count; ++i)
+            indices_end_ = std::max({indices_end_, uint64_t(sorted[i].receiver) + 1, uint64_t(sorted[i].source) + 1});
         auto next = slots_.lower_bound(source_begin);
         if ((next != slots_.end() && next->first < source_end) ||
             (next != slots_.begin() && std::prev(next)->second.entry.source_end > source_begin))
@@ -524,6 +534,16 @@ void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, co
         ::unlink(tmp.c_str());  // best effort: the error being thrown is the one that matters
         throw;
     }
+}
+
+void LinkStoreWriter::set_counts(uint32_t node_count, uint32_t element_count) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (node_count < indices_end_ || element_count > node_count)
+        throw std::invalid_argument(dir_ + ": node count " + std::to_string(node_count) + " (elements " +
+                                    std::to_string(element_count) + ") does not cover the indices written (up to " +
+                                    std::to_string(indices_end_) + ")");
+    info_.node_count = node_count;
+    info_.element_count = element_count;
 }
 
 void LinkStoreWriter::commit() {

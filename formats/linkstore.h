@@ -123,6 +123,10 @@ public:
         write_chunk(source_begin, source_end, links.data(), links.size());
     }
 
+    // The final node and element counts, for a store written while its hierarchy still grows
+    // (created with node_count UINT32_MAX): must cover every index written.
+    void set_counts(uint32_t node_count, uint32_t element_count);
+
     // Numbers the chunks by source_begin, writes the manifest to a temporary file, fsyncs it,
     // renames it into place and fsyncs the directory. Refused after a failed write_chunk().
     void commit();
@@ -138,6 +142,7 @@ private:
     std::map<uint32_t, Slot> slots_;  // by source_begin; reserved before the chunk is written
     bool failed_ = false;
     bool committed_ = false;
+    uint64_t indices_end_ = 0;        // one past the largest receiver or source written
 };
 
 // Reads a committed store. Every method is const and keeps no mutable state, so read_chunk()
@@ -185,5 +190,7 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
 // Writes a buffer to `path` (created or truncated) and fsyncs it; throws naming the path
 // and the OS error. The writer writes every file through it.
 void write_file_synced(const std::string& path, const uint8_t* data, size_t size);
+// Replaces `path` atomically: writes path.tmp, fsyncs it, renames it and fsyncs the directory.
+void commit_file(const std::string& path, const uint8_t* data, size_t size);
 
 }  // namespace hirad

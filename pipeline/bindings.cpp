@@ -13,6 +13,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cstring>
 #include <optional>
 
 #include <atomic>
@@ -29,6 +30,7 @@
 #include "hierarchy.h"
 #include "lightmaps.h"
 #include "links.h"
+#include "outofcore.h"
 #include "patches.h"
 #include "reconstruct.h"
 #include "reference.h"
@@ -496,75 +498,111 @@ public:
             if (!progress.is_none()) progress(round.load(), link_count.load(), iteration.load(), residual.load());
         });
 
-        // Balance 2:1 for a display without cracks; new leaves carry their parent's values.
-        const uint64_t balanced = h.balance();
-        for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
-            const uint32_t parent = h.nodes[i].parent;
-            sol.radiosity.push_back(sol.radiosity[parent]);
-            sol.irradiance.push_back(sol.irradiance[parent]);
-            sol.outgoing.push_back(sol.outgoing[parent]);
-        }
-        // Leaves become the patches of the model.
-        std::vector<uint32_t> leaves = h.leaves();
-        std::vector<Patch> leaf_patches;
-        leaf_patches.reserve(leaves.size());
-        std::vector<RGB> b(leaves.size()), irr(leaves.size()), escaped(leaves.size());
-        for (size_t k = 0; k < leaves.size(); ++k) {
-            const Node& node = h.nodes[leaves[k]];
-            leaf_patches.push_back(node.shape);
-            b[k] = sol.radiosity[leaves[k]];
-            irr[k] = sol.irradiance[leaves[k]];
-            // Signed, as for the flat method: the per-leaf shares only add up unclamped.
-            escaped[k] = b[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
-        }
-        patches_ = weld_patches(std::move(leaf_patches));
-        visibility_ = std::make_unique<Visibility>(patches_.patches);
-        state->links = links;
-        state->radiosity = sol.radiosity;
-        state->leaves = leaves;
-        uint64_t clusters = 0;
-        for (const Node& node : h.nodes) clusters += node.cluster;
-        nb::dict d;
-        d["radiosity"] = rgb_array(b);
-        d["irradiance"] = rgb_array(irr);
-        d["escaped"] = rgb_array(escaped);
+        state->links = std::move(links);
+        nb::dict d = publish(std::move(state), std::move(sol));
         d["iterations"] = total_iterations;
-        d["residual"] = sol.residual;
-        d["converged"] = sol.converged;
         d["residual_history"] = history;
         d["rounds"] = round.load();
         d["settled"] = settled;
-        d["links"] = links.size();
         d["links_per_round"] = links_per_round;
         d["splits_per_round"] = splits_per_round;
         d["refine_seconds"] = refine_seconds;
         d["solve_seconds"] = solve_seconds;
         d["link_estimates"] = stats.evaluated;
-        d["elements"] = leaves.size();
-        d["nodes"] = h.nodes.size();
-        d["clusters"] = clusters;
         d["rays"] = vis->rays_cast();
         d["epsilon_watts"] = ropt.epsilon;
-        d["balance_splits"] = balanced;
-        // The hierarchy and its links as plain arrays (for tests, inspection and the link store).
-        std::vector<int32_t> lr(links.size()), ls(links.size()), parent(h.nodes.size()), leaf_node(leaves.size());
-        std::vector<double> lg(links.size()), node_area(h.nodes.size());
-        std::vector<uint8_t> node_cluster(h.nodes.size());
-        for (size_t k = 0; k < links.size(); ++k) { lr[k] = links[k].receiver; ls[k] = links[k].source; lg[k] = links[k].coupling; }
-        for (size_t i = 0; i < h.nodes.size(); ++i) {
-            parent[i] = h.nodes[i].parent == kNoNode ? -1 : static_cast<int32_t>(h.nodes[i].parent);
-            node_area[i] = h.nodes[i].area;
-            node_cluster[i] = h.nodes[i].cluster;
+        return d;
+    }
+
+    // Hierarchical radiosity out of core (outofcore.h): refinement rounds through the link
+    // store in `store` (in memory when empty), each solved by streaming block Southwell
+    // within `memory_budget` bytes (0: unlimited), checkpointed every `checkpoint_seconds`.
+    nb::dict solve_out_of_core(double epsilon, double min_area, int samples, uint64_t seed, double tolerance,
+                               uint64_t max_iterations, int max_rounds, nb::object progress, const std::string& store,
+                               uint64_t memory_budget, uint32_t group_faces, double checkpoint_seconds, bool resume,
+                               bool reuse_links) {
+        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+        if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
+        links_.reset();
+        solved_.reset();
+        auto state = std::make_unique<SolvedHierarchy>(scene_);
+        Hierarchy& h = state->hierarchy;
+        state->visibility = std::make_unique<Visibility>(h.faces);
+        double emitted = 0;
+        for (const Patch& f : h.faces) emitted += luminance(f.emission) * f.area;
+        OutOfCoreOptions opt;
+        opt.refine = {epsilon * emitted, min_area, samples, seed};
+        opt.max_rounds = max_rounds;
+        opt.group_faces = group_faces;
+        opt.store = store;
+        opt.solve.tolerance = tolerance;
+        opt.solve.max_rounds = max_iterations;
+        opt.solve.memory_budget = memory_budget;
+        opt.solve.checkpoint_seconds = checkpoint_seconds;
+        opt.resume = resume;
+        opt.reuse_links = reuse_links;
+        // Fingerprints: geometry (what the links depend on), the refinement settings, and the
+        // materials (what the oracle's radiosity, hence the refinement, also depends on).
+        uint64_t geo = 0x6E0ull, mat = 0x3A7ull;
+        auto bits = [](double x) { uint64_t u; std::memcpy(&u, &x, 8); return u; };
+        for (const Face& f : scene_.faces) {
+            geo = hash_pair(geo, (uint64_t(f.nv) << 32) | f.mesh, 1);
+            for (int k = 0; k < f.nv; ++k)
+                for (int a = 0; a < 3; ++a) geo = hash_pair(geo, bits(f.p[k][a]), 2);
+            for (int a = 0; a < 3; ++a) mat = hash_pair(hash_pair(mat, bits(f.reflectance[a]), 3), bits(f.emission[a]), 4);
         }
-        for (size_t k = 0; k < leaves.size(); ++k) leaf_node[k] = static_cast<int32_t>(leaves[k]);
-        d["link_receiver"] = to_numpy(std::move(lr), {links.size()});
-        d["link_source"] = to_numpy(std::move(ls), {links.size()});
-        d["link_coupling"] = to_numpy(std::move(lg), {links.size()});
-        d["node_parent"] = to_numpy(std::move(parent), {h.nodes.size()});
-        d["node_area"] = to_numpy(std::move(node_area), {h.nodes.size()});
-        d["node_cluster"] = to_numpy(std::move(node_cluster), {h.nodes.size()});
-        d["leaf_node"] = to_numpy(std::move(leaf_node), {leaves.size()});
-        solved_ = std::move(state);
+        uint64_t settings = 0x5E7ull;
+        for (uint64_t v : {bits(epsilon), bits(min_area), uint64_t(samples), seed, uint64_t(max_rounds), uint64_t(group_faces)})
+            settings = hash_pair(settings, v, 5);
+        opt.geometry_fingerprint = geo;
+        opt.settings_fingerprint = settings;
+        opt.materials_fingerprint = mat;
+        std::atomic<int> round{0};
+        std::atomic<uint64_t> link_count{0}, shots{0};
+        std::atomic<double> residual{1.0};
+        opt.progress = [&](int r, uint64_t links, uint64_t it, double res) {
+            round = r; link_count = links; shots = it; residual = res;
+        };
+        OutOfCoreReport rep;
+        run_reporting([&] { rep = run_out_of_core(h, *state->visibility, opt); }, [&] {
+            if (!progress.is_none()) progress(round.load(), link_count.load(), shots.load(), residual.load());
+        });
+        state->links = std::move(rep.memory_links);
+        state->store_round = rep.final_round_dir;
+        state->groups = SourceGroups::cut(h, group_faces).count();
+        const StreamingStats st = rep.last_solve;
+        const uint64_t links = rep.links;
+        nb::dict d = publish(std::move(state), std::move(rep.solution));
+        d["links"] = links;
+        d["iterations"] = rep.solution.iterations;
+        d["residual_history"] = rep.solution.residual_history;
+        d["rounds"] = rep.rounds;
+        d["settled"] = rep.settled;
+        d["links_per_round"] = rep.links_per_round;
+        d["splits_per_round"] = rep.splits_per_round;
+        d["refine_seconds"] = rep.refine_seconds;
+        d["solve_seconds"] = rep.solve_seconds;
+        d["link_estimates"] = rep.refine_stats.evaluated;
+        d["rays"] = solved_->visibility->rays_cast();
+        d["epsilon_watts"] = opt.refine.epsilon;
+        d["reused_links"] = rep.reused;
+        d["resumed_from_round"] = rep.resumed_from_round;
+        d["store_bytes"] = rep.store_bytes;
+        d["peak_group_links"] = rep.peak_group_links;
+        d["source_groups"] = solved_->groups;
+        nb::dict s;
+        s["rounds"] = st.rounds;
+        s["groups_shot"] = st.groups_shot;
+        s["links_shot"] = st.links_shot;
+        s["chunk_reads"] = st.chunk_reads;
+        s["chunk_hits"] = st.chunk_hits;
+        s["resident_links_peak"] = st.resident_links_peak;
+        s["state_bytes"] = st.state_bytes;
+        s["checkpoints"] = st.checkpoints;
+        s["resumed"] = st.resumed;
+        s["read_wait_seconds"] = st.read_wait_seconds;
+        s["shoot_seconds"] = st.shoot_seconds;
+        d["streaming"] = s;
         return d;
     }
 
@@ -573,8 +611,11 @@ public:
     // leaf is re-evaluated at the point. Returns leaf (-1 if none within max_distance),
     // irradiance and radiance.
     nb::dict gather(In<double> points, In<double> normals, int rays, int cluster_samples, uint64_t seed,
-                    double max_distance) const {
+                    double max_distance) {
         if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
+        // Links of an out-of-core solve are read from its store on the first gather.
+        if (solved_->links.empty() && !solved_->store_round.empty())
+            solved_->links = load_links(solved_->store_round, solved_->groups);
         const size_t n = points.shape(0);
         if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(0) != n ||
             normals.shape(1) != 3)
@@ -731,7 +772,74 @@ private:
         std::vector<Link> links;                 // sorted by receiver
         std::vector<RGB> radiosity;              // per node
         std::vector<uint32_t> leaves;            // node of each patch
+        std::string store_round;                 // out of core: the final links' store
+        size_t groups = 0;                       // and its number of source groups
     };
+
+    // Balances a solved hierarchy 2:1 for a display without cracks (new leaves carry their
+    // parent's values), makes its leaves the model's patches and keeps it for the final
+    // gather. Returns what every hierarchical solve reports.
+    nb::dict publish(std::unique_ptr<SolvedHierarchy> state, HierarchicalSolution sol) {
+        Hierarchy& h = state->hierarchy;
+        const std::vector<Link>& links = state->links;
+        const uint64_t balanced = h.balance();
+        for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
+            const uint32_t parent = h.nodes[i].parent;
+            sol.radiosity.push_back(sol.radiosity[parent]);
+            sol.irradiance.push_back(sol.irradiance[parent]);
+            sol.outgoing.push_back(sol.outgoing[parent]);
+        }
+        // Leaves become the patches of the model.
+        std::vector<uint32_t> leaves = h.leaves();
+        std::vector<Patch> leaf_patches;
+        leaf_patches.reserve(leaves.size());
+        std::vector<RGB> b(leaves.size()), irr(leaves.size()), escaped(leaves.size());
+        for (size_t k = 0; k < leaves.size(); ++k) {
+            const Node& node = h.nodes[leaves[k]];
+            leaf_patches.push_back(node.shape);
+            b[k] = sol.radiosity[leaves[k]];
+            irr[k] = sol.irradiance[leaves[k]];
+            // Signed, as for the flat method: the per-leaf shares only add up unclamped.
+            escaped[k] = b[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
+        }
+        patches_ = weld_patches(std::move(leaf_patches));
+        visibility_ = std::make_unique<Visibility>(patches_.patches);
+        uint64_t clusters = 0;
+        for (const Node& node : h.nodes) clusters += node.cluster;
+        nb::dict d;
+        d["radiosity"] = rgb_array(b);
+        d["irradiance"] = rgb_array(irr);
+        d["escaped"] = rgb_array(escaped);
+        d["residual"] = sol.residual;
+        d["converged"] = sol.converged;
+        d["links"] = links.size();
+        d["elements"] = leaves.size();
+        d["nodes"] = h.nodes.size();
+        d["clusters"] = clusters;
+        d["balance_splits"] = balanced;
+        // The hierarchy and its links as plain arrays (for tests and inspection).
+        std::vector<int32_t> lr(links.size()), ls(links.size()), parent(h.nodes.size()), leaf_node(leaves.size());
+        std::vector<double> lg(links.size()), node_area(h.nodes.size());
+        std::vector<uint8_t> node_cluster(h.nodes.size());
+        for (size_t k = 0; k < links.size(); ++k) { lr[k] = links[k].receiver; ls[k] = links[k].source; lg[k] = links[k].coupling; }
+        for (size_t i = 0; i < h.nodes.size(); ++i) {
+            parent[i] = h.nodes[i].parent == kNoNode ? -1 : static_cast<int32_t>(h.nodes[i].parent);
+            node_area[i] = h.nodes[i].area;
+            node_cluster[i] = h.nodes[i].cluster;
+        }
+        for (size_t k = 0; k < leaves.size(); ++k) leaf_node[k] = static_cast<int32_t>(leaves[k]);
+        d["link_receiver"] = to_numpy(std::move(lr), {links.size()});
+        d["link_source"] = to_numpy(std::move(ls), {links.size()});
+        d["link_coupling"] = to_numpy(std::move(lg), {links.size()});
+        d["node_parent"] = to_numpy(std::move(parent), {h.nodes.size()});
+        d["node_area"] = to_numpy(std::move(node_area), {h.nodes.size()});
+        d["node_cluster"] = to_numpy(std::move(node_cluster), {h.nodes.size()});
+        d["leaf_node"] = to_numpy(std::move(leaf_node), {leaves.size()});
+        state->radiosity = std::move(sol.radiosity);
+        state->leaves = std::move(leaves);
+        solved_ = std::move(state);
+        return d;
+    }
 
     Scene scene_;
     PatchSet patches_;
@@ -886,6 +994,10 @@ NB_MODULE(_engine, m) {
         .def("rays_cast", &Model::rays_cast)
         .def("gather", &Model::gather, "points"_a, "normals"_a, "rays"_a = 4, "cluster_samples"_a = 8, "seed"_a = 1,
              "max_distance"_a = 1e30)
+        .def("solve_out_of_core", &Model::solve_out_of_core, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
+             "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a = nb::none(), "store"_a = "",
+             "memory_budget"_a = 0, "group_faces"_a = 1024, "checkpoint_seconds"_a = 0.0, "resume"_a = false,
+             "reuse_links"_a = false)
         .def("solve_hierarchical", &Model::solve_hierarchical, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
              "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a.none() = nb::none(), "solver"_a = "jacobi")
         .def("reference_at", &Model::reference_at, "points"_a, "normals"_a, "paths"_a, "min_bounces"_a, "seed"_a,

@@ -42,8 +42,10 @@ std::vector<size_t> receiver_groups(const std::vector<Link>& links) {
     return starts;
 }
 
-// Push irradiance down from `root`, set B = E + rho H at leaves, pull B up. Parents come
-// before children in index order, so one forward sweep pushes and one backward sweep pulls.
+}  // namespace
+
+// Parents come before children in index order, so one forward sweep pushes and one backward
+// sweep pulls.
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity) {
     const size_t n = h.nodes.size();
@@ -63,6 +65,8 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
         radiosity[i] = acc / node.area;
     }
 }
+
+namespace {
 
 // Stores b with the irradiance that goes with it, and per node the fraction of its power its
 // own and its ancestors' links carry to some receiver (for the energy balance).

@@ -28,6 +28,12 @@ struct HierarchicalSolution {
 // Sorts links by receiver, then source (the order the gather reads them in).
 void sort_links(std::vector<Link>& links);
 
+// Push-pull: irradiance gathered at every node pushed down to the leaves (a child receives its
+// parent's irradiance unchanged: it is per unit area, so power is conserved), B = E + rho H
+// at the leaves, B pulled up as area-weighted means. `irradiance` receives the pushed values.
+void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
+               std::vector<RGB>& radiosity);
+
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <numeric>
+#include <stdexcept>
 #include <string>
 #include <unordered_set>
 
@@ -164,6 +165,17 @@ void Hierarchy::subdivide(uint32_t i) {
     }
     nodes[i].first_child = first;
     nodes[i].child_count = 4;
+    subdivided.push_back(i);
+}
+
+void Hierarchy::replay(const std::vector<uint32_t>& log) {
+    for (size_t k = 0; k < log.size(); ++k) {
+        const uint32_t i = log[k];
+        if (i >= nodes.size() || nodes[i].cluster || !nodes[i].leaf())
+            throw std::runtime_error("hierarchy log entry " + std::to_string(k) + ": node " + std::to_string(i) +
+                                     " is not a leaf element of the hierarchy");
+        subdivide(i);
+    }
 }
 
 void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point, Vec3& normal) const {

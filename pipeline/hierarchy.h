@@ -43,9 +43,15 @@ public:
     std::vector<double> area_prefix;    // prefix sums of face area in face_order (size faces+1)
     std::vector<Patch> faces;           // the faces as polygons (for Embree and sampling)
 
+    // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
+    // scene rebuilds the same nodes with the same indices (what the link store refers to).
+    std::vector<uint32_t> subdivided;
+
     // Gives an element its four children (once); false if it would go below min_area.
     bool can_subdivide(uint32_t node, double min_area) const;
     void subdivide(uint32_t node);
+    // Subdivides the elements of a log in its order; throws if an entry is not a leaf element.
+    void replay(const std::vector<uint32_t>& log);
 
     // A point on the surfaces below `node` and the normal there: stratified (s, t) on an
     // element; on a cluster, a face chosen with probability proportional to its area by `pick`.

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 #include "formfactors.h"
 
@@ -129,24 +130,30 @@ std::vector<Link> Refiner::initial_links(const std::vector<RGB>& radiosity, Refi
     if (h_.nodes.empty()) return {};
     Link self;
     self.receiver = self.source = h_.root;
-    return run({self}, {1}, radiosity, stats);
+    set_radiosity(radiosity);
+    return run_group({self}, {1}, stats);
 }
 
 std::vector<Link> Refiner::refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats) {
-    return run(links, std::vector<uint8_t>(links.size(), 1), radiosity, stats);
+    set_radiosity(radiosity);
+    return run_group(links, std::vector<uint8_t>(links.size(), 1), stats);
 }
 
-std::vector<Link> Refiner::run(std::vector<Link> frontier, std::vector<uint8_t> evaluated,
-                               const std::vector<RGB>& radiosity_in, RefineStats& stats) {
-    std::vector<Link> kept;
-    // Per node the brightest luminance below it; children come after their parents.
-    std::vector<double> peak(h_.nodes.size());
+void Refiner::set_radiosity(const std::vector<RGB>& radiosity) {
+    // Children come after their parents: one backward sweep.
+    if (radiosity.size() != h_.nodes.size()) throw std::invalid_argument("refine: one radiosity per node needed");
+    peak_.assign(h_.nodes.size(), 0.0);
     for (size_t i = h_.nodes.size(); i-- > 0;) {
         const Node& node = h_.nodes[i];
-        double b = std::max(0.0, luminance(radiosity_in[i]));
-        for (uint32_t c = 0; c < node.child_count; ++c) b = std::max(b, peak[node.first_child + c]);
-        peak[i] = b;
+        double b = std::max(0.0, luminance(radiosity[i]));
+        for (uint32_t c = 0; c < node.child_count; ++c) b = std::max(b, peak_[node.first_child + c]);
+        peak_[i] = b;
     }
+}
+
+std::vector<Link> Refiner::run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats) {
+    std::vector<Link> kept;
+    std::vector<double>& peak = peak_;
     while (!frontier.empty()) {
         // 1. Estimate the links that are new, in parallel.
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {

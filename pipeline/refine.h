@@ -59,6 +59,12 @@ public:
     // Returns the new link set; `stats.split` counts the links that were split.
     std::vector<Link> refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats);
 
+    // For refinement in pieces (one source group at a time, see outofcore.h): set the
+    // radiosity the oracle judges by, then refine each piece's links. New nodes inherit
+    // their parent's bound.
+    void set_radiosity(const std::vector<RGB>& radiosity);
+    std::vector<Link> run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats);
+
     // The estimate for one pair (exposed for tests). Different `stream`s draw independent
     // samples.
     Link estimate(uint32_t receiver, uint32_t source, uint64_t stream = 0) const;
@@ -68,10 +74,8 @@ private:
     Action decide(const Link& link, const std::vector<double>& peak) const;
     double link_error(const Link& link, const std::vector<double>& peak) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
-    std::vector<Link> run(std::vector<Link> frontier, std::vector<uint8_t> evaluated, const std::vector<RGB>& radiosity,
-                          RefineStats& stats);
-
     Hierarchy& h_;
+    std::vector<double> peak_;   // per node: the brightest luminance below it
     const Visibility& vis_;
     RefineOptions opt_;
 };

@@ -193,11 +193,14 @@ def load_solution(path: str | os.PathLike) -> SurfaceSolution:
 
 
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
-         snapshots: int | None = None) -> Result:
+         snapshots: int | None = None, resume: bool = False, reuse_links: bool = False) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
     Outputs are assembled in a hidden sibling directory and moved into place at the end, so
-    an interrupted or failed bake never leaves a directory that looks complete.
+    an interrupted or failed bake never leaves a directory that looks complete. Out of core
+    (solver.method: block_southwell), `resume` continues what a killed bake with the same
+    inputs left in the link store, and `reuse_links` solves on the stored links of the same
+    geometry and refinement settings (new materials) without computing any form factor.
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config)
@@ -215,7 +218,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     staging.mkdir(parents=True)
     try:
         with Reporter(quiet) as rep:
-            result = _run(cfg, staging, rep, source)
+            result = _run(cfg, staging, rep, source, resume, reuse_links)
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(staging, out_dir)
@@ -226,7 +229,8 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     return result
 
 
-def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) -> Result:
+def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, resume: bool = False,
+         reuse_links: bool = False) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
@@ -257,7 +261,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
                  "light): every radiosity will be zero")
 
     if cfg.method == "hierarchical":
-        solved, patches = _solve_hierarchical(cfg, model, rep)
+        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links)
         b, h, escaped = solved["radiosity"], solved["irradiance"], solved["escaped"]
     else:
         solved, patches, b, h, escaped = _solve_flat(cfg, model, scene, staging, rep)
@@ -348,6 +352,18 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None) 
             k: solved[k] for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                    "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
                                    "epsilon_watts", "balance_splits")},
+        "links": None if "store" not in solved else {
+            "store": solved["store"],
+            "reused": solved["reused_links"],
+            "form_factors_computed": solved["link_estimates"],
+            "resumed_from_round": solved["resumed_from_round"],
+            "source_groups": solved["source_groups"],
+            "memory_budget_bytes": cfg.links.memory_budget,
+            "store_bytes": solved["store_bytes"],
+            "bytes_per_link": solved["store_bytes"] / max(1, solved["links"]),
+            "peak_group_links": solved["peak_group_links"],
+            "last_solve": solved["streaming"],
+        },
         "energy_balance": balance,
         "outputs": outputs,
         "warnings": rep.warnings,
@@ -402,7 +418,7 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
     return solved, patches, b, transport["irradiance"], transport["escaped"]
 
 
-def _solve_hierarchical(cfg: Config, model, rep: Reporter):
+def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False):
     """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
     the leaf elements become the model's patches."""
     hc = cfg.hierarchy
@@ -411,8 +427,24 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter):
             _solve_progress(cfg, update)(iteration, residual)
             update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
 
-        solved = model.solve_hierarchical(hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance,
-                                          cfg.solver.max_iterations, hc.max_rounds, on_progress, cfg.solver.method)
+        if cfg.solver.method == "block_southwell":
+            lc = cfg.links
+            store = cfg.link_store()
+            try:
+                solved = model.solve_out_of_core(
+                    hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance, cfg.solver.max_iterations,
+                    hc.max_rounds, on_progress, str(store), lc.memory_budget, lc.group_faces, lc.checkpoint_seconds,
+                    resume, reuse_links)
+            except RuntimeError as e:
+                raise BakeError(f"link store {store}: {e}") from None
+            solved["store"] = str(store)
+        else:
+            if resume or reuse_links:
+                raise BakeError("--resume and --reuse-links need the out-of-core solver (solver.method: block_southwell)")
+            solved = model.solve_hierarchical(hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance,
+                                              cfg.solver.max_iterations, hc.max_rounds, on_progress, cfg.solver.method)
+    if solved.get("reused_links"):
+        rep.warn(f"links reused from {solved['store']}: {solved['links']} links, no form factor computed")
     if not solved["settled"] and solved["rounds"] >= hc.max_rounds:
         rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
     return solved, model.patch_arrays()

@@ -43,11 +43,17 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
          snapshots: Optional[int] = typer.Option(None, "--snapshots", min=0,
                                                  help="Progressive refinement: a preview image every N shots"),
          quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output"),
-         as_json: bool = typer.Option(False, "--json", help="Print the run report as JSON on stdout")):
+         as_json: bool = typer.Option(False, "--json", help="Print the run report as JSON on stdout"),
+         resume: bool = typer.Option(False, "--resume",
+                                     help="Out of core: continue what a killed bake of the same inputs left"),
+         reuse_links: bool = typer.Option(False, "--reuse-links",
+                                          help="Out of core: solve on the stored links (same geometry and "
+                                               "refinement settings; new materials), computing no form factor")):
     """Solve a scene and write its outputs (USD layer, lightmaps, preview, report)."""
     from .bake import bake as run
 
-    result = _run_guarded(lambda: run(config, quiet=quiet or as_json, threads=threads, snapshots=snapshots))
+    result = _run_guarded(lambda: run(config, quiet=quiet or as_json, threads=threads, snapshots=snapshots,
+                                      resume=resume, reuse_links=reuse_links))
     if as_json:
         print(json.dumps(result.report, indent=2))
     elif not quiet:

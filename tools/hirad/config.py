@@ -227,12 +227,14 @@ class SolverConfig(BaseModel):
 
     model_config = _MODEL_CONFIG
 
-    method: Literal["southwell", "progressive", "jacobi", "gauss_seidel", "direct"] = Field(
+    method: Literal["southwell", "progressive", "jacobi", "gauss_seidel", "direct", "block_southwell"] = Field(
         default="southwell",
         description=(
             "Solver: 'southwell' (shoot the largest unshot energy), 'progressive'"
             " (shooting with preview snapshots), 'jacobi', 'gauss_seidel' or 'direct'"
-            " (dense factorisation; small scenes only)."
+            " (dense factorisation; small scenes only); for method: hierarchical also"
+            " 'block_southwell': links in the on-disk store of `links`, streamed through a"
+            " memory budget (out of core)."
         ),
     )
     tolerance: StrictFloat = Field(
@@ -265,6 +267,64 @@ class SolverConfig(BaseModel):
                 " set solver.method: progressive or snapshots: 0"
             )
         return value
+
+
+class LinksConfig(BaseModel):
+    """The on-disk link store of out-of-core hierarchical bakes (solver.method: block_southwell)."""
+
+    model_config = _MODEL_CONFIG
+
+    store: Optional[Path] = Field(
+        default=None,
+        description=(
+            "Directory of the link store (chunk files, manifest, checkpoints); relative to the"
+            " config; default: the output directory's name with '.links' beside it. Kept"
+            " between bakes, for --resume and --reuse-links."
+        ),
+    )
+    memory_budget: Union[StrictInt, str] = Field(
+        default="1GB",
+        description=(
+            "Memory for the solver's state and the link chunks it keeps decoded, e.g. '512MB',"
+            " '2GB' (or bytes); 0 = unlimited. The result does not depend on it."
+        ),
+    )
+    group_faces: StrictInt = Field(
+        default=1024,
+        ge=1,
+        description=(
+            "Input faces per source group: the links of one group form one chunk, refined and"
+            " shot together. Part of the refinement settings (changing it changes the links)."
+        ),
+    )
+    checkpoint_seconds: StrictFloat = Field(
+        default=60.0,
+        ge=0.0,
+        description="Write the solver's state this often (0: never); `hirad bake --resume` continues from it.",
+    )
+
+    @field_validator("memory_budget")
+    @classmethod
+    def _budget(cls, value):
+        return parse_bytes(value)
+
+    @field_validator("store", mode="after")
+    @classmethod
+    def _absolute_store(cls, value: Optional[Path], info: ValidationInfo) -> Optional[Path]:
+        return None if value is None else _absolute(value, info)
+
+
+def parse_bytes(value) -> int:
+    """'512MB', '2 GiB', '1.5GB', 1048576 -> bytes (powers of 1024: GB means GiB)."""
+    if isinstance(value, int):
+        if value < 0:
+            raise ValueError("a memory size cannot be negative")
+        return value
+    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", str(value))
+    if not m:
+        raise ValueError(f"{value!r} is not a memory size (e.g. 512MB, 2GB, or a number of bytes)")
+    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    return int(float(m.group(1)) * scale)
 
 
 class ReconstructionConfig(BaseModel):
@@ -394,6 +454,7 @@ class Config(BaseModel):
         default_factory=HierarchyConfig, description="Hierarchical radiosity settings."
     )
     solver: SolverConfig = Field(default_factory=SolverConfig, description="Radiosity solver.")
+    links: LinksConfig = Field(default_factory=LinksConfig, description="Out-of-core link store.")
     reconstruction: ReconstructionConfig = Field(
         default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
     )
@@ -413,12 +474,19 @@ class Config(BaseModel):
     @classmethod
     def _hierarchical_solver(cls, value: SolverConfig, info: ValidationInfo) -> SolverConfig:
         # On the hierarchy: gathering (Jacobi, Gauss-Seidel) or shooting (Southwell), with push-pull.
-        if info.data.get("method") == "hierarchical" and value.method not in ("jacobi", "gauss_seidel", "southwell"):
+        hierarchical = ("jacobi", "gauss_seidel", "southwell", "block_southwell")
+        if info.data.get("method") == "hierarchical" and value.method not in hierarchical:
             raise ValueError(
-                "method: hierarchical solves with solver.method jacobi, gauss_seidel or southwell"
-                f" (with push-pull), not {value.method!r}"
+                "method: hierarchical solves with solver.method jacobi, gauss_seidel, southwell"
+                f" (with push-pull) or block_southwell (out of core), not {value.method!r}"
             )
+        if info.data.get("method") == "flat" and value.method == "block_southwell":
+            raise ValueError("solver.method block_southwell streams hierarchical links: set method: hierarchical")
         return value
+
+    def link_store(self) -> Path:
+        """Where an out-of-core bake keeps its links."""
+        return self.links.store or self.output.parent / (self.output.name + ".links")
 
     @field_validator("output", mode="before")
     @classmethod

@@ -1,0 +1,135 @@
+#include "statefile.h"
+
+#include <xxhash.h>
+
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <stdexcept>
+
+#include "linkstore.h"
+
+namespace hirad {
+
+namespace {
+
+constexpr char kMagic[8] = {'H', 'R', 'D', 'S', 'T', 'A', 'T', 'E'};
+constexpr uint32_t kVersion = 1;
+enum Type : uint32_t { kU32 = 1, kF64 = 2, kU64 = 3 };
+
+template <typename T>
+void append(std::vector<uint8_t>& out, const T& v) {
+    const size_t at = out.size();
+    out.resize(at + sizeof(T));
+    std::memcpy(out.data() + at, &v, sizeof(T));  // little-endian host (x86-64, aarch64)
+}
+
+template <typename T>
+void append_array(std::vector<uint8_t>& out, const std::string& name, uint32_t type, const std::vector<T>& a) {
+    append(out, static_cast<uint32_t>(name.size()));
+    out.insert(out.end(), name.begin(), name.end());
+    append(out, type);
+    append(out, static_cast<uint64_t>(a.size()));
+    const size_t at = out.size();
+    out.resize(at + a.size() * sizeof(T));
+    if (!a.empty()) std::memcpy(out.data() + at, a.data(), a.size() * sizeof(T));
+}
+
+struct Cursor {
+    const uint8_t* p;
+    size_t left;
+    const std::string& path;
+    void need(size_t n, const char* what) const {
+        if (n > left) throw std::runtime_error(path + ": truncated state file (reading " + what + ")");
+    }
+    template <typename T>
+    T get(const char* what) {
+        need(sizeof(T), what);
+        T v;
+        std::memcpy(&v, p, sizeof(T));
+        p += sizeof(T);
+        left -= sizeof(T);
+        return v;
+    }
+};
+
+template <typename T>
+const std::vector<T>& find(const std::map<std::string, std::vector<T>>& m, const std::string& name,
+                           const std::string& path) {
+    auto it = m.find(name);
+    if (it == m.end()) throw std::runtime_error(path + ": state file has no array '" + name + "'");
+    return it->second;
+}
+
+}  // namespace
+
+const std::vector<uint32_t>& StateFile::u32(const std::string& name) const { return find(u32_, name, path_); }
+const std::vector<uint64_t>& StateFile::u64(const std::string& name) const { return find(u64_, name, path_); }
+const std::vector<double>& StateFile::f64(const std::string& name) const { return find(f64_, name, path_); }
+
+std::vector<uint8_t> StateFile::encode() const {
+    std::vector<uint8_t> out(kMagic, kMagic + 8);
+    append(out, kVersion);
+    append(out, static_cast<uint32_t>(u32_.size() + u64_.size() + f64_.size()));
+    append(out, fingerprint);
+    for (const auto& [name, a] : u32_) append_array(out, name, kU32, a);
+    for (const auto& [name, a] : u64_) append_array(out, name, kU64, a);
+    for (const auto& [name, a] : f64_) append_array(out, name, kF64, a);
+    append(out, static_cast<uint64_t>(XXH3_64bits(out.data(), out.size())));
+    return out;
+}
+
+void StateFile::write(const std::string& path) const {
+    const std::vector<uint8_t> bytes = encode();
+    commit_file(path, bytes.data(), bytes.size());
+}
+
+StateFile StateFile::decode(const uint8_t* data, size_t size, const std::string& path) {
+    StateFile f;
+    f.path_ = path;
+    if (size < 8 + 4 + 4 + 8 + 8 || std::memcmp(data, kMagic, 8) != 0)
+        throw std::runtime_error(path + ": not a hirad state file (bad magic or too short)");
+    uint64_t stored;
+    std::memcpy(&stored, data + size - 8, 8);
+    if (stored != XXH3_64bits(data, size - 8)) throw std::runtime_error(path + ": state file checksum mismatch");
+    Cursor c{data + 8, size - 16, path};
+    const uint32_t version = c.get<uint32_t>("version");
+    if (version != kVersion)
+        throw std::runtime_error(path + ": state file version " + std::to_string(version) + ", expected " +
+                                 std::to_string(kVersion));
+    const uint32_t arrays = c.get<uint32_t>("array count");
+    f.fingerprint = c.get<uint64_t>("fingerprint");
+    for (uint32_t k = 0; k < arrays; ++k) {
+        const uint32_t len = c.get<uint32_t>("a name length");
+        c.need(len, "a name");
+        std::string name(reinterpret_cast<const char*>(c.p), len);
+        c.p += len;
+        c.left -= len;
+        const uint32_t type = c.get<uint32_t>("a type");
+        const uint64_t count = c.get<uint64_t>("an element count");
+        const size_t width = type == kU32 ? 4 : (type == kF64 || type == kU64) ? 8 : 0;
+        if (width == 0) throw std::runtime_error(path + ": array '" + name + "' has unknown type " + std::to_string(type));
+        if (count > c.left / width) throw std::runtime_error(path + ": truncated state file (array '" + name + "')");
+        auto take = [&](auto& vec) {
+            vec.resize(count);
+            if (count) std::memcpy(vec.data(), c.p, count * width);
+            c.p += count * width;
+            c.left -= count * width;
+        };
+        if (type == kU32) take(f.u32_[name]);
+        else if (type == kU64) take(f.u64_[name]);
+        else take(f.f64_[name]);
+    }
+    if (c.left != 0) throw std::runtime_error(path + ": state file has trailing bytes");
+    return f;
+}
+
+StateFile StateFile::read(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw std::runtime_error(path + ": cannot open the state file");
+    std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (in.bad()) throw std::runtime_error(path + ": read error");
+    return decode(bytes.data(), bytes.size(), path);
+}
+
+}  // namespace hirad

@@ -1,0 +1,294 @@
+#include "streaming_solver.h"
+
+#include <tbb/task_group.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <stdexcept>
+
+#include "statefile.h"
+
+namespace hirad {
+
+SourceGroups SourceGroups::cut(const Hierarchy& h, uint32_t max_faces) {
+    SourceGroups g;
+    g.face_rank.assign(h.face_order.size(), 0);
+    for (uint32_t k = 0; k < h.face_order.size(); ++k) g.face_rank[h.face_order[k]] = k;
+    if (h.nodes.empty()) return g;
+    max_faces = std::max<uint32_t>(1, max_faces);
+    // Depth first, children in order: the groups' face ranges follow each other.
+    std::vector<uint32_t> stack{h.root};
+    while (!stack.empty()) {
+        const uint32_t i = stack.back();
+        stack.pop_back();
+        const Node& node = h.nodes[i];
+        if (!node.cluster || node.face_end - node.face_begin <= max_faces) {
+            g.roots.push_back(i);
+            g.first_face.push_back(node.face_begin);
+            continue;
+        }
+        for (int c = node.child_count; c-- > 0;) stack.push_back(node.first_child + c);
+    }
+    g.first_face.push_back(static_cast<uint32_t>(h.face_order.size()));
+    return g;
+}
+
+uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
+    const Node& n = h.nodes[node];
+    const uint32_t begin = n.cluster ? n.face_begin : face_rank[n.shape.face];
+    const uint32_t end = n.cluster ? n.face_end : begin + 1;
+    auto it = std::upper_bound(first_face.begin(), first_face.end(), begin);
+    if (it == first_face.begin() || it == first_face.end()) return kNoGroup;
+    const uint32_t g = static_cast<uint32_t>(it - first_face.begin()) - 1;
+    return end <= first_face[g + 1] ? g : kNoGroup;
+}
+
+uint64_t LinkChunks::total_links() const {
+    uint64_t n = 0;
+    for (size_t g = 0; g < groups(); ++g) n += links(g);
+    return n;
+}
+
+StoreChunks::StoreChunks(const std::string& dir, size_t groups) : reader_(dir), parts_(groups) {
+    for (size_t k = 0; k < reader_.chunk_count(); ++k) {
+        const ChunkEntry& e = reader_.chunk(k);
+        const uint32_t g = e.source_begin / kPartsPerGroup;
+        if (e.source_end != e.source_begin + 1 || g >= groups)
+            throw std::runtime_error(reader_.chunk_path(k) + ": chunk " + std::to_string(k) + ": key range [" +
+                                     std::to_string(e.source_begin) + ", " + std::to_string(e.source_end) +
+                                     ") is not one part of one of the " + std::to_string(groups) + " source groups");
+        parts_[g].push_back(k);
+    }
+}
+
+uint64_t StoreChunks::links(size_t g) const {
+    uint64_t n = 0;
+    for (size_t k : parts_[g]) n += reader_.chunk(k).link_count;
+    return n;
+}
+
+void StoreChunks::read(size_t g, std::vector<LinkRecord>& out) const {
+    out.resize(links(g));
+    size_t at = 0;
+    for (size_t k : parts_[g]) at += reader_.read_chunk(k, out.data() + at, out.size() - at);
+}
+
+void sort_group(std::vector<LinkRecord>& links) {
+    std::sort(links.begin(), links.end(), [](const LinkRecord& a, const LinkRecord& b) {
+        return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
+    });
+}
+
+void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links) {
+    if (links.empty()) return;
+    sort_group(links);
+    const uint64_t parts = (links.size() + kMaxLinksPerChunk - 1) / kMaxLinksPerChunk;
+    if (parts > kPartsPerGroup)
+        throw std::runtime_error("source group " + std::to_string(group) + " has " + std::to_string(links.size()) +
+                                 " links, more than a group can store; use smaller links.group_faces");
+    for (uint64_t p = 0; p < parts; ++p) {
+        const size_t begin = p * kMaxLinksPerChunk, end = std::min<size_t>(links.size(), begin + kMaxLinksPerChunk);
+        const uint32_t key = group * kPartsPerGroup + static_cast<uint32_t>(p);
+        writer.write_chunk(key, key + 1, links.data() + begin, end - begin);
+    }
+}
+
+namespace {
+
+using Chunk = std::shared_ptr<const std::vector<LinkRecord>>;
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+std::vector<double> flatten(const std::vector<RGB>& v) {
+    std::vector<double> out(3 * v.size());
+    for (size_t i = 0; i < v.size(); ++i)
+        for (int c = 0; c < 3; ++c) out[3 * i + c] = v[i][c];
+    return out;
+}
+
+std::vector<RGB> unflatten(const std::vector<double>& a, size_t n, const std::string& what) {
+    if (a.size() != 3 * n) throw std::runtime_error(what + ": holds " + std::to_string(a.size() / 3) +
+                                                    " nodes, the hierarchy " + std::to_string(n));
+    std::vector<RGB> out(n);
+    for (size_t i = 0; i < n; ++i) out[i] = {a[3 * i], a[3 * i + 1], a[3 * i + 2]};
+    return out;
+}
+
+}  // namespace
+
+HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& groups, const LinkChunks& chunks,
+                                     const std::vector<uint8_t>& is_source, const std::vector<double>& outgoing,
+                                     const std::vector<RGB>& start, const StreamingOptions& opt,
+                                     StreamingStats& stats) {
+    const size_t n = h.nodes.size();
+    const size_t ng = chunks.groups();
+    if (is_source.size() != n || outgoing.size() != n)
+        throw std::invalid_argument("streaming solve: per-node source flags and outgoing sums must cover the hierarchy");
+    if (ng != groups.count()) throw std::invalid_argument("streaming solve: the links' groups are not the hierarchy's");
+
+    std::vector<RGB> b = start.size() == n ? start : node_emission(h);
+    std::vector<RGB> shot(n), gathered(n), irradiance(n);
+    std::vector<std::vector<uint32_t>> sources(ng);
+    for (uint32_t i = 0; i < n; ++i) {
+        if (!is_source[i]) continue;
+        const uint32_t g = groups.of(h, i);
+        if (g == kNoGroup) throw std::invalid_argument("streaming solve: a source above the groups' cut");
+        sources[g].push_back(i);
+    }
+    uint64_t largest = 0;
+    for (size_t g = 0; g < ng; ++g) largest = std::max(largest, chunks.links(g));
+    stats.state_bytes = n * (4 * sizeof(RGB) + sizeof(double) + sizeof(uint8_t));
+    const uint64_t in_flight = 2 * largest * sizeof(LinkRecord);
+    uint64_t cache_capacity = UINT64_MAX;
+    if (opt.memory_budget > 0) {
+        if (opt.memory_budget < stats.state_bytes + in_flight)
+            throw std::runtime_error("memory_budget of " + std::to_string(opt.memory_budget) +
+                                     " bytes is below what the solver needs: " + std::to_string(stats.state_bytes) +
+                                     " bytes of per-node state and " + std::to_string(in_flight) +
+                                     " for two chunks in flight");
+        cache_capacity = opt.memory_budget - stats.state_bytes - in_flight;
+    }
+    const std::vector<uint32_t> leaves = h.leaves();
+    double enorm = 0;
+    for (uint32_t i : leaves) enorm += h.nodes[i].area * dot(h.nodes[i].shape.emission, h.nodes[i].shape.emission);
+    enorm = enorm > 0 ? std::sqrt(enorm) : 1.0;
+
+    HierarchicalSolution sol;
+    uint64_t round = 0;
+    const uint64_t fingerprint = opt.checkpoint_fingerprint ^ (n * 0x9E3779B97F4A7C15ull) ^ ng;
+    if (!opt.checkpoint_path.empty() && std::filesystem::exists(opt.checkpoint_path)) {
+        StateFile cp = StateFile::read(opt.checkpoint_path);
+        if (cp.fingerprint == fingerprint) {
+            gathered = unflatten(cp.f64("gathered"), n, opt.checkpoint_path);
+            shot = unflatten(cp.f64("shot"), n, opt.checkpoint_path);
+            const std::vector<uint64_t>& counters = cp.u64("counters");
+            if (counters.size() != 3) throw std::runtime_error(opt.checkpoint_path + ": bad counters");
+            round = counters[0];
+            stats.groups_shot = counters[1];
+            stats.links_shot = counters[2];
+            sol.residual_history = cp.f64("history");
+            push_pull(h, gathered, irradiance, b);
+            stats.resumed = true;
+        }
+    }
+    auto checkpoint = [&] {
+        StateFile cp;
+        cp.fingerprint = fingerprint;
+        cp.put("gathered", flatten(gathered));
+        cp.put("shot", flatten(shot));
+        cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
+        cp.put("history", sol.residual_history);
+        cp.write(opt.checkpoint_path);
+        ++stats.checkpoints;
+    };
+
+    std::vector<Chunk> cache(ng);
+    uint64_t cached_bytes = 0;
+    auto load = [&](uint32_t g, bool& hit) -> Chunk {
+        if (cache[g]) { hit = true; return cache[g]; }
+        hit = false;
+        auto links = std::make_shared<std::vector<LinkRecord>>();
+        chunks.read(g, *links);
+        for (size_t k = 0; k < links->size(); ++k) {
+            const LinkRecord& l = (*links)[k];
+            if (l.receiver >= n || l.source >= n || h.nodes[l.receiver].cluster || !is_source[l.source] ||
+                groups.of(h, l.source) != g)
+                throw std::runtime_error("source group " + std::to_string(g) + ", link " + std::to_string(k) +
+                                         " (receiver " + std::to_string(l.receiver) + ", source " +
+                                         std::to_string(l.source) + "): not a link of this group's sources to an"
+                                         " element of the hierarchy (a store of another hierarchy?)");
+        }
+        return links;
+    };
+
+    auto last_checkpoint = std::chrono::steady_clock::now();
+    for (;;) {
+        // Unshot power per group and the residual, in a fixed order.
+        std::vector<double> power(ng, 0.0);
+        double r2 = 0;
+        for (size_t g = 0; g < ng; ++g)
+            for (uint32_t s : sources[g]) {
+                const RGB d = b[s] - shot[s];
+                const double a = h.nodes[s].area;
+                power[g] += a * (0.2126 * std::fabs(d.x) + 0.7152 * std::fabs(d.y) + 0.0722 * std::fabs(d.z));
+                r2 += a * dot(d, d);
+            }
+        const double residual = std::sqrt(r2) / enorm;
+        sol.residual = residual;
+        if (residual <= opt.tolerance) { sol.converged = true; break; }
+        if (round >= opt.max_rounds) break;
+        const double top = *std::max_element(power.begin(), power.end());
+        std::vector<uint32_t> pick;
+        for (uint32_t g = 0; g < ng; ++g)
+            if (power[g] > 0 && power[g] >= 0.5 * top) pick.push_back(g);
+        std::sort(pick.begin(), pick.end(), [&](uint32_t a, uint32_t c) {
+            return power[a] != power[c] ? power[a] > power[c] : a < c;
+        });
+
+        // Shoot the picked groups in order while the next one is read.
+        tbb::task_group reader;
+        Chunk next;
+        bool next_hit = false;
+        std::exception_ptr read_error;
+        auto prefetch = [&](size_t k) {
+            reader.run([&, k] {
+                try { next = load(pick[k], next_hit); } catch (...) { read_error = std::current_exception(); }
+            });
+        };
+        prefetch(0);
+        for (size_t k = 0; k < pick.size(); ++k) {
+            auto t0 = std::chrono::steady_clock::now();
+            reader.wait();
+            stats.read_wait_seconds += seconds_since(t0);
+            if (read_error) std::rethrow_exception(read_error);
+            Chunk cur = std::move(next);
+            const bool hit = next_hit;
+            (hit ? stats.chunk_hits : stats.chunk_reads) += 1;
+            if (k + 1 < pick.size()) prefetch(k + 1);
+            const uint32_t g = pick[k];
+            t0 = std::chrono::steady_clock::now();
+            uint32_t last = UINT32_MAX;
+            RGB d;
+            for (const LinkRecord& l : *cur) {
+                if (l.source != last) { last = l.source; d = b[l.source] - shot[l.source]; }
+                gathered[l.receiver] += d * (double(l.coupling) / h.nodes[l.receiver].area);
+            }
+            for (uint32_t s : sources[g]) shot[s] = b[s];
+            stats.shoot_seconds += seconds_since(t0);
+            stats.links_shot += cur->size();
+            ++stats.groups_shot;
+            const uint64_t bytes = cur->size() * sizeof(LinkRecord);
+            if (!hit && cached_bytes + bytes <= cache_capacity) {
+                cache[g] = cur;
+                cached_bytes += bytes;
+            }
+            stats.resident_links_peak =
+                std::max<uint64_t>(stats.resident_links_peak, cached_bytes / sizeof(LinkRecord) + 2 * largest);
+        }
+        reader.wait();
+        push_pull(h, gathered, irradiance, b);
+        ++round;
+        sol.residual_history.push_back(residual);
+        if (opt.on_round && !opt.on_round(round, residual)) break;
+        if (opt.checkpoint_seconds > 0 && !opt.checkpoint_path.empty() &&
+            seconds_since(last_checkpoint) >= opt.checkpoint_seconds) {
+            checkpoint();
+            last_checkpoint = std::chrono::steady_clock::now();
+        }
+    }
+    stats.rounds = round;
+    sol.iterations = round;
+    // Fraction of each node's power carried by its own and its ancestors' links.
+    sol.outgoing.assign(n, 0.0);
+    for (size_t i = 0; i < n; ++i)
+        sol.outgoing[i] = outgoing[i] + (h.nodes[i].parent == kNoNode ? 0.0 : sol.outgoing[h.nodes[i].parent]);
+    sol.radiosity = std::move(b);
+    sol.irradiance = std::move(irradiance);
+    return sol;
+}
+
+}  // namespace hirad

@@ -1,0 +1,120 @@
+// Block Southwell on the hierarchy, streaming its links from chunks within a memory budget.
+//
+// The links are grouped by their source: the cluster tree is cut into subtrees of at most a
+// given number of input faces (the source groups), and a group's links form one chunk.
+// Every source node S keeps what it has already shot, shot_S; its unshot radiosity is
+// B_S - shot_S. A round picks the groups whose unshot power (sum of A_S |B_S - shot_S| over
+// their sources) is at least half the largest, in order of that power, and shoots them:
+// each link R <- S adds G / A_R (B_S - shot_S) to the irradiance gathered at R, then
+// shot_S = B_S. Push-pull after the round turns the gathered irradiance into new leaf
+// radiosity. At the fixed point (nothing unshot) the gathered irradiance is exactly the
+// hierarchical gather sum of G / A_R B_S, the same solution as Jacobi with push-pull.
+//
+// Deterministic whatever the thread count or the budget: which groups are shot and in what
+// order depends only on the state; a group's links are added in their stored order, by one
+// thread; the budget only decides which chunks stay decoded in memory. A second thread reads
+// and decodes the next chunk while the current one is shot.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "hierarchical_solver.h"
+#include "hierarchy.h"
+#include "linkstore.h"
+#include "refine.h"
+
+namespace hirad {
+
+constexpr uint32_t kNoGroup = UINT32_MAX;
+
+// The partition of the sources: subtrees of the cluster tree with at most `max_faces` faces,
+// in cluster order. Nodes above the cut belong to no group and never carry links.
+struct SourceGroups {
+    std::vector<uint32_t> roots;       // per group: the subtree's root node
+    std::vector<uint32_t> first_face;  // per group: its first position in face_order (+ end)
+    std::vector<uint32_t> face_rank;   // per face: its position in face_order
+
+    static SourceGroups cut(const Hierarchy& h, uint32_t max_faces);
+    size_t count() const { return roots.size(); }
+    uint32_t of(const Hierarchy& h, uint32_t node) const;
+};
+
+// A round's links by source group; read() may be called from several threads at once.
+class LinkChunks {
+public:
+    virtual ~LinkChunks() = default;
+    virtual size_t groups() const = 0;
+    virtual uint64_t links(size_t group) const = 0;
+    virtual void read(size_t group, std::vector<LinkRecord>& out) const = 0;
+    uint64_t total_links() const;
+};
+
+class MemoryChunks : public LinkChunks {
+public:
+    explicit MemoryChunks(std::vector<std::vector<LinkRecord>> by_group) : chunks_(std::move(by_group)) {}
+    size_t groups() const override { return chunks_.size(); }
+    uint64_t links(size_t g) const override { return chunks_[g].size(); }
+    void read(size_t g, std::vector<LinkRecord>& out) const override { out = chunks_[g]; }
+
+private:
+    std::vector<std::vector<LinkRecord>> chunks_;
+};
+
+// Chunk keys in the store: group g, part p (a group larger than one chunk may hold is split).
+constexpr uint32_t kPartsPerGroup = 16;
+
+class StoreChunks : public LinkChunks {
+public:
+    StoreChunks(const std::string& dir, size_t groups);
+    size_t groups() const override { return parts_.size(); }
+    uint64_t links(size_t g) const override;
+    void read(size_t g, std::vector<LinkRecord>& out) const override;
+    const LinkStoreReader& reader() const { return reader_; }
+
+private:
+    LinkStoreReader reader_;
+    std::vector<std::vector<size_t>> parts_;  // per group: its chunks in the store
+};
+
+// The order of a group's links wherever they are kept: by source, then receiver (the store's
+// order; in memory too, so that both give the same bits).
+void sort_group(std::vector<LinkRecord>& links);
+
+// Writes a group's links as chunk(s) of a store, sorted by sort_group.
+void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links);
+
+struct StreamingOptions {
+    double tolerance = 1e-4;          // on sqrt(sum A |B - shot|^2) / sqrt(sum A E^2) over sources
+    uint64_t max_rounds = 100000;
+    uint64_t memory_budget = 0;       // bytes for solver state and resident chunks; 0: unlimited
+    double checkpoint_seconds = 0;    // 0: no checkpoints
+    std::string checkpoint_path;
+    uint64_t checkpoint_fingerprint = 0;
+    std::function<bool(uint64_t round, double residual)> on_round;  // false stops the solve
+};
+
+struct StreamingStats {
+    uint64_t rounds = 0;
+    uint64_t groups_shot = 0;
+    uint64_t links_shot = 0;
+    uint64_t chunk_reads = 0;         // chunks read (and decoded) from the source
+    uint64_t chunk_hits = 0;          // chunks shot from memory
+    uint64_t resident_links_peak = 0; // decoded links held at once, at most
+    uint64_t state_bytes = 0;         // per-node solver state
+    uint64_t checkpoints = 0;
+    bool resumed = false;
+    double read_wait_seconds = 0;     // time the shooter waited for the reader
+    double shoot_seconds = 0;
+};
+
+// `is_source` and `outgoing` (per node: sum of G / A_S over its links) come from link
+// generation. Resumes from the checkpoint file when it exists with the same fingerprint.
+HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& groups, const LinkChunks& chunks,
+                                     const std::vector<uint8_t>& is_source, const std::vector<double>& outgoing,
+                                     const std::vector<RGB>& start, const StreamingOptions& options,
+                                     StreamingStats& stats);
+
+}  // namespace hirad
