@@ -193,8 +193,10 @@ OutOfCoreReport run_out_of_core(Hierarchy& h, const Visibility& vis, const OutOf
             adopt_refined(ref, r);
             rep.reused = true;
             rep.settled = fin.u64("round").at(1) != 0;
+            // Reuse always solves again from the links; a resumed bake that had finished
+            // takes its solution as it was.
             StateFile sol;
-            if (load_state(paths.solved(r), run_fp, sol)) {
+            if (!opt.reuse_links && load_state(paths.solved(r), run_fp, sol)) {
                 rep.solution = load_solution(sol, h.nodes.size(), paths.solved(r));
                 b = rep.solution.radiosity;
                 solved = true;
@@ -244,7 +246,11 @@ OutOfCoreReport run_out_of_core(Hierarchy& h, const Visibility& vis, const OutOf
             if (paths.on_disk()) {
                 save_solution(paths.solved(round), run_fp, rep.solution);
                 fs::remove(paths.checkpoint());
-                if (round > 1) fs::remove_all(paths.round(round - 1));
+                if (round > 1) {
+                    fs::remove_all(paths.round(round - 1));
+                    fs::remove(paths.refined(round - 1));
+                    fs::remove(paths.solved(round - 1));
+                }
             }
         }
         if (rep.reused || (round > 0 && rep.settled) || round >= opt.max_rounds) break;

@@ -142,6 +142,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     uint64_t largest = 0;
     for (size_t g = 0; g < ng; ++g) largest = std::max(largest, chunks.links(g));
     stats.state_bytes = n * (4 * sizeof(RGB) + sizeof(double) + sizeof(uint8_t));
+    stats.largest_chunk_links = largest;
     const uint64_t in_flight = 2 * largest * sizeof(LinkRecord);
     uint64_t cache_capacity = UINT64_MAX;
     if (opt.memory_budget > 0) {

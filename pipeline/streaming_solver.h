@@ -104,6 +104,7 @@ struct StreamingStats {
     uint64_t chunk_hits = 0;          // chunks shot from memory
     uint64_t resident_links_peak = 0; // decoded links held at once, at most
     uint64_t state_bytes = 0;         // per-node solver state
+    uint64_t largest_chunk_links = 0; // links of the largest group (two are in flight at once)
     uint64_t checkpoints = 0;
     bool resumed = false;
     double read_wait_seconds = 0;     // time the shooter waited for the reader

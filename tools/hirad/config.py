@@ -283,10 +283,10 @@ class LinksConfig(BaseModel):
         ),
     )
     memory_budget: Union[StrictInt, str] = Field(
-        default="1GB",
+        default=1 << 30,
         description=(
             "Memory for the solver's state and the link chunks it keeps decoded, e.g. '512MB',"
-            " '2GB' (or bytes); 0 = unlimited. The result does not depend on it."
+            " '2GB' (or bytes; default 1GB); 0 = unlimited. The result does not depend on it."
         ),
     )
     group_faces: StrictInt = Field(

@@ -1,0 +1,235 @@
+"""Out-of-core hierarchical radiosity (solver.method: block_southwell): links in the on-disk
+store, the streaming block-Southwell solver within a memory budget, checkpoints and resume,
+reuse of stored links, and damaged stores. Each result is checked against physics (furnace,
+energy balance, linearity in the emission) or bit for bit against the same bake done another
+way (budget, threads, memory or disk, interrupted or not)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import box_faces, make_model
+from hirad_e2e_helpers import CORNELL, run_cli, write_config
+
+from hirad import _engine, usd
+
+ARGS = dict(epsilon=1e-5, min_area=4e-4, samples=16, seed=1, tolerance=1e-6, max_iterations=100000, max_rounds=4)
+
+
+def cornell_model():
+    s = usd.read_scene(CORNELL)
+    return _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
+                         s.face_reflectance, s.face_emission, s.corner_uv)
+
+
+def solve(model, store="", budget=0, group_faces=1, resume=False, reuse=False, **kw):
+    a = dict(ARGS, **kw)
+    return model.solve_out_of_core(a["epsilon"], a["min_area"], a["samples"], a["seed"], a["tolerance"],
+                                   a["max_iterations"], a["max_rounds"], None, str(store), budget, group_faces,
+                                   0.0, resume, reuse)
+
+
+@pytest.fixture(scope="module")
+def unlimited(tmp_path_factory):
+    """The Cornell box out of core with an unlimited budget, links on disk."""
+    store = tmp_path_factory.mktemp("ooc") / "links"
+    return store, solve(cornell_model(), store)
+
+
+def test_same_bits_whatever_the_budget_the_threads_and_where_links_live(unlimited, tmp_path):
+    store, ref = unlimited
+    decoded = ref["links"] * 24
+    s = ref["streaming"]
+    # The smallest budget the solver accepts: its state and two chunks in flight.
+    minimum = s["state_bytes"] + 2 * 24 * s["largest_chunk_links"]
+    budget = minimum + decoded // 50
+    # Cornell's largest source group (one face, the floor's links) bounds how low it can go.
+    assert budget < 0.55 * decoded, "the test needs a budget well below the links' size"
+    try:
+        _engine.set_threads(1)
+        small = solve(cornell_model(), tmp_path / "small", budget=budget)
+    finally:
+        _engine.set_threads(0)
+    memory = solve(cornell_model(), "")
+    for other in (small, memory):
+        assert np.array_equal(other["radiosity"], ref["radiosity"])
+        assert np.array_equal(other["irradiance"], ref["irradiance"])
+        assert other["links"] == ref["links"]
+    # The small budget really streamed: chunks were read again and again.
+    assert small["streaming"]["chunk_reads"] > 2 * ref["source_groups"]
+    assert ref["streaming"]["chunk_reads"] == ref["source_groups"]
+    assert small["streaming"]["resident_links_peak"] * 24 + s["state_bytes"] <= budget
+
+
+def test_budget_below_the_minimum_is_a_clear_error(tmp_path):
+    with pytest.raises(RuntimeError, match="memory_budget of 1000 bytes is below what the solver needs"):
+        solve(cornell_model(), tmp_path / "links", budget=1000)
+
+
+def test_agrees_with_the_in_memory_hierarchical_solve(unlimited):
+    # Different link sets (out of core, links start at the source groups, not the root), the
+    # same physics: area-weighted mean radiosity and energy balance.
+    _, ooc = unlimited
+    m = cornell_model()
+    jac = m.solve_hierarchical(ARGS["epsilon"], ARGS["min_area"], ARGS["samples"], 1, 1e-6, 100000,
+                               ARGS["max_rounds"], None, "jacobi")
+    assert ooc["converged"]
+    np.testing.assert_allclose(ooc["radiosity"].mean(axis=0), jac["radiosity"].mean(axis=0), rtol=2e-3)
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.9])
+def test_furnace(rho, tmp_path):
+    m = make_model(box_faces(), rho, 1.0)
+    r = solve(m, tmp_path / "links", epsilon={0.5: 2e-5, 0.9: 1e-4}[rho], min_area=0.0155, samples=144,
+              tolerance=1e-9)
+    assert r["converged"]
+    err = np.abs(r["radiosity"] * (1 - rho) - 1)
+    assert err.max() < 0.01, f"rho {rho}: max relative error {err.max():.4f}"
+
+
+def test_reuse_links_for_new_emission_computes_no_form_factor_and_is_linear(unlimited, tmp_path):
+    # B is linear in E: doubling every emitter doubles every radiosity (to the solver's
+    # tolerance: the bake's last solve started from the previous round's solution, this one
+    # from the emission).
+    store, ref = unlimited
+    s = usd.read_scene(CORNELL)
+    m2 = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
+                       s.face_reflectance, 2 * s.face_emission, s.corner_uv)
+    r2 = solve(m2, store, reuse=True)
+    assert r2["reused_links"] and r2["link_estimates"] == 0 and r2["links"] == ref["links"]
+    np.testing.assert_allclose(r2["radiosity"], 2 * ref["radiosity"], rtol=1e-4, atol=1e-9)
+    # Reflectance too: a new solve on the same links, converged.
+    m3 = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
+                       0.5 * s.face_reflectance, s.face_emission, s.corner_uv)
+    r3 = solve(m3, store, reuse=True)
+    assert r3["reused_links"] and r3["link_estimates"] == 0 and r3["converged"]
+    assert r3["radiosity"].mean() < ref["radiosity"].mean()
+
+
+def test_reuse_without_a_store_of_this_scene_is_refused(tmp_path):
+    with pytest.raises(RuntimeError, match="no final links of this geometry"):
+        solve(cornell_model(), tmp_path / "links", reuse=True)
+    # Another refinement setting: the stored links are not this bake's.
+    solve(cornell_model(), tmp_path / "links")
+    with pytest.raises(RuntimeError, match="no final links of this geometry"):
+        solve(cornell_model(), tmp_path / "links", reuse=True, epsilon=1e-4)
+
+
+def _final_round(store: Path) -> Path:
+    rounds = sorted(store.glob("round-*"), key=lambda p: int(p.name.split("-")[1]))
+    return rounds[-1]
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "manifest"])
+def test_damaged_store_is_detected_with_the_file_named(damage, tmp_path):
+    store = tmp_path / "links"
+    solve(cornell_model(), store)
+    final = _final_round(store)
+    chunk = sorted(final.glob("chunk-*.hlc"))[3]
+    if damage == "flip":
+        data = bytearray(chunk.read_bytes())
+        data[len(data) // 2] ^= 0x10
+        chunk.write_bytes(bytes(data))
+        expect = f"{chunk}: chunk .*checksum"
+    elif damage == "truncate":
+        chunk.write_bytes(chunk.read_bytes()[:-7])
+        expect = f"{chunk}: chunk .*truncated"
+    else:
+        (final / "manifest").unlink()
+        expect = "never committed"
+    with pytest.raises(RuntimeError, match=expect):
+        solve(cornell_model(), store, reuse=True)
+
+
+def test_cli_damaged_store_exits_non_zero_naming_the_chunk(tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", CORNELL, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 3e-5, "min_area": 4e-4},
+                       solver={"method": "block_southwell"}, links={"group_faces": 2},
+                       outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False}})
+    assert run_cli("bake", cfg, "--quiet").returncode == 0
+    chunk = sorted(_final_round(tmp_path / "out.links").glob("chunk-*.hlc"))[0]
+    data = bytearray(chunk.read_bytes())
+    data[100] ^= 1
+    chunk.write_bytes(bytes(data))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = run_cli("bake", cfg, "--quiet", "--reuse-links")
+    assert r.returncode != 0
+    assert chunk.name in r.stderr and "checksum" in r.stderr, r.stderr
+    # The earlier output is still there, unchanged in name; no staging directory is left.
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+# ---------------------------------------------------------------------------------------------
+# kill -9 and resume
+# ---------------------------------------------------------------------------------------------
+
+KILL_CONFIG = dict(method="hierarchical", hierarchy={"epsilon": 1e-5, "min_area": 2e-4, "max_rounds": 3},
+                   solver={"method": "block_southwell", "tolerance": 1e-11},
+                   links={"group_faces": 1, "memory_budget": "12MB", "checkpoint_seconds": 0.0001},
+                   outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False}})
+
+
+def _patch_radiance(out: Path) -> np.ndarray:
+    from pxr import Usd, UsdGeom
+    stage = Usd.Stage.Open(str(out / "solution.usda"))
+    values = []
+    for prim in stage.Traverse():
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("hirad:patchRadiance") if prim.IsA(UsdGeom.Mesh) else None
+        if pv and pv.Get() is not None:
+            values.append(np.asarray(pv.Get(), dtype=np.float64))
+    assert values, "no hirad:patchRadiance primvar in the solution"
+    return np.concatenate(values)
+
+
+@pytest.fixture(scope="module")
+def clean_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("clean")
+    cfg = write_config(tmp / "c.yaml", CORNELL, tmp / "out", **KILL_CONFIG)
+    r = run_cli("bake", cfg, "--quiet")
+    assert r.returncode == 0, r.stderr
+    return _patch_radiance(tmp / "out")
+
+
+def _kill_when(cfg: Path, ready, timeout=120.0) -> None:
+    env = dict(os.environ)
+    proc = subprocess.Popen([sys.executable, "-m", "hirad.cli", "bake", str(cfg), "--quiet"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.time()
+    try:
+        while not ready():
+            assert proc.poll() is None, "the bake finished before it could be killed"
+            assert time.time() - t0 < timeout
+            time.sleep(0.002)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+
+
+@pytest.mark.parametrize("when", ["link generation", "solve"])
+def test_kill_9_then_resume_gives_the_clean_result(when, clean_run, tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", CORNELL, tmp_path / "out", **KILL_CONFIG)
+    store = tmp_path / "out.links"
+    if when == "link generation":
+        # During round 2's refinement: round 1 solved, round 2's chunks being written.
+        ready = lambda: (store / "round-2").exists() and any((store / "round-2").glob("chunk-*"))
+    else:
+        # During round 2's solve: its links committed, its checkpoint written, not yet solved.
+        ready = lambda: (store / "refined-2").exists() and (store / "checkpoint").exists()
+    _kill_when(cfg, ready)
+    assert not (tmp_path / "out").exists() and not (store / "final").exists()
+    r = run_cli("bake", cfg, "--quiet", "--json", "--resume")
+    assert r.returncode == 0, r.stderr
+    import json
+    report = json.loads(r.stdout)
+    assert report["links"]["resumed_from_round"] >= 1
+    if when == "solve":
+        assert report["links"]["last_solve"]["resumed"] or report["links"]["resumed_from_round"] >= 2
+    assert np.array_equal(_patch_radiance(tmp_path / "out"), clean_run)
