@@ -424,13 +424,13 @@ def cmd_hall(args) -> None:
     if not args.hall.exists():
         print(f"# 4. {args.hall} is absent: Modern Hall skipped")
         return
-    print(f"# 4. Modern Hall: hierarchical (epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples 16, "
+    print(f"# 4. Modern Hall: hierarchical (epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples {args.samples}, "
           f"jacobi tol 1e-4), RMS relative error of luminance at lit reflecting surface points")
     scene, model = unsplit_model(args.hall)
     patches = model.patch_arrays()
     cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4242)
     ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 77, "hall")
-    del model  # (see bench/README.md: an Embree assertion once fired baking with this model alive)
+    del model
     lum = ref["radiance"] @ LUM
     with np.errstate(divide="ignore", invalid="ignore"):
         rse = (ref["standard_error"] @ LUM) / lum
@@ -446,8 +446,15 @@ def cmd_hall(args) -> None:
     pts, nrm = cand[keep], cnrm[keep]
     rel_se = (ref["standard_error"] @ LUM)[keep] / lum[keep]
     ld = load()
-    result, wall = timed_bake(hier_config(args.hall, args.epsilon, args.min_area), ROOT)
-    e = rel_errors(result.radiance_at(pts, nrm), ref["radiance"][keep])
+    result, wall = timed_bake(hier_config(args.hall, args.epsilon, args.min_area, samples=args.samples), ROOT)
+    t0 = time.perf_counter()
+    gathered = result.gather(pts, nrm)["radiance"]
+    t_gather = time.perf_counter() - t0
+    e_interp = rel_errors(result.radiance_at(pts, nrm), ref["radiance"][keep])
+    print(f"interpolated (result.radiance_at, display mesh): RMS {np.sqrt(np.mean(e_interp ** 2)):.2%}, "
+          f"mean {np.mean(e_interp):+.2%}")
+    print(f"final gather (result.gather, {t_gather:.2f} s for {len(pts)} points) below")
+    e = rel_errors(gathered, ref["radiance"][keep])
     h, c = result.report["hierarchy"], result.report["counts"]
     rms = float(np.sqrt(np.mean(e ** 2)))
     rms_c = float(np.sqrt(max(0.0, np.mean(e ** 2) - np.mean(rel_se ** 2))))
@@ -483,6 +490,7 @@ def main() -> None:
     ap.add_argument("--target-se", type=float, default=0.003, help="Cornell reference: relative standard error")
     ap.add_argument("--hall-target-se", type=float, default=0.01, help="Hall reference: relative standard error")
     ap.add_argument("--hall-max-se", type=float, default=0.03, help="Hall: drop points with a noisier reference")
+    ap.add_argument("--samples", type=int, default=16, help="hall: hierarchy.samples")
     ap.add_argument("--max-paths", type=int, default=262144, help="most paths per reference point")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
