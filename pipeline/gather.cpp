@@ -120,4 +120,31 @@ void Gatherer::radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key
     }
 }
 
+void gather_flat(const std::vector<Patch>& patches, const std::vector<RGB>& radiosity, const Visibility& vis,
+                 const Vec3* x, const Vec3* n, size_t count, int rays, uint64_t seed, RGB* out) {
+    const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(rays))))));
+    const int m = g * g;
+    const double lift = 1e-5 * vis.scene_size();
+    tbb::parallel_for(size_t(0), count, [&](size_t q) {
+        Rng rng(hash_pair(q, 0xF1A7ull, seed));
+        RGB h;
+        Vec3 from[16], to[16];
+        uint8_t seen[16];
+        for (size_t j = 0; j < patches.size(); ++j) {
+            const Patch& s = patches[j];
+            const double f = point_polygon_form_factor(x[q], n[q], s.p.data(), s.nv, s.normal);
+            if (f <= 0) continue;
+            for (int k = 0; k < m; ++k) {
+                from[k] = x[q] + n[q] * lift;
+                to[k] = s.point((k % g + rng.uniform()) / g, (k / g + rng.uniform()) / g) + s.normal * lift;
+            }
+            vis.segments_visible(from, to, m, seen);
+            int arrived = 0;
+            for (int k = 0; k < m; ++k) arrived += seen[k];
+            h += radiosity[j] * (f * arrived / m);
+        }
+        out[q] = h;
+    });
+}
+
 }  // namespace hirad

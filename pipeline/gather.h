@@ -52,4 +52,10 @@ private:
     std::vector<uint64_t> first_link_;  // per node: its links are [first_link_[i], first_link_[i + 1])
 };
 
+// The same gather from a flat solution: every patch j is a source, F(x -> j) exact, its
+// visibility by `rays` stratified rays (patches whose form factor from x is zero skipped).
+// O(patches) per point: the flat method's own cost, for comparing the two methods at points.
+void gather_flat(const std::vector<Patch>& patches, const std::vector<RGB>& radiosity, const Visibility& visibility,
+                 const Vec3* x, const Vec3* n, size_t count, int rays, uint64_t seed, RGB* irradiance);
+
 }  // namespace hirad

@@ -1,6 +1,7 @@
 #include "streaming_solver.h"
 
-#include <tbb/task_group.h>
+#include <tbb/parallel_pipeline.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
@@ -45,6 +46,22 @@ uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
     return end <= first_face[g + 1] ? g : kNoGroup;
 }
 
+uint64_t LinkChunks::links(size_t g) const {
+    uint64_t n = 0;
+    for (size_t p = 0; p < parts(g); ++p) n += links(g, p);
+    return n;
+}
+
+void LinkChunks::read(size_t g, std::vector<LinkRecord>& out) const {
+    out.clear();
+    out.reserve(links(g));
+    std::vector<LinkRecord> part;
+    for (size_t p = 0; p < parts(g); ++p) {
+        read(g, p, part);
+        out.insert(out.end(), part.begin(), part.end());
+    }
+}
+
 uint64_t LinkChunks::total_links() const {
     uint64_t n = 0;
     for (size_t g = 0; g < groups(); ++g) n += links(g);
@@ -54,25 +71,14 @@ uint64_t LinkChunks::total_links() const {
 StoreChunks::StoreChunks(const std::string& dir, size_t groups) : reader_(dir), parts_(groups) {
     for (size_t k = 0; k < reader_.chunk_count(); ++k) {
         const ChunkEntry& e = reader_.chunk(k);
-        const uint32_t g = e.source_begin / kPartsPerGroup;
-        if (e.source_end != e.source_begin + 1 || g >= groups)
+        const uint32_t g = e.source_begin / kPartsPerGroup, p = e.source_begin % kPartsPerGroup;
+        if (e.source_end != e.source_begin + 1 || g >= groups || p != parts_[g].size())
             throw std::runtime_error(reader_.chunk_path(k) + ": chunk " + std::to_string(k) + ": key range [" +
                                      std::to_string(e.source_begin) + ", " + std::to_string(e.source_end) +
-                                     ") is not one part of one of the " + std::to_string(groups) + " source groups");
+                                     ") is not the next part of one of the " + std::to_string(groups) +
+                                     " source groups");
         parts_[g].push_back(k);
     }
-}
-
-uint64_t StoreChunks::links(size_t g) const {
-    uint64_t n = 0;
-    for (size_t k : parts_[g]) n += reader_.chunk(k).link_count;
-    return n;
-}
-
-void StoreChunks::read(size_t g, std::vector<LinkRecord>& out) const {
-    out.resize(links(g));
-    size_t at = 0;
-    for (size_t k : parts_[g]) at += reader_.read_chunk(k, out.data() + at, out.size() - at);
 }
 
 void sort_group(std::vector<LinkRecord>& links) {
@@ -84,12 +90,15 @@ void sort_group(std::vector<LinkRecord>& links) {
 void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links) {
     if (links.empty()) return;
     sort_group(links);
-    const uint64_t parts = (links.size() + kMaxLinksPerChunk - 1) / kMaxLinksPerChunk;
+    if (uint64_t(group + 1) * kPartsPerGroup > UINT32_MAX)
+        throw std::runtime_error("source group " + std::to_string(group) + ": too many source groups for the store's"
+                                 " chunk keys; use a larger links.group_faces");
+    const uint64_t parts = (links.size() + kChunkLinks - 1) / kChunkLinks;
     if (parts > kPartsPerGroup)
         throw std::runtime_error("source group " + std::to_string(group) + " has " + std::to_string(links.size()) +
                                  " links, more than a group can store; use smaller links.group_faces");
     for (uint64_t p = 0; p < parts; ++p) {
-        const size_t begin = p * kMaxLinksPerChunk, end = std::min<size_t>(links.size(), begin + kMaxLinksPerChunk);
+        const size_t begin = p * kChunkLinks, end = std::min<size_t>(links.size(), begin + kChunkLinks);
         const uint32_t key = group * kPartsPerGroup + static_cast<uint32_t>(p);
         writer.write_chunk(key, key + 1, links.data() + begin, end - begin);
     }
@@ -140,17 +149,26 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         sources[g].push_back(i);
     }
     uint64_t largest = 0;
-    for (size_t g = 0; g < ng; ++g) largest = std::max(largest, chunks.links(g));
+    std::vector<uint64_t> first_part(ng + 1, 0);   // parts numbered across groups, for the cache
+    for (size_t g = 0; g < ng; ++g) {
+        first_part[g + 1] = first_part[g] + chunks.parts(g);
+        for (size_t p = 0; p < chunks.parts(g); ++p) largest = std::max(largest, chunks.links(g, p));
+    }
     stats.state_bytes = n * (4 * sizeof(RGB) + sizeof(double) + sizeof(uint8_t));
     stats.largest_chunk_links = largest;
-    const uint64_t in_flight = 2 * largest * sizeof(LinkRecord);
+    // Chunks in flight: one being shot, the others being read and decoded, two per thread
+    // (decoding is what limits streaming).
+    const size_t window = std::max(2, 2 * tbb::this_task_arena::max_concurrency());
+    const uint64_t in_flight = window * largest * sizeof(LinkRecord);
+    size_t shot_parts = 0;
+    stats.chunks_in_flight = window;
     uint64_t cache_capacity = UINT64_MAX;
     if (opt.memory_budget > 0) {
         if (opt.memory_budget < stats.state_bytes + in_flight)
             throw std::runtime_error("memory_budget of " + std::to_string(opt.memory_budget) +
                                      " bytes is below what the solver needs: " + std::to_string(stats.state_bytes) +
-                                     " bytes of per-node state and " + std::to_string(in_flight) +
-                                     " for two chunks in flight");
+                                     " bytes of per-node state and " + std::to_string(in_flight) + " for " +
+                                     std::to_string(window) + " chunks in flight");
         cache_capacity = opt.memory_budget - stats.state_bytes - in_flight;
     }
     const std::vector<uint32_t> leaves = h.leaves();
@@ -187,21 +205,25 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         ++stats.checkpoints;
     };
 
-    std::vector<Chunk> cache(ng);
+    // Chunks kept decoded: the first ones read, while they fit (a cyclic access pattern would
+    // make any eviction policy miss every time).
+    std::vector<Chunk> cache(first_part[ng]);
     uint64_t cached_bytes = 0;
-    auto load = [&](uint32_t g, bool& hit) -> Chunk {
-        if (cache[g]) { hit = true; return cache[g]; }
+    struct Part { uint32_t group, part; };
+    auto load = [&](Part q, bool& hit) -> Chunk {
+        const uint64_t slot = first_part[q.group] + q.part;
+        if (cache[slot]) { hit = true; return cache[slot]; }
         hit = false;
         auto links = std::make_shared<std::vector<LinkRecord>>();
-        chunks.read(g, *links);
+        chunks.read(q.group, q.part, *links);
         for (size_t k = 0; k < links->size(); ++k) {
             const LinkRecord& l = (*links)[k];
             if (l.receiver >= n || l.source >= n || h.nodes[l.receiver].cluster || !is_source[l.source] ||
-                groups.of(h, l.source) != g)
-                throw std::runtime_error("source group " + std::to_string(g) + ", link " + std::to_string(k) +
-                                         " (receiver " + std::to_string(l.receiver) + ", source " +
-                                         std::to_string(l.source) + "): not a link of this group's sources to an"
-                                         " element of the hierarchy (a store of another hierarchy?)");
+                groups.of(h, l.source) != q.group)
+                throw std::runtime_error("source group " + std::to_string(q.group) + ", part " + std::to_string(q.part) +
+                                         ", link " + std::to_string(k) + " (receiver " + std::to_string(l.receiver) +
+                                         ", source " + std::to_string(l.source) + "): not a link of this group's"
+                                         " sources to an element of the hierarchy (a store of another hierarchy?)");
         }
         return links;
     };
@@ -230,47 +252,62 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             return power[a] != power[c] ? power[a] > power[c] : a < c;
         });
 
-        // Shoot the picked groups in order while the next one is read.
-        tbb::task_group reader;
-        Chunk next;
-        bool next_hit = false;
-        std::exception_ptr read_error;
-        auto prefetch = [&](size_t k) {
-            reader.run([&, k] {
-                try { next = load(pick[k], next_hit); } catch (...) { read_error = std::current_exception(); }
-            });
-        };
-        prefetch(0);
-        for (size_t k = 0; k < pick.size(); ++k) {
-            auto t0 = std::chrono::steady_clock::now();
-            reader.wait();
-            stats.read_wait_seconds += seconds_since(t0);
-            if (read_error) std::rethrow_exception(read_error);
-            Chunk cur = std::move(next);
-            const bool hit = next_hit;
-            (hit ? stats.chunk_hits : stats.chunk_reads) += 1;
-            if (k + 1 < pick.size()) prefetch(k + 1);
-            const uint32_t g = pick[k];
-            t0 = std::chrono::steady_clock::now();
-            uint32_t last = UINT32_MAX;
-            RGB d;
-            for (const LinkRecord& l : *cur) {
-                if (l.source != last) { last = l.source; d = b[l.source] - shot[l.source]; }
-                gathered[l.receiver] += d * (double(l.coupling) / h.nodes[l.receiver].area);
-            }
-            for (uint32_t s : sources[g]) shot[s] = b[s];
-            stats.shoot_seconds += seconds_since(t0);
-            stats.links_shot += cur->size();
-            ++stats.groups_shot;
-            const uint64_t bytes = cur->size() * sizeof(LinkRecord);
-            if (!hit && cached_bytes + bytes <= cache_capacity) {
-                cache[g] = cur;
-                cached_bytes += bytes;
-            }
-            stats.resident_links_peak =
-                std::max<uint64_t>(stats.resident_links_peak, cached_bytes / sizeof(LinkRecord) + 2 * largest);
-        }
-        reader.wait();
+        // Shoot the picked groups in order, part by part, while the next part is read. A
+        // group's sources shoot B - shot as it was when the group began; shot is updated
+        // after its last part.
+        std::vector<Part> queue;
+        for (uint32_t g : pick)
+            for (uint32_t p = 0; p < chunks.parts(g); ++p) queue.push_back({g, p});
+        // A pipeline: parts handed out in order, read and decoded by up to `window` workers at
+        // once, shot strictly in order by one at a time.
+        size_t next_part = 0;
+        struct Loaded { Part part; Chunk links; bool hit; };
+        const auto pipe_start = std::chrono::steady_clock::now();
+        const double shoot_before = stats.shoot_seconds;
+        tbb::parallel_pipeline(
+            window,
+            tbb::make_filter<void, Part>(tbb::filter_mode::serial_in_order,
+                                         [&](tbb::flow_control& fc) -> Part {
+                                             if (next_part == queue.size()) { fc.stop(); return {}; }
+                                             return queue[next_part++];
+                                         }) &
+                tbb::make_filter<Part, Loaded>(tbb::filter_mode::parallel,
+                                               [&](Part q) -> Loaded {
+                                                   bool hit = false;
+                                                   Chunk c = load(q, hit);
+                                                   return {q, std::move(c), hit};
+                                               }) &
+                tbb::make_filter<Loaded, void>(tbb::filter_mode::serial_in_order, [&](const Loaded& in) {
+                    const Part q = in.part;
+                    (in.hit ? stats.chunk_hits : stats.chunk_reads) += 1;
+                    auto t0 = std::chrono::steady_clock::now();
+                    uint32_t last = UINT32_MAX;
+                    RGB d;
+                    for (const LinkRecord& l : *in.links) {
+                        if (l.source != last) { last = l.source; d = b[l.source] - shot[l.source]; }
+                        gathered[l.receiver] += d * (double(l.coupling) / h.nodes[l.receiver].area);
+                    }
+                    // A group's sources shoot B - shot as it was when the group began; shot
+                    // is updated after its last part.
+                    const size_t k = shot_parts++;
+                    const bool group_done = k + 1 == queue.size() || queue[k + 1].group != q.group;
+                    if (group_done) {
+                        for (uint32_t src : sources[q.group]) shot[src] = b[src];
+                        ++stats.groups_shot;
+                    }
+                    stats.shoot_seconds += seconds_since(t0);
+                    stats.links_shot += in.links->size();
+                    const uint64_t bytes = in.links->size() * sizeof(LinkRecord);
+                    if (!in.hit && cached_bytes + bytes <= cache_capacity) {
+                        cache[first_part[q.group] + q.part] = in.links;
+                        cached_bytes += bytes;
+                    }
+                    stats.resident_links_peak =
+                        std::max<uint64_t>(stats.resident_links_peak, cached_bytes / sizeof(LinkRecord) + window * largest);
+                }));
+        shot_parts = 0;
+        // What the pipeline took beyond shooting: the shooter waiting for chunks.
+        stats.read_wait_seconds += seconds_since(pipe_start) - (stats.shoot_seconds - shoot_before);
         push_pull(h, gathered, irradiance, b);
         ++round;
         sol.residual_history.push_back(residual);

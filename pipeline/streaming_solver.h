@@ -12,9 +12,10 @@
 //
 // Deterministic whatever the thread count or the budget: which groups are shot and in what
 // order depends only on the state; a group's links are added in their stored order, by one
-// thread; the budget only decides which chunks stay decoded in memory. A second thread reads
-// and decodes the next chunk while the current one is shot.
+// thread; the budget only decides which chunks stay decoded in memory. Other threads read and
+// decode the next chunks (a TBB pipeline, two chunks in flight per thread) while one is shot.
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -42,48 +43,65 @@ struct SourceGroups {
     uint32_t of(const Hierarchy& h, uint32_t node) const;
 };
 
-// A round's links by source group; read() may be called from several threads at once.
+// A group's links are cut into chunks of at most kChunkLinks (the unit read, decoded and
+// held in memory; a fixed size, so the store does not depend on the budget). Chunk keys in
+// the store: group g, part p -> g * kPartsPerGroup + p.
+constexpr uint64_t kChunkLinks = uint64_t(1) << 14;
+constexpr uint32_t kPartsPerGroup = 16384;
+
+// A round's links by source group, in parts; read() may be called from several threads at once.
 class LinkChunks {
 public:
     virtual ~LinkChunks() = default;
     virtual size_t groups() const = 0;
-    virtual uint64_t links(size_t group) const = 0;
-    virtual void read(size_t group, std::vector<LinkRecord>& out) const = 0;
+    virtual size_t parts(size_t group) const = 0;
+    virtual uint64_t links(size_t group, size_t part) const = 0;
+    virtual void read(size_t group, size_t part, std::vector<LinkRecord>& out) const = 0;
+    uint64_t links(size_t group) const;
+    void read(size_t group, std::vector<LinkRecord>& out) const;   // all parts, in order
     uint64_t total_links() const;
 };
 
 class MemoryChunks : public LinkChunks {
 public:
     explicit MemoryChunks(std::vector<std::vector<LinkRecord>> by_group) : chunks_(std::move(by_group)) {}
+    using LinkChunks::links;
+    using LinkChunks::read;
     size_t groups() const override { return chunks_.size(); }
-    uint64_t links(size_t g) const override { return chunks_[g].size(); }
-    void read(size_t g, std::vector<LinkRecord>& out) const override { out = chunks_[g]; }
+    size_t parts(size_t g) const override { return (chunks_[g].size() + kChunkLinks - 1) / kChunkLinks; }
+    uint64_t links(size_t g, size_t p) const override {
+        return std::min<uint64_t>(kChunkLinks, chunks_[g].size() - p * kChunkLinks);
+    }
+    void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override {
+        const auto begin = chunks_[g].begin() + p * kChunkLinks;
+        out.assign(begin, begin + links(g, p));
+    }
 
 private:
     std::vector<std::vector<LinkRecord>> chunks_;
 };
 
-// Chunk keys in the store: group g, part p (a group larger than one chunk may hold is split).
-constexpr uint32_t kPartsPerGroup = 16;
-
 class StoreChunks : public LinkChunks {
 public:
     StoreChunks(const std::string& dir, size_t groups);
+    using LinkChunks::links;
+    using LinkChunks::read;
     size_t groups() const override { return parts_.size(); }
-    uint64_t links(size_t g) const override;
-    void read(size_t g, std::vector<LinkRecord>& out) const override;
+    size_t parts(size_t g) const override { return parts_[g].size(); }
+    uint64_t links(size_t g, size_t p) const override { return reader_.chunk(parts_[g][p]).link_count; }
+    void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override { reader_.read_chunk(parts_[g][p], out); }
     const LinkStoreReader& reader() const { return reader_; }
 
 private:
     LinkStoreReader reader_;
-    std::vector<std::vector<size_t>> parts_;  // per group: its chunks in the store
+    std::vector<std::vector<size_t>> parts_;  // per group: its chunks in the store, in part order
 };
 
 // The order of a group's links wherever they are kept: by source, then receiver (the store's
 // order; in memory too, so that both give the same bits).
 void sort_group(std::vector<LinkRecord>& links);
 
-// Writes a group's links as chunk(s) of a store, sorted by sort_group.
+// Writes a group's links as chunks of a store (sorted by sort_group, cut every kChunkLinks).
 void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links);
 
 struct StreamingOptions {
@@ -101,10 +119,11 @@ struct StreamingStats {
     uint64_t groups_shot = 0;
     uint64_t links_shot = 0;
     uint64_t chunk_reads = 0;         // chunks read (and decoded) from the source
-    uint64_t chunk_hits = 0;          // chunks shot from memory
+    uint64_t chunk_hits = 0;          // chunks shot from memory (kept decoded)
     uint64_t resident_links_peak = 0; // decoded links held at once, at most
     uint64_t state_bytes = 0;         // per-node solver state
-    uint64_t largest_chunk_links = 0; // links of the largest group (two are in flight at once)
+    uint64_t largest_chunk_links = 0; // links of the largest chunk (2 per thread are in flight)
+    uint64_t chunks_in_flight = 0;
     uint64_t checkpoints = 0;
     bool resumed = false;
     double read_wait_seconds = 0;     // time the shooter waited for the reader

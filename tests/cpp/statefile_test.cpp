@@ -1,0 +1,64 @@
+// State files: round trip of every array type, and every byte of a file flipped or cut off is
+// detected with the file named.
+#include "statefile.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+
+namespace hirad {
+namespace {
+
+StateFile sample() {
+    StateFile f;
+    f.fingerprint = 0x1234ABCDull;
+    f.put("log", std::vector<uint32_t>{3, 1, 4, 1, 5});
+    f.put("counters", std::vector<uint64_t>{uint64_t(1) << 40, 7});
+    f.put("radiosity", std::vector<double>{0.5, -1e-300, 3.25});
+    f.put("empty", std::vector<double>{});
+    return f;
+}
+
+TEST(StateFile, RoundTripsThroughAFile) {
+    const std::string path = (std::filesystem::temp_directory_path() / "hirad_statefile_test").string();
+    sample().write(path);
+    EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
+    StateFile g = StateFile::read(path);
+    EXPECT_EQ(g.fingerprint, 0x1234ABCDull);
+    EXPECT_EQ(g.u32("log"), (std::vector<uint32_t>{3, 1, 4, 1, 5}));
+    EXPECT_EQ(g.u64("counters"), (std::vector<uint64_t>{uint64_t(1) << 40, 7}));
+    EXPECT_EQ(g.f64("radiosity"), (std::vector<double>{0.5, -1e-300, 3.25}));
+    EXPECT_TRUE(g.f64("empty").empty());
+    EXPECT_FALSE(g.has("missing"));
+    try {
+        g.u32("missing");
+        FAIL() << "an absent array was returned";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find(path), std::string::npos);
+    }
+    std::filesystem::remove(path);
+}
+
+TEST(StateFile, EveryFlippedByteAndEveryTruncationIsDetected) {
+    const std::vector<uint8_t> good = sample().encode();
+    for (size_t i = 0; i < good.size(); ++i) {
+        std::vector<uint8_t> bad = good;
+        bad[i] ^= 0x01;
+        EXPECT_THROW(StateFile::decode(bad.data(), bad.size(), "f"), std::runtime_error) << "byte " << i;
+    }
+    for (size_t n = 0; n < good.size(); ++n)
+        EXPECT_THROW(StateFile::decode(good.data(), n, "f"), std::runtime_error) << "length " << n;
+    try {
+        std::vector<uint8_t> bad = good;
+        bad[good.size() / 2] ^= 0x80;
+        StateFile::decode(bad.data(), bad.size(), "/some/state");
+        FAIL();
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("/some/state: state file checksum mismatch"), std::string::npos);
+    }
+}
+
+}  // namespace
+}  // namespace hirad
