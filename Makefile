@@ -9,7 +9,7 @@ CPP_SRC := $(wildcard pipeline/*.h pipeline/*.cpp formats/*.h formats/*.cpp) CMa
 CPP_TESTS := $(wildcard tests/cpp/*.cpp)
 DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
                 libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time \
-                libzstd-dev libxxhash-dev
+                libzstd-dev libxxhash-dev libopenvdb-dev libboost-iostreams-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 JOBS := $(shell nproc)
 

@@ -425,6 +425,44 @@ public:
 
     uint64_t rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
 
+    // Final gather from a flat solution (gather.h: gather_flat) at points on the patches'
+    // surfaces: irradiance and radiance per point, the point's patch found as for probes.
+    nb::dict gather_flat(In<double> points, In<double> normals, In<double> radiosity, int rays, uint64_t seed) const {
+        const size_t n = points.shape(0), np = patches_.patches.size();
+        if (!visibility_ || np == 0) throw std::invalid_argument("gather_flat needs a meshed, solved model");
+        if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(0) != n)
+            throw std::invalid_argument("points and normals: shape (n, 3)");
+        const std::vector<RGB> b = rgb_vector(radiosity, np, "radiosity");
+        std::vector<Vec3> x(n), nn(n);
+        std::vector<int32_t> patch(n);
+        std::vector<RGB> e(n);
+        std::vector<double> irr(3 * n, 0.0), rad(3 * n, 0.0);
+        {
+            nb::gil_scoped_release release;
+            for (size_t q = 0; q < n; ++q) {
+                const double* p = points.data() + 3 * q;
+                const double* m = normals.data() + 3 * q;
+                const RayHit hit = visibility_->closest_point({p[0], p[1], p[2]}, {m[0], m[1], m[2]}, 1e30);
+                patch[q] = hit.patch;
+                const Patch& s = patches_.patches[std::max(0, hit.patch)];
+                nn[q] = s.normal;
+                x[q] = Vec3{p[0], p[1], p[2]} - s.normal * dot(Vec3{p[0], p[1], p[2]} - s.p[0], s.normal);
+            }
+            hirad::gather_flat(patches_.patches, b, *visibility_, x.data(), nn.data(), n, rays, seed, e.data());
+            for (size_t q = 0; q < n; ++q) {
+                if (patch[q] < 0) continue;
+                const Patch& s = patches_.patches[patch[q]];
+                const RGB l = (s.emission + mul(s.reflectance, e[q])) / kPi;
+                for (int c = 0; c < 3; ++c) { irr[3 * q + c] = e[q][c]; rad[3 * q + c] = l[c]; }
+            }
+        }
+        nb::dict d;
+        d["patch"] = to_numpy(std::move(patch), {n});
+        d["irradiance"] = to_numpy(std::move(irr), {n, 3});
+        d["radiance"] = to_numpy(std::move(rad), {n, 3});
+        return d;
+    }
+
     // Hierarchical radiosity with clustering: refine (from the root's self-link), solve with
     // push-pull, refine again with the new radiosity, until no link splits or max_rounds. The
     // leaves then replace the patches, so outputs and display work as for the flat method.
@@ -598,6 +636,8 @@ public:
         s["chunk_hits"] = st.chunk_hits;
         s["resident_links_peak"] = st.resident_links_peak;
         s["state_bytes"] = st.state_bytes;
+        s["largest_chunk_links"] = st.largest_chunk_links;
+        s["chunks_in_flight"] = st.chunks_in_flight;
         s["checkpoints"] = st.checkpoints;
         s["resumed"] = st.resumed;
         s["read_wait_seconds"] = st.read_wait_seconds;
@@ -962,6 +1002,174 @@ double point_polygon_py(const std::vector<double>& x, const std::vector<double>&
 
 }  // namespace
 
+// ---- irradiance volume, lightmap sample lifting, OpenVDB (free functions; see volume.h, vdb.h)
+#include "vdb.h"
+#include "volume.h"
+
+namespace {
+
+std::vector<Vec3> vec3_rows(const In<double>& a, const char* what) {
+    if (a.ndim() != 2 || a.shape(1) != 3) throw std::invalid_argument(std::string(what) + ": shape (n, 3)");
+    std::vector<Vec3> v(a.shape(0));
+    for (size_t i = 0; i < v.size(); ++i) v[i] = {a.data()[3 * i], a.data()[3 * i + 1], a.data()[3 * i + 2]};
+    return v;
+}
+
+// Full-sphere radiance moments at points in empty space, from a surface field's arrays.
+nb::dict volume_probes_py(In<double> corners, In<int32_t> nv, In<double> corner_radiance, In<double> points,
+                          int rays, uint64_t seed) {
+    std::vector<Patch> patches = patches_from_arrays(corners, nv);
+    auto radiance = corner_values(corner_radiance, patches.size(), "corner_radiance");
+    std::vector<Vec3> pts = vec3_rows(points, "points");
+    std::vector<ProbeMoments> m;
+    {
+        nb::gil_scoped_release release;
+        Visibility vis(patches);
+        m = probe_moments(patches, vis, radiance, pts, rays, seed);
+    }
+    const size_t n = m.size();
+    std::vector<double> s0(n * 3), s1(n * 9), back(n), hit(n), nearest(n);
+    for (size_t q = 0; q < n; ++q) {
+        for (int c = 0; c < 3; ++c) {
+            s0[3 * q + c] = m[q].s0[c];
+            for (int a = 0; a < 3; ++a) s1[9 * q + 3 * a + c] = m[q].s1[a][c];
+        }
+        back[q] = m[q].back_fraction;
+        hit[q] = m[q].hit_fraction;
+        nearest[q] = m[q].nearest;
+    }
+    nb::dict d;
+    d["s0"] = to_numpy(std::move(s0), {n, 3});
+    d["s1"] = to_numpy(std::move(s1), {n, 3, 3});
+    d["back_fraction"] = to_numpy(std::move(back), {n});
+    d["hit_fraction"] = to_numpy(std::move(hit), {n});
+    d["nearest"] = to_numpy(std::move(nearest), {n});
+    return d;
+}
+
+nb::dict lift_samples_py(In<double> corners, In<int32_t> nv, In<double> points, In<double> normals, double epsilon,
+                         double reach, std::optional<In<double>> anchors) {
+    std::vector<Patch> patches = patches_from_arrays(corners, nv);
+    std::vector<Vec3> pts = vec3_rows(points, "points"), nrm = vec3_rows(normals, "normals");
+    if (nrm.size() != pts.size()) throw std::invalid_argument("points and normals differ in length");
+    std::vector<Vec3> anc;
+    if (anchors) {
+        anc = vec3_rows(*anchors, "anchors");
+        if (anc.size() != pts.size()) throw std::invalid_argument("points and anchors differ in length");
+    }
+    std::vector<uint8_t> moved;
+    {
+        nb::gil_scoped_release release;
+        Visibility vis(patches);
+        lift_samples(patches, vis, pts, nrm, epsilon, reach, moved, anchors ? &anc : nullptr);
+    }
+    std::vector<double> flat(pts.size() * 3);
+    for (size_t q = 0; q < pts.size(); ++q)
+        for (int c = 0; c < 3; ++c) flat[3 * q + c] = pts[q][c];
+    nb::dict d;
+    d["points"] = to_numpy(std::move(flat), {pts.size(), 3});
+    d["moved"] = to_numpy(std::move(moved), {pts.size()});
+    return d;
+}
+
+// First hits of rays against a surface field's patches: patch (-1 if none), t, point, and
+// whether the hit face is a back face.
+nb::dict ray_cast_py(In<double> corners, In<int32_t> nv, In<double> origins, In<double> directions) {
+    std::vector<Patch> patches = patches_from_arrays(corners, nv);
+    std::vector<Vec3> o = vec3_rows(origins, "origins"), d = vec3_rows(directions, "directions");
+    if (o.size() != d.size()) throw std::invalid_argument("origins and directions differ in length");
+    const size_t n = o.size();
+    std::vector<int32_t> patch(n, -1);
+    std::vector<double> t(n, -1), pts(n * 3, 0), nrm(n * 3, 0);
+    std::vector<uint8_t> back(n, 0);
+    {
+        nb::gil_scoped_release release;
+        Visibility vis(patches);
+        tbb::parallel_for(size_t(0), n, [&](size_t q) {
+            const Vec3 dir = normalize(d[q]);
+            RayHit h = vis.intersect(o[q], dir);
+            if (h.patch < 0) return;
+            patch[q] = h.patch;
+            t[q] = h.t;
+            const Vec3 x = o[q] + dir * h.t;
+            const Vec3& m = patches[h.patch].normal;
+            for (int c = 0; c < 3; ++c) { pts[3 * q + c] = x[c]; nrm[3 * q + c] = m[c]; }
+            back[q] = dot(m, dir) >= 0;
+        });
+    }
+    nb::dict r;
+    r["patch"] = to_numpy(std::move(patch), {n});
+    r["t"] = to_numpy(std::move(t), {n});
+    r["points"] = to_numpy(std::move(pts), {n, 3});
+    r["normals"] = to_numpy(std::move(nrm), {n, 3});
+    r["back"] = to_numpy(std::move(back), {n});
+    return r;
+}
+
+// grids: list of (name, coords int32 (n,3), values float32 (n,3), [(key, value)]).
+void write_vdb_py(const std::string& path, nb::list grids, double voxel_size, const std::vector<double>& origin,
+                  const Metadata& file_metadata) {
+    if (origin.size() != 3) throw std::invalid_argument("origin: 3 components");
+    std::vector<VdbGrid> out;
+    for (nb::handle item : grids) {
+        nb::tuple t = nb::cast<nb::tuple>(item);
+        if (t.size() != 4) throw std::invalid_argument("each grid: (name, coords, values, metadata)");
+        VdbGrid g;
+        g.name = nb::cast<std::string>(t[0]);
+        auto coords = nb::cast<In<int32_t>>(t[1]);
+        auto values = nb::cast<In<float>>(t[2]);
+        if (coords.ndim() != 2 || coords.shape(1) != 3 || values.ndim() != 2 || values.shape(1) != 3 ||
+            coords.shape(0) != values.shape(0))
+            throw std::invalid_argument("grid " + g.name + ": coords and values of shape (n, 3)");
+        const size_t n = coords.shape(0);
+        g.coords.resize(n);
+        g.values.resize(n);
+        for (size_t k = 0; k < n; ++k)
+            for (int c = 0; c < 3; ++c) {
+                g.coords[k][c] = coords.data()[3 * k + c];
+                g.values[k][c] = values.data()[3 * k + c];
+            }
+        g.metadata = nb::cast<Metadata>(t[3]);
+        g.voxel_size = voxel_size;
+        g.origin = {origin[0], origin[1], origin[2]};
+        out.push_back(std::move(g));
+    }
+    nb::gil_scoped_release release;
+    write_vdb(path, out, file_metadata);
+}
+
+// {"metadata": {key: text}, "grids": {name: {"coords", "values", "voxel_size", "origin", "metadata"}}}
+nb::dict read_vdb_py(const std::string& path) {
+    Metadata file_meta;
+    std::vector<VdbGrid> grids;
+    {
+        nb::gil_scoped_release release;
+        grids = read_vdb(path, file_meta);
+    }
+    nb::dict d, gd, fm;
+    for (auto& [k, v] : file_meta) fm[k.c_str()] = v;
+    for (VdbGrid& g : grids) {
+        const size_t n = g.coords.size();
+        std::vector<int32_t> c(n * 3);
+        std::vector<float> v(n * 3);
+        for (size_t k = 0; k < n; ++k)
+            for (int a = 0; a < 3; ++a) { c[3 * k + a] = g.coords[k][a]; v[3 * k + a] = g.values[k][a]; }
+        nb::dict e, meta;
+        e["coords"] = to_numpy(std::move(c), {n, 3});
+        e["values"] = to_numpy(std::move(v), {n, 3});
+        e["voxel_size"] = g.voxel_size;
+        e["origin"] = std::vector<double>{g.origin[0], g.origin[1], g.origin[2]};
+        for (auto& [k, val] : g.metadata) meta[k.c_str()] = val;
+        e["metadata"] = meta;
+        gd[g.name.c_str()] = e;
+    }
+    d["metadata"] = fm;
+    d["grids"] = gd;
+    return d;
+}
+
+}  // namespace
+
 NB_MODULE(_engine, m) {
     m.doc() = "hirad's C++ engine: meshing, form factors, solvers, reconstruction, rendering, EXR";
     m.def("set_threads", &set_threads, "threads"_a, "Caps the engine's TBB threads (0 = all cores).");
@@ -994,6 +1202,7 @@ NB_MODULE(_engine, m) {
         .def("rays_cast", &Model::rays_cast)
         .def("gather", &Model::gather, "points"_a, "normals"_a, "rays"_a = 4, "cluster_samples"_a = 8, "seed"_a = 1,
              "max_distance"_a = 1e30)
+        .def("gather_flat", &Model::gather_flat, "points"_a, "normals"_a, "radiosity"_a, "rays"_a = 4, "seed"_a = 1)
         .def("solve_out_of_core", &Model::solve_out_of_core, "epsilon"_a, "min_area"_a, "samples"_a, "seed"_a,
              "tolerance"_a, "max_iterations"_a, "max_rounds"_a, "progress"_a = nb::none(), "store"_a = "",
              "memory_budget"_a = 0, "group_faces"_a = 1024, "checkpoint_seconds"_a = 0.0, "resume"_a = false,
@@ -1010,4 +1219,15 @@ NB_MODULE(_engine, m) {
         .def("render", &SurfaceField::render, "position"_a, "forward"_a, "up"_a, "vertical_fov"_a, "width"_a,
              "height"_a, "samples"_a)
         .def("probe", &SurfaceField::probe, "points"_a, "normals"_a, "max_distance"_a);
+
+    m.def("volume_probes", &volume_probes_py, "corners"_a, "nv"_a, "corner_radiance"_a, "points"_a, "rays"_a = 256,
+          "seed"_a = 1, "Full-sphere radiance moments s0 = integral L dw (n,3) and s1[a] = integral L w_a dw (n,3,3) "
+          "at points in empty space; back_fraction, hit_fraction and nearest hit distance per point.");
+    m.def("lift_samples", &lift_samples_py, "corners"_a, "nv"_a, "points"_a, "normals"_a, "epsilon"_a, "reach"_a,
+          "anchors"_a.none() = nb::none(),
+          "Lightmap sample points lifted along their normals and moved out of geometry: points, moved.");
+    m.def("ray_cast", &ray_cast_py, "corners"_a, "nv"_a, "origins"_a, "directions"_a,
+          "First hits of rays against patches: patch, t, points, normals, back.");
+    m.def("write_vdb", &write_vdb_py, "path"_a, "grids"_a, "voxel_size"_a, "origin"_a, "metadata"_a);
+    m.def("read_vdb", &read_vdb_py, "path"_a);
 }

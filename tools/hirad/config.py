@@ -52,6 +52,7 @@ __all__ = [
     "PreviewOutputConfig",
     "ReconstructionConfig",
     "SolverConfig",
+    "VolumeOutputConfig",
     "config_from_dict",
     "load_config",
 ]
@@ -344,22 +345,118 @@ class ReconstructionConfig(BaseModel):
 
 
 class LightmapOutputConfig(BaseModel):
-    """Baked lightmap textures."""
+    """Baked lightmap textures: incident radiance H/pi on a UV atlas of pages.
+
+    A mesh keeps its own lightmap UV set when it has one (``materials.uv_primvars``), else
+    xatlas charts it; every mesh is packed onto pages of at most ``max_size`` texels a side
+    at ``texels_per_metre`` with ``padding`` empty texels between charts.
+    """
 
     model_config = _MODEL_CONFIG
 
     enabled: StrictBool = Field(default=True, description="Write lightmap textures.")
+    texels_per_metre: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        le=1.0e5,
+        description=(
+            "Texel density on the surfaces; null derives it from texels_per_patch"
+            " (texels_per_patch / sqrt(median patch area))."
+        ),
+    )
     texels_per_patch: StrictInt = Field(
         default=4,
         ge=1,
         le=64,
-        description="Lightmap texels along the side of one patch.",
+        description=(
+            "Texels along the side of a median patch; only used when texels_per_metre is null."
+        ),
+    )
+    padding: StrictInt = Field(
+        default=2,
+        ge=0,
+        le=64,
+        description="Empty texels between charts (and between meshes), filled by dilation.",
     )
     max_size: StrictInt = Field(
         default=4096,
         ge=64,
         le=16384,
-        description="Largest lightmap atlas side, in texels.",
+        description="Largest lightmap atlas page side, in texels.",
+    )
+    supersample: StrictInt = Field(
+        default=2,
+        ge=1,
+        le=8,
+        description="Samples per texel along each axis (supersample^2 per texel).",
+    )
+    mode: Literal["interpolate", "final_gather"] = Field(
+        default="interpolate",
+        description=(
+            "'interpolate': from the solution's vertices (fast); 'final_gather': a one-bounce"
+            " gather per sample from the solved hierarchy with Embree visibility"
+            " (method: hierarchical only)."
+        ),
+    )
+    gather_rays: StrictInt = Field(
+        default=4, ge=1, le=256, description="Visibility rays per link in final_gather mode."
+    )
+    sample_offset: StrictFloat = Field(
+        default=1.0e-4,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Metres: texel samples are lifted this far along their normal, and moved out of"
+            " geometry they are found inside (see hirad.bake._lift)."
+        ),
+    )
+    existing_layout: Literal["keep", "repack"] = Field(
+        default="keep",
+        description=(
+            "Meshes with their own lightmap UVs: 'keep' the author's layout (scaled to the"
+            " density; lightmapScaleOffset maps it to the page) or 'repack' its islands."
+        ),
+    )
+    mesh_files: StrictBool = Field(
+        default=True,
+        description=(
+            "Also write lightmaps/<mesh>.exr: each mesh's block cut out of its page."
+        ),
+    )
+    rgbm: StrictBool = Field(
+        default=False, description="Also write each page as an 8-bit RGBM PNG."
+    )
+    rgbm_range: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        description="RGBM range (value = rgb * a * range); null uses each page's maximum.",
+    )
+
+
+class VolumeOutputConfig(BaseModel):
+    """An irradiance volume (OpenVDB) for lighting dynamic objects."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=False, description="Write volume.vdb.")
+    spacing: StrictFloat = Field(
+        default=0.25, gt=0.0, description="Metres between probes (the lattice's voxel size)."
+    )
+    max_distance: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        description=(
+            "Metres: only lattice points this close to a surface get a probe; null means"
+            " 3 x spacing."
+        ),
+    )
+    rays: StrictInt = Field(
+        default=1024, ge=16, le=65536, description="Stratified directions per probe."
+    )
+    max_probes: StrictInt = Field(
+        default=2_000_000,
+        ge=1,
+        description="Refuse lattices with more candidate points than this (raise the spacing).",
     )
 
 
@@ -400,6 +497,9 @@ class OutputsConfig(BaseModel):
     )
     lightmaps: LightmapOutputConfig = Field(
         default_factory=LightmapOutputConfig, description="Lightmap texture settings."
+    )
+    volume: VolumeOutputConfig = Field(
+        default_factory=VolumeOutputConfig, description="Irradiance volume settings."
     )
     preview: PreviewOutputConfig = Field(
         default_factory=PreviewOutputConfig, description="Preview image settings."
@@ -482,6 +582,14 @@ class Config(BaseModel):
             )
         if info.data.get("method") == "flat" and value.method == "block_southwell":
             raise ValueError("solver.method block_southwell streams hierarchical links: set method: hierarchical")
+        return value
+
+    @field_validator("outputs", mode="after")
+    @classmethod
+    def _gather_needs_hierarchy(cls, value, info: ValidationInfo):
+        if value.lightmaps.enabled and value.lightmaps.mode == "final_gather" and info.data.get("method") != "hierarchical":
+            raise ValueError("outputs.lightmaps.mode: final_gather needs method: hierarchical (the gather re-evaluates"
+                             " the hierarchy's links); use mode: interpolate for flat bakes")
         return value
 
     def link_store(self) -> Path:

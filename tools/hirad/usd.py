@@ -116,6 +116,10 @@ class PatchMeshData:
     # filled in by read_solution_layer
     name: str | None = None
     source_path: str | None = None
+    # the lightmap shown as albedo x lightmap + emitted radiance (UsdUVTexture scale / bias):
+    # the mesh's (area-weighted) reflectance and emitted radiance E/pi, RGB
+    lightmap_albedo: tuple[float, float, float] | None = None
+    lightmap_emission: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -1022,6 +1026,13 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
             tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
             tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
             tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader_out)
+            if pm.lightmap_albedo is not None:
+                # texels hold incident radiance H/pi: the surface shows albedo x H/pi (+ E/pi)
+                r, g, b = (float(v) for v in pm.lightmap_albedo)
+                tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 1.0))
+            if pm.lightmap_emission is not None:
+                r, g, b = (float(v) for v in pm.lightmap_emission)
+                tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 0.0))
             rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
             surf.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
             mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")

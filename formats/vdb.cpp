@@ -1,0 +1,98 @@
+// The only translation unit that includes OpenVDB (see vdb.h).
+#include "vdb.h"
+
+#include <openvdb/openvdb.h>
+#include <openvdb/io/File.h>
+
+#include <cstdio>
+#include <mutex>
+#include <stdexcept>
+
+namespace hirad {
+
+namespace {
+
+void init_once() {
+    static std::once_flag flag;
+    std::call_once(flag, [] { openvdb::initialize(); });
+}
+
+openvdb::math::Transform::Ptr lattice_transform(double voxel_size, const std::array<double, 3>& origin) {
+    auto xform = openvdb::math::Transform::createLinearTransform(voxel_size);
+    xform->postTranslate(openvdb::Vec3d(origin[0], origin[1], origin[2]));
+    return xform;
+}
+
+}  // namespace
+
+void write_vdb(const std::string& path, const std::vector<VdbGrid>& grids, const Metadata& file_metadata) {
+    init_once();
+    openvdb::GridPtrVec out;
+    for (const VdbGrid& g : grids) {
+        if (g.coords.size() != g.values.size())
+            throw std::invalid_argument("vdb grid " + g.name + ": coords and values differ in length");
+        if (!(g.voxel_size > 0)) throw std::invalid_argument("vdb grid " + g.name + ": voxel size must be positive");
+        auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+        grid->setName(g.name);
+        grid->setTransform(lattice_transform(g.voxel_size, g.origin));
+        grid->setGridClass(openvdb::GRID_UNKNOWN);
+        grid->setVectorType(openvdb::VEC_INVARIANT);
+        auto acc = grid->getAccessor();
+        for (size_t k = 0; k < g.coords.size(); ++k) {
+            const auto& c = g.coords[k];
+            const auto& v = g.values[k];
+            acc.setValueOn(openvdb::Coord(c[0], c[1], c[2]), openvdb::Vec3s(v[0], v[1], v[2]));
+        }
+        for (const auto& [key, value] : g.metadata) grid->insertMeta(key, openvdb::StringMetadata(value));
+        out.push_back(grid);
+    }
+    openvdb::MetaMap meta;
+    for (const auto& [key, value] : file_metadata) meta.insertMeta(key, openvdb::StringMetadata(value));
+    const std::string tmp = path + ".partial";
+    {
+        openvdb::io::File file(tmp);
+        file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+        file.write(out, meta);
+        file.close();
+    }
+    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error("cannot rename " + tmp + " to " + path);
+    }
+}
+
+std::vector<VdbGrid> read_vdb(const std::string& path, Metadata& file_metadata) {
+    init_once();
+    openvdb::io::File file(path);
+    try {
+        file.open();
+    } catch (const openvdb::Exception& e) {
+        throw std::runtime_error(path + ": " + e.what());
+    }
+    file_metadata.clear();
+    if (auto meta = file.getMetadata())
+        for (auto it = meta->beginMeta(); it != meta->endMeta(); ++it) file_metadata.emplace_back(it->first, it->second->str());
+    std::vector<VdbGrid> result;
+    openvdb::GridPtrVecPtr grids = file.getGrids();
+    for (const auto& base : *grids) {
+        auto grid = openvdb::gridPtrCast<openvdb::Vec3SGrid>(base);
+        if (!grid) continue;
+        VdbGrid g;
+        g.name = grid->getName();
+        g.voxel_size = grid->transform().voxelSize()[0];
+        openvdb::Vec3d o = grid->transform().indexToWorld(openvdb::Vec3d(0, 0, 0));
+        g.origin = {o[0], o[1], o[2]};
+        for (auto it = grid->cbeginValueOn(); it; ++it) {
+            const openvdb::Coord c = it.getCoord();
+            const openvdb::Vec3s v = *it;
+            g.coords.push_back({c.x(), c.y(), c.z()});
+            g.values.push_back({v[0], v[1], v[2]});
+        }
+        for (auto it = grid->beginMeta(); it != grid->endMeta(); ++it) g.metadata.emplace_back(it->first, it->second->str());
+        result.push_back(std::move(g));
+    }
+    file.close();
+    return result;
+}
+
+}  // namespace hirad
