@@ -142,11 +142,19 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
     std::vector<RGB> shot(n), gathered(n), irradiance(n);
     std::vector<std::vector<uint32_t>> sources(ng);
+    // Per node, compact: what validating and shooting a link reads (the nodes themselves are
+    // large, and receivers are scattered).
+    std::vector<uint32_t> source_group(n, kNoGroup);
+    std::vector<uint8_t> element(n);
+    std::vector<double> area(n);
     for (uint32_t i = 0; i < n; ++i) {
+        element[i] = !h.nodes[i].cluster;
+        area[i] = h.nodes[i].area;
         if (!is_source[i]) continue;
         const uint32_t g = groups.of(h, i);
         if (g == kNoGroup) throw std::invalid_argument("streaming solve: a source above the groups' cut");
         sources[g].push_back(i);
+        source_group[i] = g;
     }
     uint64_t largest = 0;
     std::vector<uint64_t> first_part(ng + 1, 0);   // parts numbered across groups, for the cache
@@ -154,7 +162,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         first_part[g + 1] = first_part[g] + chunks.parts(g);
         for (size_t p = 0; p < chunks.parts(g); ++p) largest = std::max(largest, chunks.links(g, p));
     }
-    stats.state_bytes = n * (4 * sizeof(RGB) + sizeof(double) + sizeof(uint8_t));
+    stats.state_bytes = n * (4 * sizeof(RGB) + 2 * sizeof(double) + sizeof(uint32_t) + 2 * sizeof(uint8_t));
     stats.largest_chunk_links = largest;
     // Chunks in flight: one being shot, the others being read and decoded, two per thread
     // (decoding is what limits streaming).
@@ -218,8 +226,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         chunks.read(q.group, q.part, *links);
         for (size_t k = 0; k < links->size(); ++k) {
             const LinkRecord& l = (*links)[k];
-            if (l.receiver >= n || l.source >= n || h.nodes[l.receiver].cluster || !is_source[l.source] ||
-                groups.of(h, l.source) != q.group)
+            if (l.receiver >= n || l.source >= n || !element[l.receiver] || source_group[l.source] != q.group)
                 throw std::runtime_error("source group " + std::to_string(q.group) + ", part " + std::to_string(q.part) +
                                          ", link " + std::to_string(k) + " (receiver " + std::to_string(l.receiver) +
                                          ", source " + std::to_string(l.source) + "): not a link of this group's"
@@ -285,7 +292,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     RGB d;
                     for (const LinkRecord& l : *in.links) {
                         if (l.source != last) { last = l.source; d = b[l.source] - shot[l.source]; }
-                        gathered[l.receiver] += d * (double(l.coupling) / h.nodes[l.receiver].area);
+                        gathered[l.receiver] += d * (double(l.coupling) / area[l.receiver]);
                     }
                     // A group's sources shoot B - shot as it was when the group began; shot
                     // is updated after its last part.
