@@ -70,14 +70,25 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
            width: int = typer.Option(512, min=16), height: int = typer.Option(512, min=16),
            samples: int = typer.Option(4, min=1, help="Samples per pixel"),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG or EXR [render.png beside the solution]"),
-           exposure: Optional[float] = typer.Option(None, help="Fixed exposure for PNG (default: automatic)")):
+           exposure: Optional[float] = typer.Option(None, help="Fixed exposure for PNG (default: automatic)"),
+           lightmaps: bool = typer.Option(False, "--lightmaps",
+                                          help="Show the baked lightmaps (albedo x lightmap + emission, as a game "
+                                               "engine does) instead of the solution's own surface values")):
     """Render a stored solution from any view, without solving again."""
     from . import _engine, images
     from .bake import load_solution
 
     def go():
         sol = load_solution(solution)
-        img = sol.render(camera, width, height, samples)
+        if lightmaps:
+            from . import lightmap_render
+            from .bake import BakeError
+            try:
+                img = lightmap_render.render(solution, sol.view(camera), width, height)
+            except lightmap_render.LightmapError as e:
+                raise BakeError(str(e)) from None
+        else:
+            img = sol.render(camera, width, height, samples)
         out = output or solution.parent / "render.png"
         if out.suffix.lower() == ".exr":
             _engine.write_exr(str(out), np.ascontiguousarray(img, dtype=np.float32),
