@@ -132,6 +132,9 @@ void gather_flat(const std::vector<Patch>& patches, const std::vector<RGB>& radi
         uint8_t seen[16];
         for (size_t j = 0; j < patches.size(); ++j) {
             const Patch& s = patches[j];
+            // The point's own patch and its coplanar neighbours send nothing (rounding would
+            // put x a hair in front of them and count their whole hemisphere).
+            if (dot(x[q] - s.p[0], s.normal) <= 1e-9 * vis.scene_size()) continue;
             const double f = point_polygon_form_factor(x[q], n[q], s.p.data(), s.nv, s.normal);
             if (f <= 0) continue;
             for (int k = 0; k < m; ++k) {
