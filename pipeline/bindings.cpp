@@ -475,16 +475,10 @@ public:
                            : solver == "southwell" ? &solve_southwell_push_pull
                                                    : nullptr;
         if (!solve_fn) throw std::invalid_argument("hierarchical solver must be jacobi, gauss_seidel or southwell, not '" + solver + "'");
-        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
-        if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
-        links_.reset();
-        solved_.reset();
-        auto state = std::make_unique<SolvedHierarchy>(scene_);
-        Hierarchy& h = state->hierarchy;
-        state->visibility = std::make_unique<Visibility>(h.faces);
-        Visibility* vis = state->visibility.get();
         double emitted = 0;
-        for (const Patch& f : h.faces) emitted += luminance(f.emission) * f.area;
+        auto state = fresh_hierarchy(epsilon, min_area, emitted);
+        Hierarchy& h = state->hierarchy;
+        Visibility* vis = state->visibility.get();
         RefineOptions ropt{epsilon * emitted, min_area, samples, seed};
         Refiner refiner(h, *vis, ropt);
         std::atomic<int> round{0};
@@ -559,15 +553,9 @@ public:
                                uint64_t max_iterations, int max_rounds, nb::object progress, const std::string& store,
                                uint64_t memory_budget, uint32_t group_faces, double checkpoint_seconds, bool resume,
                                bool reuse_links) {
-        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
-        if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
-        links_.reset();
-        solved_.reset();
-        auto state = std::make_unique<SolvedHierarchy>(scene_);
-        Hierarchy& h = state->hierarchy;
-        state->visibility = std::make_unique<Visibility>(h.faces);
         double emitted = 0;
-        for (const Patch& f : h.faces) emitted += luminance(f.emission) * f.area;
+        auto state = fresh_hierarchy(epsilon, min_area, emitted);
+        Hierarchy& h = state->hierarchy;
         OutOfCoreOptions opt;
         opt.refine = {epsilon * emitted, min_area, samples, seed};
         opt.max_rounds = max_rounds;
@@ -815,6 +803,20 @@ private:
         std::string store_round;                 // out of core: the final links' store
         size_t groups = 0;                       // and its number of source groups
     };
+
+    // A new hierarchy over the scene (replacing any earlier solve) with Embree over its faces;
+    // `emitted` receives the scene's emitted power (luminance), what epsilon is relative to.
+    std::unique_ptr<SolvedHierarchy> fresh_hierarchy(double epsilon, double min_area, double& emitted) {
+        if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+        if (!(epsilon >= 0) || !(min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
+        links_.reset();
+        solved_.reset();
+        auto state = std::make_unique<SolvedHierarchy>(scene_);
+        state->visibility = std::make_unique<Visibility>(state->hierarchy.faces);
+        emitted = 0;
+        for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
+        return state;
+    }
 
     // Balances a solved hierarchy 2:1 for a display without cracks (new leaves carry their
     // parent's values), makes its leaves the model's patches and keeps it for the final

@@ -21,22 +21,6 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
 Link to_link(const LinkRecord& r) { return {r.receiver, r.source, r.coupling, r.unoccluded, r.visibility, r.error}; }
 LinkRecord to_record(const Link& l) { return {l.receiver, l.source, l.coupling, l.unoccluded, l.visibility, l.error}; }
 
-std::vector<double> flatten(const std::vector<RGB>& v) {
-    std::vector<double> out(3 * v.size());
-    for (size_t i = 0; i < v.size(); ++i)
-        for (int c = 0; c < 3; ++c) out[3 * i + c] = v[i][c];
-    return out;
-}
-
-std::vector<RGB> unflatten(const std::vector<double>& a, size_t n, const std::string& what) {
-    if (a.size() != 3 * n)
-        throw std::runtime_error(what + ": radiosity of " + std::to_string(a.size() / 3) + " nodes, the hierarchy has " +
-                                 std::to_string(n));
-    std::vector<RGB> out(n);
-    for (size_t i = 0; i < n; ++i) out[i] = {a[3 * i], a[3 * i + 1], a[3 * i + 2]};
-    return out;
-}
-
 // The links of one round, on disk or in memory.
 class Round {
 public:
@@ -80,8 +64,8 @@ uint64_t mix(uint64_t a, uint64_t b) { return hash_pair(a, b, 0x5EEDull); }
 void save_solution(const std::string& path, uint64_t fingerprint, const HierarchicalSolution& sol) {
     StateFile f;
     f.fingerprint = fingerprint;
-    f.put("radiosity", flatten(sol.radiosity));
-    f.put("irradiance", flatten(sol.irradiance));
+    f.put("radiosity", flatten_rgb(sol.radiosity));
+    f.put("irradiance", flatten_rgb(sol.irradiance));
     f.put("outgoing", sol.outgoing);
     f.put("residual", std::vector<double>{sol.residual, sol.converged ? 1.0 : 0.0, double(sol.iterations)});
     f.write(path);
@@ -89,8 +73,8 @@ void save_solution(const std::string& path, uint64_t fingerprint, const Hierarch
 
 HierarchicalSolution load_solution(const StateFile& f, size_t n, const std::string& path) {
     HierarchicalSolution sol;
-    sol.radiosity = unflatten(f.f64("radiosity"), n, path);
-    sol.irradiance = unflatten(f.f64("irradiance"), n, path);
+    sol.radiosity = unflatten_rgb(f.f64("radiosity"), n, path);
+    sol.irradiance = unflatten_rgb(f.f64("irradiance"), n, path);
     sol.outgoing = f.f64("outgoing");
     const std::vector<double>& r = f.f64("residual");
     if (sol.outgoing.size() != n || r.size() != 3) throw std::runtime_error(path + ": inconsistent solution arrays");

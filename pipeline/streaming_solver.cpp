@@ -104,27 +104,28 @@ void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord
     }
 }
 
-namespace {
-
-using Chunk = std::shared_ptr<const std::vector<LinkRecord>>;
-
-double seconds_since(std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-}
-
-std::vector<double> flatten(const std::vector<RGB>& v) {
+std::vector<double> flatten_rgb(const std::vector<RGB>& v) {
     std::vector<double> out(3 * v.size());
     for (size_t i = 0; i < v.size(); ++i)
         for (int c = 0; c < 3; ++c) out[3 * i + c] = v[i][c];
     return out;
 }
 
-std::vector<RGB> unflatten(const std::vector<double>& a, size_t n, const std::string& what) {
-    if (a.size() != 3 * n) throw std::runtime_error(what + ": holds " + std::to_string(a.size() / 3) +
-                                                    " nodes, the hierarchy " + std::to_string(n));
+std::vector<RGB> unflatten_rgb(const std::vector<double>& a, size_t n, const std::string& what) {
+    if (a.size() != 3 * n)
+        throw std::runtime_error(what + ": values of " + std::to_string(a.size() / 3) + " nodes, the hierarchy has " +
+                                 std::to_string(n));
     std::vector<RGB> out(n);
     for (size_t i = 0; i < n; ++i) out[i] = {a[3 * i], a[3 * i + 1], a[3 * i + 2]};
     return out;
+}
+
+namespace {
+
+using Chunk = std::shared_ptr<const std::vector<LinkRecord>>;
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
 }  // namespace
@@ -190,8 +191,8 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     if (!opt.checkpoint_path.empty() && std::filesystem::exists(opt.checkpoint_path)) {
         StateFile cp = StateFile::read(opt.checkpoint_path);
         if (cp.fingerprint == fingerprint) {
-            gathered = unflatten(cp.f64("gathered"), n, opt.checkpoint_path);
-            shot = unflatten(cp.f64("shot"), n, opt.checkpoint_path);
+            gathered = unflatten_rgb(cp.f64("gathered"), n, opt.checkpoint_path);
+            shot = unflatten_rgb(cp.f64("shot"), n, opt.checkpoint_path);
             const std::vector<uint64_t>& counters = cp.u64("counters");
             if (counters.size() != 3) throw std::runtime_error(opt.checkpoint_path + ": bad counters");
             round = counters[0];
@@ -205,8 +206,8 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     auto checkpoint = [&] {
         StateFile cp;
         cp.fingerprint = fingerprint;
-        cp.put("gathered", flatten(gathered));
-        cp.put("shot", flatten(shot));
+        cp.put("gathered", flatten_rgb(gathered));
+        cp.put("shot", flatten_rgb(shot));
         cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
         cp.put("history", sol.residual_history);
         cp.write(opt.checkpoint_path);

@@ -104,6 +104,11 @@ void sort_group(std::vector<LinkRecord>& links);
 // Writes a group's links as chunks of a store (sorted by sort_group, cut every kChunkLinks).
 void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links);
 
+// RGB per node as a flat array of doubles (for state files), and back; `what` names the
+// file in the error when the size does not match n nodes.
+std::vector<double> flatten_rgb(const std::vector<RGB>& values);
+std::vector<RGB> unflatten_rgb(const std::vector<double>& flat, size_t n, const std::string& what);
+
 struct StreamingOptions {
     double tolerance = 1e-4;          // on sqrt(sum A |B - shot|^2) / sqrt(sum A E^2) over sources
     uint64_t max_rounds = 100000;
