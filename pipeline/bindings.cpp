@@ -598,10 +598,12 @@ public:
         state->groups = SourceGroups::cut(h, group_faces).count();
         const StreamingStats st = rep.last_solve;
         const uint64_t links = rep.links;
+        const uint64_t iterations = rep.solution.iterations;
+        const std::vector<double> history = rep.solution.residual_history;
         nb::dict d = publish(std::move(state), std::move(rep.solution));
         d["links"] = links;
-        d["iterations"] = rep.solution.iterations;
-        d["residual_history"] = rep.solution.residual_history;
+        d["iterations"] = iterations;
+        d["residual_history"] = history;
         d["rounds"] = rep.rounds;
         d["settled"] = rep.settled;
         d["links_per_round"] = rep.links_per_round;

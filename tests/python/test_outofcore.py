@@ -71,6 +71,9 @@ def test_same_bits_whatever_the_budget_the_threads_and_where_links_live(unlimite
     assert ref["streaming"]["chunk_reads"] == chunks
     assert small["streaming"]["resident_links_peak"] * 24 + s["state_bytes"] <= budget
     assert small["streaming"]["chunks_in_flight"] >= 2
+    # The report's solver history is the last solve's, one residual a shooting round.
+    assert ref["streaming"]["rounds"] > 0 and ref["iterations"] == ref["streaming"]["rounds"]
+    assert len(ref["residual_history"]) == ref["streaming"]["rounds"]
 
 
 def test_budget_below_the_minimum_is_a_clear_error(tmp_path):
