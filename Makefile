@@ -9,7 +9,7 @@ CPP_SRC := $(wildcard pipeline/*.h pipeline/*.cpp formats/*.h formats/*.cpp) CMa
 CPP_TESTS := $(wildcard tests/cpp/*.cpp)
 DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
                 libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time \
-                libzstd-dev libxxhash-dev libopenvdb-dev libboost-iostreams-dev
+                libzstd-dev liblz4-dev libxxhash-dev libopenvdb-dev libboost-iostreams-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 JOBS := $(shell nproc)
 
@@ -58,7 +58,7 @@ bench: engine
 
 # The link store's libFuzzer target (not part of `test`): built with clang and sanitizers,
 # run for 60 s. New inputs go to a scratch directory, never into the seed corpus.
-FUZZ_PACKAGES := clang libclang-rt-14-dev libzstd-dev libxxhash-dev
+FUZZ_PACKAGES := clang libclang-rt-14-dev libzstd-dev liblz4-dev libxxhash-dev
 FUZZ_FLAGS := -std=c++17 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined
 .PHONY: fuzz
 
@@ -72,7 +72,7 @@ FUZZ_FLAGS := -std=c++17 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitiz
 
 build/fuzz/linkstore_fuzz: .stamp-apt-fuzz tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp formats/linkstore.h
 	@mkdir -p build/fuzz
-	clang++ $(FUZZ_FLAGS) -Iformats tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp -lzstd -lxxhash -o $@
+	clang++ $(FUZZ_FLAGS) -Iformats tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o $@
 
 fuzz: build/fuzz/linkstore_fuzz
 	rm -rf build/fuzz/scratch && mkdir -p build/fuzz/scratch

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <lz4.h>
 #include <xxhash.h>
 #include <zstd.h>
 
@@ -26,9 +27,10 @@ constexpr char kChunkMagic[8] = {'H', 'R', 'D', 'L', 'I', 'N', 'K', 'C'};
 constexpr char kManifestMagic[8] = {'H', 'R', 'D', 'L', 'I', 'N', 'K', 'M'};
 constexpr uint32_t kUnassignedIndex = 0xffffffff;
 constexpr size_t kManifestHeaderSize = 40;
-constexpr size_t kManifestEntrySize = 64;
+constexpr size_t kManifestEntrySize = 88;
 constexpr size_t kNameSize = 32;
-constexpr size_t kRecordSize = sizeof(LinkRecord);
+constexpr size_t kDetailBytesPerLink = 12;  // three words per link
+constexpr size_t kRawCouplingPlanes = 3;     // the coupling's byte planes stored uncompressed
 constexpr int kZstdLevel = 1;          // level 3 saves ~1 % of the bytes, compressing ~30 % slower
 constexpr int kZstdWindowLogMax = 24;  // bounds the decoder's memory whatever a frame asks for
 const char* const kManifestName = "manifest";
@@ -165,10 +167,12 @@ std::array<uint8_t, kChunkHeaderSize> chunk_header(const ChunkEntry& e, uint32_t
     put32(&h[16], e.source_begin);
     put32(&h[20], e.source_end);
     put64(&h[24], e.link_count);
-    put64(&h[32], e.compressed_size);
-    put64(&h[40], e.link_count * kRecordSize);
-    put64(&h[48], e.checksum);
-    put64(&h[56], checksum(h.data(), 56));
+    put32(&h[32], e.run_count);
+    put64(&h[40], e.transport_size);
+    put64(&h[48], e.detail_size);
+    put64(&h[56], e.transport_checksum);
+    put64(&h[64], e.detail_checksum);
+    put64(&h[72], checksum(h.data(), 72));
     return h;
 }
 
@@ -198,59 +202,234 @@ std::string record_name(size_t i, const LinkRecord& r) {
            std::to_string(r.source) + ")";
 }
 
-// The payload transform (see the header): m records to 24 byte planes of m bytes. `prev` is
-// the record before the block, and becomes its last.
-void encode_block(const LinkRecord* r, size_t m, LinkRecord& prev, uint8_t* planes) {
-    for (size_t i = 0; i < m; ++i) {
-        const uint32_t w[6] = {r[i].receiver - (r[i].source == prev.source ? prev.receiver : 0),
-                               r[i].source - prev.source,
-                               bits(r[i].coupling),
-                               bits(r[i].unoccluded) ^ bits(r[i].coupling),
-                               bits(r[i].visibility),
-                               bits(r[i].error)};
-        for (size_t c = 0; c < 6; ++c)
-            for (size_t b = 0; b < 4; ++b) planes[(4 * c + b) * m + i] = uint8_t(w[c] >> (8 * b));
-        prev = r[i];
-    }
+// Byte planes (see the header): `count` words to 4 planes of `count` bytes, and back.
+void put_planes(const uint32_t* w, size_t count, uint8_t* out) {
+    for (size_t b = 0; b < 4; ++b)
+        for (size_t i = 0; i < count; ++i) out[b * count + i] = uint8_t(w[i] >> (8 * b));
+}
+void get_planes(const uint8_t* in, size_t count, uint32_t* w) {
+    const uint8_t *p0 = in, *p1 = in + count, *p2 = in + 2 * count, *p3 = in + 3 * count;
+    for (size_t i = 0; i < count; ++i)
+        w[i] = uint32_t(p0[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 | uint32_t(p3[i]) << 24;
 }
 
-// The inverse. Total on any input (unsigned arithmetic wraps); the caller validates. Plane by
-// plane first (loops the compiler vectorises), then the deltas record by record.
-void decode_block(const uint8_t* planes, size_t m, LinkRecord& prev, LinkRecord* r) {
-    thread_local std::vector<uint32_t> words;
-    words.assign(6 * m, 0);
-    for (size_t c = 0; c < 6; ++c) {
-        uint32_t* w = words.data() + c * m;
-        for (size_t b = 0; b < 4; ++b) {
-            const uint8_t* plane = planes + (4 * c + b) * m;
-            for (size_t i = 0; i < m; ++i) w[i] |= uint32_t(plane[i]) << (8 * b);
-        }
+
+// A buffer kept by each thread across chunks, grown but never cleared (decoding writes every
+// byte it reads back).
+template <class T>
+T* scratch(std::unique_ptr<T[]>& buffer, size_t& capacity, size_t n) {
+    if (n > capacity) {
+        buffer.reset(new T[n]);
+        capacity = n;
     }
-    const uint32_t* w = words.data();
-    for (size_t i = 0; i < m; ++i) {
-        LinkRecord& o = r[i];
-        o.source = prev.source + w[m + i];
-        o.receiver = w[i] + (o.source == prev.source ? prev.receiver : 0);
-        o.coupling = from_bits(w[2 * m + i]);
-        o.unoccluded = from_bits(w[3 * m + i] ^ w[2 * m + i]);
-        o.visibility = from_bits(w[4 * m + i]);
-        o.error = from_bits(w[5 * m + i]);
-        prev = o;
-    }
+    return buffer.get();
 }
 
-// record_problem's checks without building a message: the fast path of reading.
-inline bool record_ok(const LinkRecord& r, const LinkRecord* prev, uint32_t node_count) {
-    return r.receiver < node_count && r.source < node_count &&
-           (!prev || r.source > prev->source || (r.source == prev->source && r.receiver > prev->receiver)) &&
-           std::isfinite(r.coupling) && r.coupling >= 0 && std::isfinite(r.unoccluded) && r.unoccluded >= 0 &&
-           r.visibility >= 0 && r.visibility <= 1 && std::isfinite(r.error);
+// Two per thread: the file's bytes as read, and a section decompressed.
+enum Scratch { kFileBytes, kSectionBytes };
+uint8_t* byte_scratch(Scratch which, size_t n) {
+    thread_local std::unique_ptr<uint8_t[]> buffer[2];
+    thread_local size_t capacity[2] = {0, 0};
+    return scratch(buffer[which], capacity[which], std::max<size_t>(n, 1));
 }
 
 struct ZstdFree {
     void operator()(ZSTD_CCtx* c) const { ZSTD_freeCCtx(c); }
     void operator()(ZSTD_DCtx* d) const { ZSTD_freeDCtx(d); }
 };
+
+// One zstd frame of `raw` bytes, appended to `out`; returns its size.
+size_t compress_section(const uint8_t* raw, size_t n, std::vector<uint8_t>& out) {
+    thread_local std::unique_ptr<ZSTD_CCtx, ZstdFree> cctx(ZSTD_createCCtx());
+    if (!cctx) throw std::bad_alloc();
+    const size_t at = out.size();
+    out.resize(at + ZSTD_compressBound(n));
+    const size_t r = ZSTD_compressCCtx(cctx.get(), out.data() + at, out.size() - at, raw, n, kZstdLevel);
+    if (ZSTD_isError(r)) throw std::runtime_error(std::string("zstd compression failed: ") + ZSTD_getErrorName(r));
+    out.resize(at + r);
+    return r;
+}
+
+// The transport section's compressed part: one LZ4 block (it decodes several times faster
+// than zstd, and a solve decodes every chunk again in every round), appended to `out`.
+size_t compress_lz4(const uint8_t* raw, size_t n, std::vector<uint8_t>& out) {
+    const size_t at = out.size();
+    out.resize(at + size_t(LZ4_compressBound(int(n))));
+    const int r = LZ4_compress_default(reinterpret_cast<const char*>(raw), reinterpret_cast<char*>(out.data() + at),
+                                       int(n), int(out.size() - at));
+    if (r <= 0) throw std::runtime_error("lz4 compression failed");
+    out.resize(at + size_t(r));
+    return size_t(r);
+}
+
+// The inverse, into a per-thread buffer: must give exactly `raw_size` bytes. LZ4's safe
+// decoder never reads or writes outside the buffers it is given, whatever the input.
+const uint8_t* decompress_lz4(const uint8_t* data, size_t size, size_t raw_size, const std::string& path, size_t k) {
+    uint8_t* raw = byte_scratch(kSectionBytes, raw_size);
+    const int r = LZ4_decompress_safe(reinterpret_cast<const char*>(data), reinterpret_cast<char*>(raw), int(size),
+                                      int(raw_size));
+    if (r < 0) chunk_fail(path, k, "corrupt compressed transport section (lz4)");
+    if (size_t(r) != raw_size)
+        chunk_fail(path, k, "transport section decompresses to " + std::to_string(r) + " bytes, expected " +
+                                std::to_string(raw_size));
+    return raw;
+}
+
+// Decompresses a section that must give exactly `raw_size` bytes into a per-thread buffer.
+const uint8_t* decompress_section(const uint8_t* data, size_t size, size_t raw_size, const char* section,
+                                  const std::string& path, size_t k) {
+    thread_local std::unique_ptr<ZSTD_DCtx, ZstdFree> dctx(ZSTD_createDCtx());
+    if (!dctx) throw std::bad_alloc();
+    // One byte more than expected, so that a section decompressing to more is seen as such.
+    uint8_t* raw = byte_scratch(kSectionBytes, raw_size + 1);
+    const size_t r = ZSTD_decompressDCtx(dctx.get(), raw, raw_size + 1, data, size);
+    if (ZSTD_isError(r))
+        chunk_fail(path, k, std::string("corrupt compressed ") + section + " section: " + ZSTD_getErrorName(r));
+    if (r != raw_size)
+        chunk_fail(path, k, std::string(section) + " section decompresses to " +
+                                (r > raw_size ? "more than " + std::to_string(raw_size)
+                                              : std::to_string(r) + " bytes, expected " + std::to_string(raw_size)) +
+                                " bytes");
+    return raw;
+}
+
+// The header of chunk k's file (of `size` bytes, its header at `data`) against the
+// manifest, field by field.
+void check_header(const uint8_t* data, uint64_t size, const LinkStoreManifest& manifest, size_t k,
+                  const std::string& path) {
+    if (k >= manifest.chunks.size())
+        chunk_fail(path, k, "no such chunk: the manifest lists " + std::to_string(manifest.chunks.size()));
+    const ChunkEntry& e = manifest.chunks[k];
+    if (e.link_count > kMaxLinksPerChunk || e.run_count > e.link_count)
+        chunk_fail(path, k, "the manifest entry was not validated");
+    const uint64_t expected_size = kChunkHeaderSize + e.transport_size + e.detail_size;
+    if (size != expected_size) chunk_fail(path, k, size_problem(expected_size, size));
+    if (std::memcmp(data, kChunkMagic, 8) != 0) chunk_fail(path, k, "not a link chunk (bad magic)");
+    if (get32(data + 8) != kLinkStoreVersion)
+        chunk_fail(path, k, "format version " + std::to_string(get32(data + 8)) + ", expected " +
+                                std::to_string(kLinkStoreVersion));
+    if (checksum(data, 72) != get64(data + 72)) chunk_fail(path, k, "header checksum mismatch");
+    auto agree = [&](const char* field, uint64_t in_chunk, uint64_t in_manifest) {
+        if (in_chunk != in_manifest)
+            chunk_fail(path, k, std::string("header disagrees with the manifest: ") + field + " " +
+                                    std::to_string(in_chunk) + " in the chunk, " + std::to_string(in_manifest) +
+                                    " in the manifest");
+    };
+    agree("chunk index", get32(data + 12), k);
+    agree("source_begin", get32(data + 16), e.source_begin);
+    agree("source_end", get32(data + 20), e.source_end);
+    agree("link count", get64(data + 24), e.link_count);
+    agree("run count", get32(data + 32), e.run_count);
+    agree("reserved field", get32(data + 36), 0);
+    agree("transport size", get64(data + 40), e.transport_size);
+    agree("detail size", get64(data + 48), e.detail_size);
+    agree("transport checksum", get64(data + 56), e.transport_checksum);
+    agree("detail checksum", get64(data + 64), e.detail_checksum);
+}
+
+void check_detail_checksum(const uint8_t* data, const LinkStoreManifest& manifest, size_t k, const std::string& path) {
+    const ChunkEntry& e = manifest.chunks[k];
+    if (checksum(data + kChunkHeaderSize + e.transport_size, e.detail_size) != e.detail_checksum)
+        chunk_fail(path, k, "detail checksum mismatch");
+}
+
+std::string link_name(size_t i, uint32_t receiver, uint32_t source) {
+    return "link " + std::to_string(i) + " (receiver " + std::to_string(receiver) + ", source " +
+           std::to_string(source) + ")";
+}
+
+// The transport section of a chunk whose header check_header() accepted: decoded into `out`
+// and validated (runs, index ranges, order, couplings).
+void decode_transport_section(const uint8_t* data, const LinkStoreManifest& manifest, size_t k,
+                              const std::string& path, TransportLinks& out) {
+    const ChunkEntry& e = manifest.chunks[k];
+    const uint8_t* section = data + kChunkHeaderSize;
+    if (checksum(section, e.transport_size) != e.transport_checksum)
+        chunk_fail(path, k, "transport checksum mismatch");
+    const size_t n = size_t(e.link_count), m = e.run_count;
+    // The frame, then the coupling's low byte planes as they are (see the header).
+    const size_t frame_size = size_t(e.transport_size) - kRawCouplingPlanes * n;
+    const uint8_t* raw = decompress_lz4(section, frame_size, 8 * m + (8 - kRawCouplingPlanes) * n, path, k);
+    const uint8_t* low_planes = section + frame_size;
+    out.sources.resize(m);
+    out.run_end.resize(m);
+    out.receivers.resize(n);
+    out.coupling.resize(n);
+    get_planes(raw, m, out.sources.data());
+    get_planes(raw + 4 * m, m, out.run_end.data());
+    const uint32_t node_count = manifest.info.node_count;
+    const char* const unsorted = "links must be sorted by source, then receiver, without duplicates";
+    // The receivers' deltas, from their byte planes (a loop the compiler vectorises).
+    uint32_t* rc = out.receivers.data();
+    get_planes(raw + 8 * m, n, rc);
+    uint32_t source = 0;
+    uint64_t end = 0;
+    for (size_t r = 0; r < m; ++r) {
+        const uint32_t delta = out.sources[r], length = out.run_end[r];
+        auto first = [&](uint32_t s) { return "link " + std::to_string(end) + " (source " + std::to_string(s); };
+        // Unsigned deltas: a source before the previous one wraps around past it.
+        if (r > 0 && (delta == 0 || uint32_t(source + delta) < source))
+            chunk_fail(path, k, first(source + delta) + ") after source " + std::to_string(source) + ": " + unsorted);
+        source += delta;
+        if (source >= node_count)
+            chunk_fail(path, k, first(source) + "): source index " + std::to_string(source) + " >= node count " +
+                                    std::to_string(node_count));
+        if (length == 0) chunk_fail(path, k, first(source) + "): a run of no links");
+        if (end + length > n)
+            chunk_fail(path, k, first(source) + "): runs hold more than the chunk's " + std::to_string(n) + " links");
+        out.sources[r] = source;
+        // Summed along the run. Deltas after the first must not be 0; the sum is taken wide,
+        // so that a last receiver below the node count means no sum wrapped around.
+        const size_t begin = size_t(end), stop = size_t(end + length);
+        uint32_t zero = 0;
+        for (size_t i = begin + 1; i < stop; ++i) zero |= uint32_t(rc[i] == 0);
+        uint64_t receiver = 0;
+        for (size_t i = begin; i < stop; ++i) rc[i] = uint32_t(receiver += rc[i]);
+        if (zero || receiver >= node_count) {
+            // Find the first bad link again, from the planes, to name it.
+            const uint8_t* q = raw + 8 * m;
+            uint32_t previous = 0;
+            for (size_t i = begin; i < stop; ++i) {
+                const uint32_t d = uint32_t(q[i]) | uint32_t(q[n + i]) << 8 | uint32_t(q[2 * n + i]) << 16 |
+                                   uint32_t(q[3 * n + i]) << 24;
+                const uint32_t next = previous + d;
+                if (i > begin && (d == 0 || next < previous))
+                    chunk_fail(path, k, link_name(i, next, source) + ": after receiver " + std::to_string(previous) +
+                                            ": " + unsorted);
+                if (next >= node_count)
+                    chunk_fail(path, k, link_name(i, next, source) + ": receiver index " + std::to_string(next) +
+                                            " >= node count " + std::to_string(node_count));
+                previous = next;
+            }
+        }
+        end = stop;
+        out.run_end[r] = uint32_t(end);
+    }
+    if (end != n)
+        chunk_fail(path, k, "runs hold " + std::to_string(end) + " links, the chunk " + std::to_string(n));
+    // The coupling's bits, placed and checked in one loop the compiler vectorises.
+    {
+        const uint8_t *p0 = low_planes, *p1 = low_planes + n, *p2 = low_planes + 2 * n, *p3 = raw + 8 * m + 4 * n;
+        float* coupling = out.coupling.data();
+        uint32_t bad = 0;
+        for (size_t i = 0; i < n; ++i) {
+            const uint32_t u = uint32_t(p0[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 | uint32_t(p3[i]) << 24;
+            // Finite and >= 0 (-0 included): below the bits of +inf, or -0 itself.
+            bad |= uint32_t(u >= 0x7f800000u) & uint32_t(u != 0x80000000u);
+            std::memcpy(coupling + i, &u, 4);
+        }
+        if (!bad) return;
+    }
+    {
+        size_t r = 0;
+        for (size_t i = 0; i < n; ++i) {
+            while (out.run_end[r] <= i) ++r;
+            if (!(std::isfinite(out.coupling[i]) && out.coupling[i] >= 0))
+                chunk_fail(path, k, link_name(i, out.receivers[i], out.sources[r]) + ": coupling " +
+                                        std::to_string(out.coupling[i]) + " is not finite and >= 0");
+        }
+    }
+}
 
 }  // namespace
 
@@ -277,8 +456,11 @@ std::vector<uint8_t> encode_manifest(const LinkStoreManifest& m) {
         put32(p + 32, e.source_begin);
         put32(p + 36, e.source_end);
         put64(p + 40, e.link_count);
-        put64(p + 48, e.compressed_size);
-        put64(p + 56, e.checksum);
+        put32(p + 48, e.run_count);
+        put64(p + 56, e.transport_size);
+        put64(p + 64, e.detail_size);
+        put64(p + 72, e.transport_checksum);
+        put64(p + 80, e.detail_checksum);
         p += kManifestEntrySize;
     }
     put64(p, checksum(out.data(), out.size() - 8));
@@ -314,8 +496,11 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
         e.source_begin = get32(p + 32);
         e.source_end = get32(p + 36);
         e.link_count = get64(p + 40);
-        e.compressed_size = get64(p + 48);
-        e.checksum = get64(p + 56);
+        e.run_count = get32(p + 48);
+        e.transport_size = get64(p + 56);
+        e.detail_size = get64(p + 64);
+        e.transport_checksum = get64(p + 72);
+        e.detail_checksum = get64(p + 80);
         const std::string name = chunk_file_name(e.source_begin, e.source_end);
         const std::string where = "chunk " + std::to_string(i) + " (" + name + "): ";
         char expected_name[kNameSize] = {};
@@ -331,11 +516,36 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
         if (e.link_count > kMaxLinksPerChunk || e.link_count > uint64_t(m.info.node_count) * m.info.node_count)
             fail(where + std::to_string(e.link_count) + " links: more than the maximum " +
                  std::to_string(kMaxLinksPerChunk) + " or than the nodes can have");
-        if (e.compressed_size == 0 || e.compressed_size > ZSTD_compressBound(e.link_count * kRecordSize))
-            fail(where + "compressed size " + std::to_string(e.compressed_size) + " impossible for " +
+        if (get32(p + 52) != 0) fail(where + "reserved field is not zero");
+        if (e.run_count > e.link_count || (e.run_count == 0) != (e.link_count == 0))
+            fail(where + std::to_string(e.run_count) + " runs impossible for " + std::to_string(e.link_count) +
+                 " links");
+        const uint64_t stored_raw = kRawCouplingPlanes * e.link_count;
+        const uint64_t frame_raw = 8 * uint64_t(e.run_count) + (8 - kRawCouplingPlanes) * e.link_count;
+        if (e.transport_size <= stored_raw || e.transport_size - stored_raw > uint64_t(LZ4_compressBound(int(frame_raw))))
+            fail(where + "transport section size " + std::to_string(e.transport_size) + " impossible for " +
+                 std::to_string(e.link_count) + " links");
+        if (e.detail_size == 0 || e.detail_size > ZSTD_compressBound(kDetailBytesPerLink * e.link_count))
+            fail(where + "detail section size " + std::to_string(e.detail_size) + " impossible for " +
                  std::to_string(e.link_count) + " links");
     }
     return m;
+}
+
+void TransportLinks::assign(const LinkRecord* links, size_t count) {
+    sources.clear();
+    run_end.clear();
+    receivers.resize(count);
+    coupling.resize(count);
+    for (size_t i = 0; i < count; ++i) {
+        if (i == 0 || links[i].source != links[i - 1].source) {
+            if (i > 0) run_end.push_back(uint32_t(i));
+            sources.push_back(links[i].source);
+        }
+        receivers[i] = links[i].receiver;
+        coupling[i] = links[i].coupling;
+    }
+    if (count > 0) run_end.push_back(uint32_t(count));
 }
 
 std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_t source_end,
@@ -343,117 +553,93 @@ std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_
     if (count > kMaxLinksPerChunk)
         throw std::invalid_argument("a chunk holds at most " + std::to_string(kMaxLinksPerChunk) + " links, not " +
                                     std::to_string(count));
-    const size_t raw_size = count * kRecordSize;
-    std::vector<uint8_t> out(kChunkHeaderSize + ZSTD_compressBound(raw_size));
-    std::unique_ptr<ZSTD_CCtx, ZstdFree> cctx(ZSTD_createCCtx());
-    if (!cctx) throw std::bad_alloc();
-    auto check = [](size_t r) {
-        if (ZSTD_isError(r)) throw std::runtime_error(std::string("zstd compression failed: ") + ZSTD_getErrorName(r));
-        return r;
-    };
-    check(ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_compressionLevel, kZstdLevel));
-    check(ZSTD_CCtx_setPledgedSrcSize(cctx.get(), raw_size));
-    std::vector<uint8_t> planes(std::min<size_t>(count, kBlockLinks) * kRecordSize);
-    ZSTD_outBuffer zout{out.data() + kChunkHeaderSize, out.size() - kChunkHeaderSize, 0};
-    LinkRecord prev{0, source_begin, 0, 0, 0, 0};
-    size_t done = 0;
-    do {  // at least once, so that an empty chunk is still a complete frame
-        const size_t m = std::min<size_t>(kBlockLinks, count - done);
-        encode_block(links + done, m, prev, planes.data());
-        done += m;
-        const ZSTD_EndDirective mode = done == count ? ZSTD_e_end : ZSTD_e_continue;
-        ZSTD_inBuffer in{planes.data(), m * kRecordSize, 0};
-        // The output holds the compression bound, so each call consumes its whole block.
-        const size_t left = check(ZSTD_compressStream2(cctx.get(), &zout, &in, mode));
-        if (in.pos != in.size || (mode == ZSTD_e_end && left != 0))
-            throw std::logic_error("zstd output exceeded its compression bound");
-    } while (done < count);
+    TransportLinks t;
+    t.assign(links, count);
+    const size_t n = count, m = t.runs();
+    // The words of both sections, as the header describes them.
+    std::vector<uint32_t> words(2 * m + 2 * n);
+    for (size_t r = 0; r < m; ++r) {
+        words[r] = t.sources[r] - (r > 0 ? t.sources[r - 1] : 0);
+        words[m + r] = t.run_end[r] - (r > 0 ? t.run_end[r - 1] : 0);
+    }
+    for (size_t i = 0; i < n; ++i) {
+        const bool first = i == 0 || links[i].source != links[i - 1].source;
+        words[2 * m + i] = links[i].receiver - (first ? 0 : links[i - 1].receiver);
+        words[2 * m + n + i] = bits(links[i].coupling);
+    }
+    std::vector<uint8_t> raw(4 * words.size());
+    put_planes(words.data(), m, raw.data());
+    put_planes(words.data() + m, m, raw.data() + 4 * m);
+    put_planes(words.data() + 2 * m, n, raw.data() + 8 * m);
+    put_planes(words.data() + 2 * m + n, n, raw.data() + 8 * m + 4 * n);
+    // Compressed: the runs, the receivers and the coupling's high byte plane; then the
+    // coupling's three low byte planes as they are (mantissa bits: incompressible).
+    std::vector<uint8_t> frame(raw.begin(), raw.begin() + 8 * m + 4 * n);
+    frame.insert(frame.end(), raw.begin() + 8 * m + 7 * n, raw.end());
+    std::vector<uint8_t> out(kChunkHeaderSize);
+    entry.transport_size = compress_lz4(frame.data(), frame.size(), out);
+    out.insert(out.end(), raw.begin() + 8 * m + 4 * n, raw.begin() + 8 * m + 7 * n);
+    entry.transport_size += kRawCouplingPlanes * n;
+    words.assign(3 * n, 0);
+    for (size_t i = 0; i < n; ++i) {
+        words[i] = bits(links[i].unoccluded) ^ bits(links[i].coupling);
+        words[n + i] = bits(links[i].visibility);
+        words[2 * n + i] = bits(links[i].error);
+    }
+    raw.resize(kDetailBytesPerLink * n);
+    for (size_t c = 0; c < 3; ++c) put_planes(words.data() + c * n, n, raw.data() + 4 * c * n);
+    entry.detail_size = compress_section(raw.data(), raw.size(), out);
     entry.source_begin = source_begin;
     entry.source_end = source_end;
     entry.link_count = count;
-    entry.compressed_size = zout.pos;
-    entry.checksum = checksum(out.data() + kChunkHeaderSize, zout.pos);
+    entry.run_count = uint32_t(m);
+    entry.transport_checksum = checksum(out.data() + kChunkHeaderSize, entry.transport_size);
+    entry.detail_checksum = checksum(out.data() + kChunkHeaderSize + entry.transport_size, entry.detail_size);
     const auto header = chunk_header(entry, index);
     std::copy(header.begin(), header.end(), out.begin());
-    out.resize(kChunkHeaderSize + zout.pos);
     return out;
+}
+
+void decode_transport(const uint8_t* data, size_t available, uint64_t file_size, const LinkStoreManifest& manifest,
+                      size_t k, const std::string& path, TransportLinks& out) {
+    check_header(data, file_size, manifest, k, path);
+    const ChunkEntry& e = manifest.chunks[k];
+    if (available < kChunkHeaderSize + e.transport_size || available > file_size)
+        throw std::invalid_argument(path + ": chunk " + std::to_string(k) + ": " + std::to_string(available) +
+                                    " bytes given: not the header and the transport section of a file of " +
+                                    std::to_string(file_size));
+    decode_transport_section(data, manifest, k, path, out);
+    if (available == file_size) check_detail_checksum(data, manifest, k, path);
 }
 
 void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
                   const std::string& path, LinkRecord* out) {
-    if (k >= manifest.chunks.size())
-        chunk_fail(path, k, "no such chunk: the manifest lists " + std::to_string(manifest.chunks.size()));
+    check_header(data, size, manifest, k, path);
+    thread_local TransportLinks t;
+    decode_transport_section(data, manifest, k, path, t);
+    check_detail_checksum(data, manifest, k, path);
     const ChunkEntry& e = manifest.chunks[k];
-    if (e.link_count > kMaxLinksPerChunk) chunk_fail(path, k, "the manifest entry was not validated");
-    const uint64_t expected_size = kChunkHeaderSize + e.compressed_size;
-    if (size != expected_size) chunk_fail(path, k, size_problem(expected_size, size));
-    if (std::memcmp(data, kChunkMagic, 8) != 0) chunk_fail(path, k, "not a link chunk (bad magic)");
-    if (get32(data + 8) != kLinkStoreVersion)
-        chunk_fail(path, k, "format version " + std::to_string(get32(data + 8)) + ", expected " +
-                                std::to_string(kLinkStoreVersion));
-    if (checksum(data, 56) != get64(data + 56)) chunk_fail(path, k, "header checksum mismatch");
-    auto agree = [&](const char* field, uint64_t in_chunk, uint64_t in_manifest) {
-        if (in_chunk != in_manifest)
-            chunk_fail(path, k, std::string("header disagrees with the manifest: ") + field + " " +
-                                    std::to_string(in_chunk) + " in the chunk, " + std::to_string(in_manifest) +
-                                    " in the manifest");
-    };
-    agree("chunk index", get32(data + 12), k);
-    agree("source_begin", get32(data + 16), e.source_begin);
-    agree("source_end", get32(data + 20), e.source_end);
-    agree("link count", get64(data + 24), e.link_count);
-    agree("compressed size", get64(data + 32), e.compressed_size);
-    agree("payload checksum", get64(data + 48), e.checksum);
-    const uint64_t raw_size = e.link_count * kRecordSize;  // no overflow: link_count was bounded
-    if (get64(data + 40) != raw_size)
-        chunk_fail(path, k, "uncompressed size " + std::to_string(get64(data + 40)) + ", expected " +
-                                std::to_string(raw_size) + " for " + std::to_string(e.link_count) + " links");
-    const uint8_t* payload = data + kChunkHeaderSize;
-    if (checksum(payload, e.compressed_size) != e.checksum) chunk_fail(path, k, "payload checksum mismatch");
-
-    std::unique_ptr<ZSTD_DCtx, ZstdFree> dctx(ZSTD_createDCtx());
-    if (!dctx) throw std::bad_alloc();
-    ZSTD_DCtx_setParameter(dctx.get(), ZSTD_d_windowLogMax, kZstdWindowLogMax);
-    ZSTD_inBuffer in{payload, e.compressed_size, 0};
-    bool frame_done = false;
-    // One zstd call; false when it made no progress.
-    auto step = [&](ZSTD_outBuffer& o) {
-        const size_t in_before = in.pos, out_before = o.pos;
-        const size_t r = ZSTD_decompressStream(dctx.get(), &o, &in);
-        if (ZSTD_isError(r)) chunk_fail(path, k, std::string("corrupt compressed payload: ") + ZSTD_getErrorName(r));
-        frame_done = r == 0;
-        return in.pos != in_before || o.pos != out_before;
-    };
-    const uint32_t node_count = manifest.info.node_count;
-    std::vector<uint8_t> planes(std::min<uint64_t>(e.link_count, kBlockLinks) * kRecordSize);
-    LinkRecord prev{0, e.source_begin, 0, 0, 0, 0};
-    for (uint64_t done = 0; done < e.link_count;) {
-        const size_t m = size_t(std::min<uint64_t>(kBlockLinks, e.link_count - done));
-        ZSTD_outBuffer o{planes.data(), m * kRecordSize, 0};
-        while (o.pos < o.size) {
-            const bool progressed = !frame_done && step(o);  // one frame only: none may follow it
-            if (o.pos < o.size && (frame_done || !progressed))
-                chunk_fail(path, k, "payload decompresses to " + std::to_string(done * kRecordSize + o.pos) +
-                                        " bytes, expected " + std::to_string(raw_size));
+    const uint8_t* section = data + kChunkHeaderSize + e.transport_size;
+    const size_t n = t.size();
+    const uint8_t* raw = decompress_section(section, e.detail_size, kDetailBytesPerLink * n, "detail", path, k);
+    thread_local std::unique_ptr<uint32_t[]> words_buffer;
+    thread_local size_t words_capacity = 0;
+    uint32_t* w = scratch(words_buffer, words_capacity, std::max<size_t>(3 * n, 1));
+    for (size_t c = 0; c < 3; ++c) get_planes(raw + 4 * c * n, n, w + c * n);
+    for (size_t r = 0, i = 0; r < t.runs(); ++r)
+        for (; i < t.run_end[r]; ++i) {
+            LinkRecord& o = out[i];
+            o.receiver = t.receivers[i];
+            o.source = t.sources[r];
+            o.coupling = t.coupling[i];
+            o.unoccluded = from_bits(w[i] ^ bits(o.coupling));
+            o.visibility = from_bits(w[n + i]);
+            o.error = from_bits(w[2 * n + i]);
+            if (!(std::isfinite(o.unoccluded) && o.unoccluded >= 0 && o.visibility >= 0 && o.visibility <= 1 &&
+                  std::isfinite(o.error)))
+                chunk_fail(path, k, link_name(i, o.receiver, o.source) + ": " +
+                                        record_problem(o, nullptr, manifest.info.node_count));
         }
-        decode_block(planes.data(), m, prev, out + done);
-        for (size_t i = 0; i < m; ++i) {
-            const LinkRecord* before = done + i > 0 ? &out[done + i - 1] : nullptr;
-            if (record_ok(out[done + i], before, node_count)) continue;
-            chunk_fail(path, k, record_name(done + i, out[done + i]) + ": " + record_problem(out[done + i], before, node_count));
-        }
-        done += m;
-    }
-    // Every expected byte is out: the frame must end here, with nothing after it.
-    while (!frame_done) {
-        uint8_t extra;
-        ZSTD_outBuffer o{&extra, 1, 0};
-        const bool progressed = step(o);
-        if (o.pos > 0) chunk_fail(path, k, "payload decompresses to more than " + std::to_string(raw_size) + " bytes");
-        if (!frame_done && !progressed) chunk_fail(path, k, "compressed payload ends in the middle of its frame");
-    }
-    if (in.pos != in.size)
-        chunk_fail(path, k, std::to_string(in.size - in.pos) + " bytes after the end of the compressed payload");
 }
 
 void write_file_synced(const std::string& path, const uint8_t* data, size_t size) {
@@ -603,6 +789,8 @@ LinkStoreReader::LinkStoreReader(const std::string& dir) : dir_(dir) {
     const std::vector<uint8_t> data =
         read_small_file(path, kManifestHeaderSize + kManifestEntrySize * size_t(kMaxChunks) + 8);
     manifest_ = decode_manifest(data.data(), data.size(), path);
+    verified_.reset(new std::atomic<bool>[manifest_.chunks.size()]);
+    for (size_t k = 0; k < manifest_.chunks.size(); ++k) verified_[k].store(false);
 }
 
 std::string LinkStoreReader::chunk_path(size_t k) const {
@@ -618,9 +806,42 @@ uint64_t LinkStoreReader::total_links() const {
 
 uint64_t LinkStoreReader::total_compressed_bytes() const {
     uint64_t n = 0;
-    for (const ChunkEntry& e : manifest_.chunks) n += e.compressed_size;
+    for (const ChunkEntry& e : manifest_.chunks) n += e.compressed_size();
     return n;
 }
+
+uint64_t LinkStoreReader::total_transport_bytes() const {
+    uint64_t n = 0;
+    for (const ChunkEntry& e : manifest_.chunks) n += e.transport_size;
+    return n;
+}
+
+namespace {
+
+// The first `size` bytes of chunk k's file (its whole size when 0) into a per-thread buffer,
+// the file's size checked against the manifest before anything is read.
+const uint8_t* read_chunk_file(const std::string& path, size_t k, const ChunkEntry& e, size_t& size) {
+    Fd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
+    if (fd.fd < 0) chunk_fail(path, k, std::string("cannot open: ") + std::strerror(errno));
+    struct stat st;
+    if (::fstat(fd.fd, &st) != 0) chunk_fail(path, k, std::string("cannot stat: ") + std::strerror(errno));
+    // The manifest bounds the size, so nothing larger than it allows is ever allocated.
+    const uint64_t expected = kChunkHeaderSize + e.compressed_size();
+    if (uint64_t(st.st_size) != expected) chunk_fail(path, k, size_problem(expected, uint64_t(st.st_size)));
+    if (size == 0 || size > expected) size = size_t(expected);
+    uint8_t* data = byte_scratch(kFileBytes, size);
+    size_t got = 0;
+    while (got < size) {
+        const ssize_t r = ::read(fd.fd, data + got, size - got);
+        if (r < 0 && errno == EINTR) continue;
+        if (r < 0) chunk_fail(path, k, std::string("read failed: ") + std::strerror(errno));
+        if (r == 0) chunk_fail(path, k, size_problem(expected, got));
+        got += size_t(r);
+    }
+    return data;
+}
+
+}  // namespace
 
 void LinkStoreReader::read_chunk(size_t k, std::vector<LinkRecord>& out) const {
     out.resize(k < chunk_count() ? size_t(chunk(k).link_count) : 0);  // a bad k throws below
@@ -636,24 +857,23 @@ size_t LinkStoreReader::read_chunk(size_t k, LinkRecord* out, size_t capacity) c
         throw std::invalid_argument(path + ": chunk " + std::to_string(k) + ": a buffer of " +
                                     std::to_string(capacity) + " links is too small for " +
                                     std::to_string(e.link_count));
-    Fd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
-    if (fd.fd < 0) chunk_fail(path, k, std::string("cannot open: ") + std::strerror(errno));
-    struct stat st;
-    if (::fstat(fd.fd, &st) != 0) chunk_fail(path, k, std::string("cannot stat: ") + std::strerror(errno));
-    // The manifest bounds the size, so nothing larger than it allows is ever allocated.
-    const uint64_t expected = kChunkHeaderSize + e.compressed_size;
-    if (uint64_t(st.st_size) != expected) chunk_fail(path, k, size_problem(expected, uint64_t(st.st_size)));
-    std::vector<uint8_t> data(static_cast<size_t>(expected));
-    size_t got = 0;
-    while (got < data.size()) {
-        const ssize_t r = ::read(fd.fd, data.data() + got, data.size() - got);
-        if (r < 0 && errno == EINTR) continue;
-        if (r < 0) chunk_fail(path, k, std::string("read failed: ") + std::strerror(errno));
-        if (r == 0) chunk_fail(path, k, size_problem(expected, got));
-        got += size_t(r);
-    }
-    decode_chunk(data.data(), data.size(), manifest_, k, path, out);
+    size_t size = 0;
+    const uint8_t* data = read_chunk_file(path, k, e, size);
+    decode_chunk(data, size, manifest_, k, path, out);
+    verified_[k].store(true, std::memory_order_relaxed);
     return size_t(e.link_count);
+}
+
+void LinkStoreReader::read_transport(size_t k, TransportLinks& out) const {
+    if (k >= chunk_count())
+        throw std::out_of_range(dir_ + ": chunk " + std::to_string(k) + " of " + std::to_string(chunk_count()));
+    const ChunkEntry& e = chunk(k);
+    const std::string path = chunk_path(k);
+    const bool whole = !verified_[k].load(std::memory_order_relaxed);
+    size_t size = whole ? 0 : size_t(kChunkHeaderSize + e.transport_size);
+    const uint8_t* data = read_chunk_file(path, k, e, size);
+    decode_transport(data, size, kChunkHeaderSize + e.compressed_size(), manifest_, k, path, out);
+    if (whole) verified_[k].store(true, std::memory_order_relaxed);
 }
 
 }  // namespace hirad

@@ -11,7 +11,10 @@
 // All integers are little-endian, written byte by byte (no struct is written as is).
 // Checksums are XXH3_64bits (seed 0).
 //
-// Chunk file: a 64-byte header, then the compressed payload.
+// Chunk file: an 80-byte header, then two compressed sections. The transport section holds
+// what a solve reads (who shoots to whom, and the coupling); the detail section holds what
+// only refinement reads (unoccluded coupling, visibility, error estimate). A solve checks the
+// whole file but decompresses and decodes only the transport section.
 //    0  char[8]  magic "HRDLINKC"
 //    8  u32      format version (kLinkStoreVersion)
 //   12  u32      chunk index: the chunk's position in the manifest (0xffffffff until commit()
@@ -19,21 +22,29 @@
 //   16  u32      source_begin
 //   20  u32      source_end
 //   24  u64      link count n
-//   32  u64      compressed payload size (the file is exactly 64 + this many bytes)
-//   40  u64      uncompressed payload size (always 24 n)
-//   48  u64      checksum of the compressed payload
-//   56  u64      checksum of header bytes [0, 56)
+//   32  u32      run count m: the distinct sources (runs of links with the same source)
+//   36  u32      zero
+//   40  u64      transport section size T (compressed)
+//   48  u64      detail section size D (compressed); the file is exactly 80 + T + D bytes
+//   56  u64      checksum of the transport section
+//   64  u64      checksum of the detail section
+//   72  u64      checksum of header bytes [0, 72)
 // Records are sorted by source, then receiver, strictly (no two links join the same pair);
-// the writer sorts them. The payload is one zstd frame. Before compression the records are
-// cut into blocks of kBlockLinks (the last one shorter) and each record becomes six 32-bit
-// words: receiver - (previous receiver if the source is the previous record's, else 0),
-// source - previous source (source_begin before the first record), the bits of coupling,
-// unoccluded XOR coupling (zero when the link is fully visible), visibility and error. A
-// block stores byte 0 of every record's word 0, then byte 1 of word 0, ..., byte 3 of word 5
-// (24 byte planes). This makes the float bytes of similar magnitude line up and the deltas
-// mostly zero: about 6 bytes per link on refiner output instead of 13 for zstd of raw records.
+// the writer sorts them. Sequences of 32-bit words are stored as byte planes: byte 0 of
+// every word, then byte 1 of every word, and so on, so that the bytes of similar magnitude
+// line up and the mostly-zero high bytes of the deltas compress to almost nothing.
+//   transport section: one LZ4 block, then 3 n bytes stored as they are. The block holds, as
+//     byte planes, per run the source - the previous run's source (the first: the source
+//     itself), per run its link count (each >= 1, summing to n), per link the receiver - the
+//     previous receiver of its run (the first of a run: the receiver itself), then byte 3 of
+//     every link's coupling bits (8 m + 5 n bytes). The stored bytes are the coupling's
+//     planes 0, 1 and 2: mantissa bits, which no compressor shrinks. LZ4 rather than zstd
+//     because a solve decodes every chunk in every round: it decodes several times faster,
+//     for about 0.3 byte per link more.
+//   detail section: one zstd frame of the byte planes of, per link, unoccluded XOR coupling
+//     (zero when the link is fully visible), then visibility, then error (12 n bytes).
 //
-// Manifest: a 40-byte header, 64 bytes per chunk, then a checksum of all preceding bytes.
+// Manifest: a 40-byte header, 88 bytes per chunk, then a checksum of all preceding bytes.
 //    0  char[8]  magic "HRDLINKM"
 //    8  u32      format version
 //   12  u32      node count: every receiver and source index is below it
@@ -46,8 +57,12 @@
 //   32  u32      source_begin
 //   36  u32      source_end
 //   40  u64      link count
-//   48  u64      compressed payload size
-//   56  u64      checksum of the compressed payload
+//   48  u32      run count
+//   52  u32      zero
+//   56  u64      transport section size
+//   64  u64      detail section size
+//   72  u64      checksum of the transport section
+//   80  u64      checksum of the detail section
 //   end u64      checksum of every byte before it
 //
 // Errors: problems with the files throw std::runtime_error naming the file, the chunk index
@@ -56,7 +71,9 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <atomic>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <type_traits>
@@ -77,11 +94,27 @@ struct LinkRecord {
 static_assert(sizeof(LinkRecord) == 24, "LinkRecord must be 24 bytes without padding");
 static_assert(std::is_trivially_copyable_v<LinkRecord>, "LinkRecord must be memcpy-able");
 
-constexpr uint32_t kLinkStoreVersion = 1;
-constexpr size_t kChunkHeaderSize = 64;
-constexpr uint32_t kBlockLinks = 4096;
+constexpr uint32_t kLinkStoreVersion = 2;
+constexpr size_t kChunkHeaderSize = 80;
 constexpr uint64_t kMaxLinksPerChunk = uint64_t(1) << 24;  // 384 MiB decoded
 constexpr uint32_t kMaxChunks = uint32_t(1) << 20;
+
+// What a solve needs of a chunk's links, in runs of one source: links
+// [run_end[r - 1], run_end[r]) (from 0 for the first run) leave sources[r].
+struct TransportLinks {
+    std::vector<uint32_t> sources;    // per run, strictly increasing
+    std::vector<uint32_t> run_end;    // per run, strictly increasing, the last = size()
+    std::vector<uint32_t> receivers;  // per link, strictly increasing within a run
+    std::vector<float> coupling;      // per link: G, m^2, finite and >= 0
+
+    size_t size() const { return receivers.size(); }
+    size_t runs() const { return sources.size(); }
+    // What it holds in memory (for budgets), and the same for a chunk of n links in m runs.
+    static uint64_t bytes_for(uint64_t n, uint64_t m) { return 8 * n + 8 * m; }
+    uint64_t bytes() const { return bytes_for(size(), runs()); }
+    // From links sorted by source, then receiver.
+    void assign(const LinkRecord* sorted_links, size_t count);
+};
 
 // What the engine compares to decide whether a store can be reused.
 struct LinkStoreInfo {
@@ -96,8 +129,13 @@ struct ChunkEntry {
     uint32_t source_begin = 0;
     uint32_t source_end = 0;
     uint64_t link_count = 0;
-    uint64_t compressed_size = 0;  // payload bytes after the header
-    uint64_t checksum = 0;         // of the compressed payload
+    uint32_t run_count = 0;
+    uint64_t transport_size = 0;      // compressed section bytes
+    uint64_t detail_size = 0;
+    uint64_t transport_checksum = 0;
+    uint64_t detail_checksum = 0;
+
+    uint64_t compressed_size() const { return transport_size + detail_size; }
 };
 
 struct LinkStoreManifest {
@@ -145,8 +183,8 @@ private:
     uint64_t indices_end_ = 0;        // one past the largest receiver or source written
 };
 
-// Reads a committed store. Every method is const and keeps no mutable state, so read_chunk()
-// may be called concurrently from several threads (e.g. a prefetching one).
+// Reads a committed store. Every method is const and may be called concurrently from several
+// threads (e.g. prefetching ones); the only state kept is which chunks were checked whole.
 class LinkStoreReader {
 public:
     // Reads and validates the manifest.
@@ -158,7 +196,8 @@ public:
     const ChunkEntry& chunk(size_t k) const { return manifest_.chunks.at(k); }
     std::string chunk_path(size_t k) const;
     uint64_t total_links() const;
-    uint64_t total_compressed_bytes() const;  // payloads, without the headers
+    uint64_t total_compressed_bytes() const;  // both sections of every chunk, without the headers
+    uint64_t total_transport_bytes() const;   // the transport sections: what a solve reads
 
     // The links of chunk k, sorted by source then receiver. `out` is resized; its capacity is
     // reused, so a buffer kept across calls is not reallocated once it is large enough.
@@ -166,10 +205,16 @@ public:
     // Into a caller's buffer of `capacity` records (at least chunk(k).link_count); returns
     // the number of links.
     size_t read_chunk(size_t k, LinkRecord* out, size_t capacity) const;
+    // What a solve needs of chunk k: its transport section, decoded and validated. The first
+    // read of a chunk by this reader checks the whole file (sizes, header, both checksums);
+    // later ones read only the header and the transport section, which are checked every time.
+    void read_transport(size_t k, TransportLinks& out) const;
 
 private:
     std::string dir_;
     LinkStoreManifest manifest_;
+    // Per chunk: whether a whole read found it intact (set once, by any thread).
+    std::unique_ptr<std::atomic<bool>[]> verified_;
 };
 
 // The format layer under the writer and the reader, from memory (the fuzz target and the
@@ -187,6 +232,11 @@ std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_
 // decodes the links into out[0, link_count).
 void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
                   const std::string& path, LinkRecord* out);
+// The same for what a solve needs: `data` holds the first `available` bytes of a chunk file
+// of `file_size` bytes, at least its header and transport section, which are validated and
+// decoded. The detail section's checksum is checked when it is there (available == file_size).
+void decode_transport(const uint8_t* data, size_t available, uint64_t file_size, const LinkStoreManifest& manifest,
+                      size_t k, const std::string& path, TransportLinks& out);
 // Writes a buffer to `path` (created or truncated) and fsyncs it; throws naming the path
 // and the OS error. The writer writes every file through it.
 void write_file_synced(const std::string& path, const uint8_t* data, size_t size);

@@ -616,7 +616,8 @@ public:
         d["reused_links"] = rep.reused;
         d["resumed_from_round"] = rep.resumed_from_round;
         d["store_bytes"] = rep.store_bytes;
-        d["peak_group_links"] = rep.peak_group_links;
+        d["transport_bytes"] = rep.transport_bytes;
+        d["peak_refine_links"] = rep.peak_refine_links;
         d["source_groups"] = solved_->groups;
         nb::dict s;
         s["rounds"] = st.rounds;
@@ -624,10 +625,12 @@ public:
         s["links_shot"] = st.links_shot;
         s["chunk_reads"] = st.chunk_reads;
         s["chunk_hits"] = st.chunk_hits;
-        s["resident_links_peak"] = st.resident_links_peak;
+        s["resident_bytes_peak"] = st.resident_bytes_peak;
         s["state_bytes"] = st.state_bytes;
-        s["largest_chunk_links"] = st.largest_chunk_links;
+        s["largest_chunk_bytes"] = st.largest_chunk_bytes;
         s["chunks_in_flight"] = st.chunks_in_flight;
+        s["minimum_budget"] = st.minimum_budget;
+        s["decoded_bytes"] = st.decoded_bytes;
         s["checkpoints"] = st.checkpoints;
         s["resumed"] = st.resumed;
         s["read_wait_seconds"] = st.read_wait_seconds;

@@ -27,12 +27,17 @@ public:
     Round(const std::string& dir, size_t groups, LinkStoreInfo info) : dir_(dir), memory_(groups) {
         if (!dir_.empty()) writer_ = std::make_unique<LinkStoreWriter>(dir_, info);
     }
-    void put(uint32_t group, std::vector<LinkRecord> links) {
-        if (writer_) write_group(*writer_, group, links);
-        else {
-            sort_group(links);
-            memory_[group] = std::move(links);
+    // More of group `group`'s links (the groups one after the other): they leave in parts of
+    // kChunkLinks, each sorted, the last of a group at end_group().
+    void add(uint32_t group, const std::vector<LinkRecord>& links) {
+        for (const LinkRecord& l : links) {
+            pending_.push_back(l);
+            if (pending_.size() == kChunkLinks) put_part(group);
         }
+    }
+    void end_group(uint32_t group) {
+        if (!pending_.empty()) put_part(group);
+        parts_ = 0;
     }
     // Commits the store (if any) and gives the round's links as chunks.
     std::unique_ptr<LinkChunks> finish(uint32_t nodes, uint32_t elements) {
@@ -44,9 +49,18 @@ public:
     }
 
 private:
+    void put_part(uint32_t group) {
+        sort_part(pending_);
+        if (writer_) write_part(*writer_, group, parts_++, pending_);
+        else memory_[group].insert(memory_[group].end(), pending_.begin(), pending_.end());
+        pending_.clear();
+    }
+
     std::string dir_;
     std::unique_ptr<LinkStoreWriter> writer_;
     std::vector<std::vector<LinkRecord>> memory_;
+    std::vector<LinkRecord> pending_;  // the current group's links not yet in a part
+    uint32_t parts_ = 0;               // parts of the current group written
 };
 
 struct Paths {
@@ -249,33 +263,45 @@ OutOfCoreReport run_out_of_core(Hierarchy& h, const Visibility& vis, const OutOf
         std::vector<Link> frontier;
         std::vector<LinkRecord> records;
         refiner.set_radiosity(next == 1 ? node_emission(h) : b);
-        for (uint32_t g = 0; g < ng; ++g) {
-            std::vector<uint8_t> evaluated;
-            frontier.clear();
-            if (next == 1) {
-                Link seed;
-                seed.receiver = h.root;
-                seed.source = groups.roots[g];
-                frontier.push_back(seed);
-                evaluated.push_back(0);
-            } else {
-                chunks->read(g, records);
-                for (const LinkRecord& r : records) frontier.push_back(to_link(r));
-                evaluated.assign(frontier.size(), 1);
-            }
-            rep.peak_group_links = std::max<uint64_t>(rep.peak_group_links, frontier.size());
-            std::vector<Link> kept = refiner.run_group(std::move(frontier), std::move(evaluated), rep.refine_stats);
-            rep.peak_group_links = std::max<uint64_t>(rep.peak_group_links, kept.size());
+        // Kept links leave for the store a part at a time, as refinement makes them; what
+        // refinement holds is bounded by kChunkLinks per level of depth.
+        std::vector<LinkRecord> kept_records;
+        auto keep = [&](uint32_t g, std::vector<Link>& kept) {
             src.resize(h.nodes.size(), 0);
             own.resize(h.nodes.size(), 0.0);
-            records.clear();
+            kept_records.clear();
             for (const Link& l : kept) {
                 src[l.source] = 1;
                 own[l.source] += double(l.coupling) / h.nodes[l.source].area;
-                records.push_back(to_record(l));
+                kept_records.push_back(to_record(l));
             }
-            out.put(g, std::move(records));
-            records = {};
+            out.add(g, kept_records);
+        };
+        for (uint32_t g = 0; g < ng; ++g) {
+            // Round 1 starts from the link of the root to the group; later rounds re-judge the
+            // previous round's links of the group, part by part.
+            const size_t pieces = next == 1 ? 1 : chunks->parts(g);
+            for (size_t p = 0; p < pieces; ++p) {
+                std::vector<uint8_t> evaluated;
+                frontier.clear();
+                if (next == 1) {
+                    Link seed;
+                    seed.receiver = h.root;
+                    seed.source = groups.roots[g];
+                    frontier.push_back(seed);
+                    evaluated.push_back(0);
+                } else {
+                    chunks->read(g, p, records);
+                    for (const LinkRecord& r : records) frontier.push_back(to_link(r));
+                    evaluated.assign(frontier.size(), 1);
+                }
+                const uint64_t held =
+                    refiner.run_group(std::move(frontier), std::move(evaluated), rep.refine_stats, kChunkLinks,
+                                      [&](std::vector<Link>& kept) { keep(g, kept); });
+                frontier = {};
+                rep.peak_refine_links = std::max<uint64_t>(rep.peak_refine_links, held);
+            }
+            out.end_group(g);
         }
         src.resize(h.nodes.size(), 0);
         own.resize(h.nodes.size(), 0.0);
@@ -312,6 +338,7 @@ OutOfCoreReport run_out_of_core(Hierarchy& h, const Visibility& vis, const OutOf
     if (paths.on_disk()) {
         auto* store = dynamic_cast<StoreChunks*>(chunks.get());
         rep.store_bytes = store ? store->reader().total_compressed_bytes() : 0;
+        rep.transport_bytes = store ? store->reader().total_transport_bytes() : 0;
         rep.final_round_dir = paths.round(round);
         if (!rep.reused) {
             // Refinement depended on the materials; its result stays usable for others.

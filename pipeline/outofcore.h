@@ -57,7 +57,8 @@ struct OutOfCoreReport {
     StreamingStats last_solve;
     uint64_t links = 0;
     uint64_t store_bytes = 0;          // compressed link payload of the final round
-    uint64_t peak_group_links = 0;     // most links of one group held during link generation
+    uint64_t transport_bytes = 0;      // of which the transport sections (what a solve reads)
+    uint64_t peak_refine_links = 0;    // most links link generation held at once (waiting and kept)
     std::vector<uint8_t> is_source;    // per node of the final hierarchy
     std::string final_round_dir;       // the store's final round (store mode)
     std::vector<Link> memory_links;    // the final links (memory mode)

@@ -152,9 +152,45 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity) {
 }
 
 std::vector<Link> Refiner::run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats) {
-    std::vector<Link> kept;
+    std::vector<Link> all;
+    run_group(std::move(frontier), std::move(evaluated), stats, SIZE_MAX, [&](std::vector<Link>& kept) {
+        if (all.empty()) all.swap(kept);
+        else all.insert(all.end(), kept.begin(), kept.end());
+    });
+    return all;
+}
+
+uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_evaluated, RefineStats& stats,
+                            size_t batch, const std::function<void(std::vector<Link>&)>& keep) {
+    batch = std::max<size_t>(1, batch);
     std::vector<double>& peak = peak_;
-    while (!frontier.empty()) {
+    // Batches waiting, the next one last; with one batch of everything this is breadth first.
+    struct Batch {
+        std::vector<Link> links;
+        std::vector<uint8_t> evaluated;
+    };
+    std::vector<Batch> stack;
+    stack.push_back({std::move(first), std::move(first_evaluated)});
+    uint64_t waiting = stack.back().links.size(), held_peak = waiting;
+    std::vector<Link> kept;
+    auto flush = [&](bool all) {
+        while (kept.size() >= batch || (all && !kept.empty())) {
+            if (kept.size() <= batch) {
+                std::vector<Link> out;
+                out.swap(kept);
+                keep(out);
+                break;
+            }
+            std::vector<Link> out(kept.begin(), kept.begin() + long(batch));
+            kept.erase(kept.begin(), kept.begin() + long(batch));
+            keep(out);
+        }
+    };
+    while (!stack.empty()) {
+        std::vector<Link> frontier = std::move(stack.back().links);
+        std::vector<uint8_t> evaluated = std::move(stack.back().evaluated);
+        stack.pop_back();
+        waiting -= frontier.size();
         // 1. Estimate the links that are new, in parallel.
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
             if (evaluated[k] || frontier[k].receiver == frontier[k].source) return;
@@ -215,11 +251,21 @@ std::vector<Link> Refiner::run_group(std::vector<Link> frontier, std::vector<uin
         }
         // New nodes inherit their parent's bound for the oracle.
         for (size_t i = peak.size(); i < h_.nodes.size(); ++i) peak.push_back(peak[h_.nodes[i].parent]);
-        frontier.swap(next);
-        evaluated.assign(frontier.size(), 0);
+        // The children's links, cut into batches, the first on top: depth first.
+        for (size_t end = next.size(); end > 0;) {
+            const size_t begin = end > batch ? ((end - 1) / batch) * batch : 0;
+            Batch b{std::vector<Link>(next.begin() + long(begin), next.begin() + long(end)), {}};
+            b.evaluated.assign(b.links.size(), 0);
+            waiting += b.links.size();
+            stack.push_back(std::move(b));
+            end = begin;
+        }
+        held_peak = std::max<uint64_t>(held_peak, waiting + kept.size());
+        flush(false);
     }
+    flush(true);
     stats.rays = vis_.rays_cast();
-    return kept;
+    return held_peak;
 }
 
 }  // namespace hirad

@@ -14,6 +14,7 @@
 // root's self-link and runs level by level, the estimates of each level in parallel.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "hierarchy.h"
@@ -64,6 +65,12 @@ public:
     // their parent's bound.
     void set_radiosity(const std::vector<RGB>& radiosity);
     std::vector<Link> run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats);
+    // The same within bounded memory: the links waiting to be judged are taken `batch` at a
+    // time, depth first, and the kept ones are handed to `keep` as soon as `batch` of them are
+    // there (exactly `batch` each time, the last time fewer), in an order that depends only
+    // on the input. Returns the most links held at once (waiting and kept).
+    uint64_t run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats, size_t batch,
+                       const std::function<void(std::vector<Link>&)>& keep);
 
     // The estimate for one pair (exposed for tests). Different `stream`s draw independent
     // samples.

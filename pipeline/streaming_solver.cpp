@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <mutex>
 #include <stdexcept>
 
 #include "statefile.h"
@@ -46,6 +47,17 @@ uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
     return end <= first_face[g + 1] ? g : kNoGroup;
 }
 
+MemoryChunks::MemoryChunks(std::vector<std::vector<LinkRecord>> by_group)
+    : chunks_(std::move(by_group)), runs_(chunks_.size()) {
+    for (size_t g = 0; g < chunks_.size(); ++g)
+        for (size_t p = 0; p < parts(g); ++p) {
+            const LinkRecord* l = chunks_[g].data() + p * kChunkLinks;
+            uint32_t runs = 0;
+            for (size_t i = 0; i < links(g, p); ++i) runs += i == 0 || l[i].source != l[i - 1].source;
+            runs_[g].push_back(runs);
+        }
+}
+
 uint64_t LinkChunks::links(size_t g) const {
     uint64_t n = 0;
     for (size_t p = 0; p < parts(g); ++p) n += links(g, p);
@@ -81,27 +93,23 @@ StoreChunks::StoreChunks(const std::string& dir, size_t groups) : reader_(dir), 
     }
 }
 
-void sort_group(std::vector<LinkRecord>& links) {
+void sort_part(std::vector<LinkRecord>& links) {
     std::sort(links.begin(), links.end(), [](const LinkRecord& a, const LinkRecord& b) {
         return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
     });
 }
 
-void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links) {
-    if (links.empty()) return;
-    sort_group(links);
+void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<LinkRecord>& links) {
     if (uint64_t(group + 1) * kPartsPerGroup > UINT32_MAX)
         throw std::runtime_error("source group " + std::to_string(group) + ": too many source groups for the store's"
                                  " chunk keys; use a larger links.group_faces");
-    const uint64_t parts = (links.size() + kChunkLinks - 1) / kChunkLinks;
-    if (parts > kPartsPerGroup)
-        throw std::runtime_error("source group " + std::to_string(group) + " has " + std::to_string(links.size()) +
+    if (part >= kPartsPerGroup)
+        throw std::runtime_error("source group " + std::to_string(group) + " has more than " +
+                                 std::to_string(uint64_t(kPartsPerGroup) * kChunkLinks) +
                                  " links, more than a group can store; use smaller links.group_faces");
-    for (uint64_t p = 0; p < parts; ++p) {
-        const size_t begin = p * kChunkLinks, end = std::min<size_t>(links.size(), begin + kChunkLinks);
-        const uint32_t key = group * kPartsPerGroup + static_cast<uint32_t>(p);
-        writer.write_chunk(key, key + 1, links.data() + begin, end - begin);
-    }
+    if (links.size() > kChunkLinks) throw std::invalid_argument("write_part: more than kChunkLinks links");
+    const uint32_t key = group * kPartsPerGroup + part;
+    writer.write_chunk(key, key + 1, links.data(), links.size());
 }
 
 std::vector<double> flatten_rgb(const std::vector<RGB>& v) {
@@ -122,7 +130,7 @@ std::vector<RGB> unflatten_rgb(const std::vector<double>& a, size_t n, const std
 
 namespace {
 
-using Chunk = std::shared_ptr<const std::vector<LinkRecord>>;
+using Chunk = std::shared_ptr<TransportLinks>;
 
 double seconds_since(std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -161,24 +169,28 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     std::vector<uint64_t> first_part(ng + 1, 0);   // parts numbered across groups, for the cache
     for (size_t g = 0; g < ng; ++g) {
         first_part[g + 1] = first_part[g] + chunks.parts(g);
-        for (size_t p = 0; p < chunks.parts(g); ++p) largest = std::max(largest, chunks.links(g, p));
+        for (size_t p = 0; p < chunks.parts(g); ++p) {
+            largest = std::max(largest, chunks.transport_bytes(g, p));
+            stats.decoded_bytes += chunks.transport_bytes(g, p);
+        }
     }
     stats.state_bytes = n * (4 * sizeof(RGB) + 2 * sizeof(double) + sizeof(uint32_t) + 2 * sizeof(uint8_t));
-    stats.largest_chunk_links = largest;
+    stats.largest_chunk_bytes = largest;
     // Chunks in flight: one being shot, the others being read and decoded, two per thread
     // (decoding is what limits streaming).
     const size_t window = std::max(2, 2 * tbb::this_task_arena::max_concurrency());
-    const uint64_t in_flight = window * largest * sizeof(LinkRecord);
+    const uint64_t in_flight = window * largest;
     size_t shot_parts = 0;
     stats.chunks_in_flight = window;
+    stats.minimum_budget = stats.state_bytes + in_flight;
     uint64_t cache_capacity = UINT64_MAX;
     if (opt.memory_budget > 0) {
-        if (opt.memory_budget < stats.state_bytes + in_flight)
+        if (opt.memory_budget < stats.minimum_budget)
             throw std::runtime_error("memory_budget of " + std::to_string(opt.memory_budget) +
                                      " bytes is below what the solver needs: " + std::to_string(stats.state_bytes) +
                                      " bytes of per-node state and " + std::to_string(in_flight) + " for " +
                                      std::to_string(window) + " chunks in flight");
-        cache_capacity = opt.memory_budget - stats.state_bytes - in_flight;
+        cache_capacity = opt.memory_budget - stats.minimum_budget;
     }
     const std::vector<uint32_t> leaves = h.leaves();
     double enorm = 0;
@@ -218,21 +230,47 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     // make any eviction policy miss every time).
     std::vector<Chunk> cache(first_part[ng]);
     uint64_t cached_bytes = 0;
+    // Decoded chunks shot and not kept, for the readers to decode into again (their buffers
+    // stay allocated: no allocation and no page faults per chunk). At most `window` of them.
+    std::vector<Chunk> spare;
+    std::mutex spare_mutex;
     struct Part { uint32_t group, part; };
     auto load = [&](Part q, bool& hit) -> Chunk {
         const uint64_t slot = first_part[q.group] + q.part;
         if (cache[slot]) { hit = true; return cache[slot]; }
         hit = false;
-        auto links = std::make_shared<std::vector<LinkRecord>>();
-        chunks.read(q.group, q.part, *links);
-        for (size_t k = 0; k < links->size(); ++k) {
-            const LinkRecord& l = (*links)[k];
-            if (l.receiver >= n || l.source >= n || !element[l.receiver] || source_group[l.source] != q.group)
-                throw std::runtime_error("source group " + std::to_string(q.group) + ", part " + std::to_string(q.part) +
-                                         ", link " + std::to_string(k) + " (receiver " + std::to_string(l.receiver) +
-                                         ", source " + std::to_string(l.source) + "): not a link of this group's"
-                                         " sources to an element of the hierarchy (a store of another hierarchy?)");
+        Chunk links;
+        {
+            std::lock_guard<std::mutex> lock(spare_mutex);
+            if (!spare.empty()) {
+                links = std::move(spare.back());
+                spare.pop_back();
+            }
         }
+        if (!links) links = std::make_shared<TransportLinks>();
+        chunks.read_transport(q.group, q.part, *links);
+        auto fail = [&](size_t k, uint32_t receiver, uint32_t source) {
+            throw std::runtime_error("source group " + std::to_string(q.group) + ", part " + std::to_string(q.part) +
+                                     ", link " + std::to_string(k) + " (receiver " + std::to_string(receiver) +
+                                     ", source " + std::to_string(source) + "): not a link of this group's"
+                                     " sources to an element of the hierarchy (a store of another hierarchy?)");
+        };
+        // Sources per run; receivers in range as a block (a loop the compiler vectorises).
+        // That a receiver is an element is not checked per link: a store of this hierarchy
+        // (the fingerprints say so) has no other, and another receiver is a wrong answer for a
+        // store of another hierarchy, never an access out of bounds.
+        for (size_t r = 0, k = 0; r < links->runs(); ++r) {
+            const uint32_t s = links->sources[r];
+            if (s >= n || source_group[s] != q.group) fail(k, links->receivers[k], s);
+            k = links->run_end[r];
+        }
+        const uint32_t* rc = links->receivers.data();
+        uint32_t out_of_range = 0;
+        for (size_t k = 0; k < links->size(); ++k) out_of_range |= uint32_t(rc[k] >= n);
+        if (out_of_range)
+            for (size_t r = 0, k = 0; r < links->runs(); ++r)
+                for (; k < links->run_end[r]; ++k)
+                    if (rc[k] >= n || !element[rc[k]]) fail(k, rc[k], links->sources[r]);
         return links;
     };
 
@@ -289,11 +327,11 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     const Part q = in.part;
                     (in.hit ? stats.chunk_hits : stats.chunk_reads) += 1;
                     auto t0 = std::chrono::steady_clock::now();
-                    uint32_t last = UINT32_MAX;
-                    RGB d;
-                    for (const LinkRecord& l : *in.links) {
-                        if (l.source != last) { last = l.source; d = b[l.source] - shot[l.source]; }
-                        gathered[l.receiver] += d * (double(l.coupling) / area[l.receiver]);
+                    const TransportLinks& t = *in.links;
+                    for (size_t r = 0, k = 0; r < t.runs(); ++r) {
+                        const RGB d = b[t.sources[r]] - shot[t.sources[r]];
+                        for (const size_t end = t.run_end[r]; k < end; ++k)
+                            gathered[t.receivers[k]] += d * (double(t.coupling[k]) / area[t.receivers[k]]);
                     }
                     // A group's sources shoot B - shot as it was when the group began; shot
                     // is updated after its last part.
@@ -304,14 +342,16 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                         ++stats.groups_shot;
                     }
                     stats.shoot_seconds += seconds_since(t0);
-                    stats.links_shot += in.links->size();
-                    const uint64_t bytes = in.links->size() * sizeof(LinkRecord);
+                    stats.links_shot += t.size();
+                    const uint64_t bytes = t.bytes();
                     if (!in.hit && cached_bytes + bytes <= cache_capacity) {
                         cache[first_part[q.group] + q.part] = in.links;
                         cached_bytes += bytes;
+                    } else if (!in.hit) {
+                        std::lock_guard<std::mutex> lock(spare_mutex);
+                        spare.push_back(in.links);
                     }
-                    stats.resident_links_peak =
-                        std::max<uint64_t>(stats.resident_links_peak, cached_bytes / sizeof(LinkRecord) + window * largest);
+                    stats.resident_bytes_peak = std::max<uint64_t>(stats.resident_bytes_peak, cached_bytes + in_flight);
                 }));
         shot_parts = 0;
         // What the pipeline took beyond shooting: the shooter waiting for chunks.

@@ -49,14 +49,18 @@ struct SourceGroups {
 constexpr uint64_t kChunkLinks = uint64_t(1) << 14;
 constexpr uint32_t kPartsPerGroup = 16384;
 
-// A round's links by source group, in parts; read() may be called from several threads at once.
+// A round's links by source group, in parts; the reads may be called from several threads at
+// once. read() gives whole links (for refinement and the gather); read_transport() only what
+// a solve needs (on disk, the chunk's transport section alone).
 class LinkChunks {
 public:
     virtual ~LinkChunks() = default;
     virtual size_t groups() const = 0;
     virtual size_t parts(size_t group) const = 0;
     virtual uint64_t links(size_t group, size_t part) const = 0;
+    virtual uint64_t transport_bytes(size_t group, size_t part) const = 0;  // decoded, in memory
     virtual void read(size_t group, size_t part, std::vector<LinkRecord>& out) const = 0;
+    virtual void read_transport(size_t group, size_t part, TransportLinks& out) const = 0;
     uint64_t links(size_t group) const;
     void read(size_t group, std::vector<LinkRecord>& out) const;   // all parts, in order
     uint64_t total_links() const;
@@ -64,7 +68,7 @@ public:
 
 class MemoryChunks : public LinkChunks {
 public:
-    explicit MemoryChunks(std::vector<std::vector<LinkRecord>> by_group) : chunks_(std::move(by_group)) {}
+    explicit MemoryChunks(std::vector<std::vector<LinkRecord>> by_group);
     using LinkChunks::links;
     using LinkChunks::read;
     size_t groups() const override { return chunks_.size(); }
@@ -72,13 +76,20 @@ public:
     uint64_t links(size_t g, size_t p) const override {
         return std::min<uint64_t>(kChunkLinks, chunks_[g].size() - p * kChunkLinks);
     }
+    uint64_t transport_bytes(size_t g, size_t p) const override {
+        return TransportLinks::bytes_for(links(g, p), runs_[g][p]);
+    }
     void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override {
         const auto begin = chunks_[g].begin() + p * kChunkLinks;
         out.assign(begin, begin + links(g, p));
     }
+    void read_transport(size_t g, size_t p, TransportLinks& out) const override {
+        out.assign(chunks_[g].data() + p * kChunkLinks, links(g, p));
+    }
 
 private:
     std::vector<std::vector<LinkRecord>> chunks_;
+    std::vector<std::vector<uint32_t>> runs_;  // per group and part: distinct sources
 };
 
 class StoreChunks : public LinkChunks {
@@ -89,7 +100,14 @@ public:
     size_t groups() const override { return parts_.size(); }
     size_t parts(size_t g) const override { return parts_[g].size(); }
     uint64_t links(size_t g, size_t p) const override { return reader_.chunk(parts_[g][p]).link_count; }
+    uint64_t transport_bytes(size_t g, size_t p) const override {
+        const ChunkEntry& e = reader_.chunk(parts_[g][p]);
+        return TransportLinks::bytes_for(e.link_count, e.run_count);
+    }
     void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override { reader_.read_chunk(parts_[g][p], out); }
+    void read_transport(size_t g, size_t p, TransportLinks& out) const override {
+        reader_.read_transport(parts_[g][p], out);
+    }
     const LinkStoreReader& reader() const { return reader_; }
 
 private:
@@ -99,10 +117,10 @@ private:
 
 // The order of a group's links wherever they are kept: by source, then receiver (the store's
 // order; in memory too, so that both give the same bits).
-void sort_group(std::vector<LinkRecord>& links);
+void sort_part(std::vector<LinkRecord>& links);
 
-// Writes a group's links as chunks of a store (sorted by sort_group, cut every kChunkLinks).
-void write_group(LinkStoreWriter& writer, uint32_t group, std::vector<LinkRecord>& links);
+// Writes part `part` of a group's links (at most kChunkLinks, sorted by sort_part) as a chunk.
+void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<LinkRecord>& links);
 
 // RGB per node as a flat array of doubles (for state files), and back; `what` names the
 // file in the error when the size does not match n nodes.
@@ -125,10 +143,12 @@ struct StreamingStats {
     uint64_t links_shot = 0;
     uint64_t chunk_reads = 0;         // chunks read (and decoded) from the source
     uint64_t chunk_hits = 0;          // chunks shot from memory (kept decoded)
-    uint64_t resident_links_peak = 0; // decoded links held at once, at most
+    uint64_t resident_bytes_peak = 0; // decoded chunks held at once (kept and in flight), at most
     uint64_t state_bytes = 0;         // per-node solver state
-    uint64_t largest_chunk_links = 0; // links of the largest chunk (2 per thread are in flight)
+    uint64_t largest_chunk_bytes = 0; // the largest decoded chunk (2 per thread are in flight)
     uint64_t chunks_in_flight = 0;
+    uint64_t minimum_budget = 0;      // state and chunks in flight: the smallest budget taken
+    uint64_t decoded_bytes = 0;       // every chunk decoded: what the links take in memory
     uint64_t checkpoints = 0;
     bool resumed = false;
     double read_wait_seconds = 0;     // time the shooter waited for the reader

@@ -230,6 +230,25 @@ TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
         EXPECT_TRUE(same_bits(out, chunks[k].links));
         EXPECT_EQ(out.data(), data);  // large enough already: not reallocated
     }
+    // What a solve reads: the transport section alone, the same links in runs of one source.
+    for (size_t k = 0; k < chunks.size(); ++k) {
+        TransportLinks t;
+        r.read_transport(k, t);
+        ASSERT_EQ(t.size(), chunks[k].links.size());
+        ASSERT_EQ(t.runs(), r.chunk(k).run_count);
+        EXPECT_EQ(t.bytes(), TransportLinks::bytes_for(r.chunk(k).link_count, r.chunk(k).run_count));
+        for (size_t run = 0, i = 0; run < t.runs(); ++run) {
+            ASSERT_GT(t.run_end[run], i);
+            for (; i < t.run_end[run]; ++i) {
+                const LinkRecord& l = chunks[k].links[i];
+                EXPECT_EQ(t.sources[run], l.source);
+                EXPECT_EQ(t.receivers[i], l.receiver);
+                EXPECT_EQ(std::memcmp(&t.coupling[i], &l.coupling, 4), 0);
+            }
+            EXPECT_TRUE(run + 1 == t.runs() || t.sources[run + 1] > t.sources[run]);
+        }
+        EXPECT_EQ(t.run_end.empty() ? 0u : t.run_end.back(), t.size());
+    }
     std::vector<LinkRecord> raw(chunks[0].links.size() + 5);
     EXPECT_EQ(r.read_chunk(0, raw.data(), raw.size()), chunks[0].links.size());
     raw.resize(chunks[0].links.size());
@@ -263,8 +282,11 @@ TEST_F(LinkStoreCorruption, EveryFlippedChunkByteIsDetected) {
     const size_t k = 1;
     const fs::path path = r.chunk_path(k);
     const std::vector<uint8_t> good = slurp(path);
-    ASSERT_GT(good.size(), kChunkHeaderSize + 100);
+    const size_t detail_begin = kChunkHeaderSize + r.chunk(k).transport_size;
+    ASSERT_GT(r.chunk(k).transport_size, 100u);
+    ASSERT_GT(r.chunk(k).detail_size, 100u);
     std::vector<LinkRecord> out;
+    TransportLinks t;
     for (size_t i = 0; i < good.size(); ++i) {
         std::vector<uint8_t> bad = good;
         bad[i] ^= uint8_t(1u << (i % 8));
@@ -273,11 +295,46 @@ TEST_F(LinkStoreCorruption, EveryFlippedChunkByteIsDetected) {
         ASSERT_TRUE(Contains(msg, path.filename().string() + ": chunk 1: ")) << "byte " << i;
         if (i >= 8 && i < 12) EXPECT_TRUE(Contains(msg, "format version"));
         if (i >= 12 && i < kChunkHeaderSize) EXPECT_TRUE(Contains(msg, "header checksum mismatch")) << i;
-        if (i >= kChunkHeaderSize) EXPECT_TRUE(Contains(msg, "payload checksum mismatch")) << i;
+        if (i >= kChunkHeaderSize && i < detail_begin) EXPECT_TRUE(Contains(msg, "transport checksum mismatch")) << i;
+        if (i >= detail_begin) EXPECT_TRUE(Contains(msg, "detail checksum mismatch")) << i;
+        // What a solve reads checks the whole file too, though it decodes only the transport.
+        const std::string tmsg = error_of([&] { r.read_transport(k, t); });
+        ASSERT_TRUE(Contains(tmsg, path.filename().string() + ": chunk 1: ")) << "byte " << i;
+        if (i >= detail_begin) EXPECT_TRUE(Contains(tmsg, "detail checksum mismatch")) << i;
     }
     spit(path, good);
     r.read_chunk(k, out);
     EXPECT_TRUE(same_bits(out, chunks[k].links));
+}
+
+// A solve reads each chunk many times: the first read checks the whole file, later ones the
+// header and the transport section (what they decode) and the file's size.
+TEST_F(LinkStoreCorruption, LaterTransportReadsCheckWhatTheyRead) {
+    small_store();
+    LinkStoreReader r(store().string());
+    const size_t k = 1;
+    const fs::path path = r.chunk_path(k);
+    const std::vector<uint8_t> good = slurp(path);
+    const size_t detail_begin = kChunkHeaderSize + r.chunk(k).transport_size;
+    TransportLinks t;
+    r.read_transport(k, t);  // whole: now known intact
+    for (size_t i : {size_t(20), kChunkHeaderSize + 3, detail_begin - 1}) {
+        std::vector<uint8_t> bad = good;
+        bad[i] ^= 0x40;
+        spit(path, bad);
+        EXPECT_TRUE(Contains(error_of([&] { r.read_transport(k, t); }), path.filename().string() + ": chunk 1: "))
+            << i;
+    }
+    std::vector<uint8_t> bad = good;
+    bad[detail_begin + 2] ^= 0x40;
+    spit(path, bad);
+    EXPECT_NO_THROW(r.read_transport(k, t));  // not read: the solve does not use it
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader(store().string()).read_transport(k, t); }),
+                         "detail checksum mismatch"));  // a new reader checks it again
+    std::vector<LinkRecord> out;
+    EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(k, out); }), "detail checksum mismatch"));
+    spit(path, std::vector<uint8_t>(good.begin(), good.end() - 1));
+    EXPECT_TRUE(Contains(error_of([&] { r.read_transport(k, t); }), "truncated"));
 }
 
 TEST_F(LinkStoreCorruption, EveryFlippedManifestByteIsDetected) {
@@ -305,10 +362,14 @@ TEST_F(LinkStoreCorruption, TruncatedOrExtendedChunk) {
                              path.string() + ": chunk 0: truncated: expected " + std::to_string(good.size()) +
                              " bytes, found " + std::to_string(size)));
     }
+    TransportLinks t;
+    spit(path, std::vector<uint8_t>(good.begin(), good.end() - 1));
+    EXPECT_TRUE(Contains(error_of([&] { r.read_transport(0, t); }), path.string() + ": chunk 0: truncated"));
     std::vector<uint8_t> longer = good;
     longer.push_back(0);
     spit(path, longer);
     EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }), "too long"));
+    EXPECT_TRUE(Contains(error_of([&] { r.read_transport(0, t); }), "too long"));
     fs::remove(path);
     EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }), path.string() + ": chunk 0: cannot open"));
 }
@@ -329,8 +390,14 @@ TEST_F(LinkStoreCorruption, ManifestEntryThatDisagreesWithTheChunkHeader) {
     expect(m, "header disagrees with the manifest: link count " + std::to_string(chunks[1].links.size()) +
                   " in the chunk, " + std::to_string(chunks[1].links.size() - 1) + " in the manifest");
     m = good;
-    m.chunks[1].checksum ^= 1;
-    expect(m, "header disagrees with the manifest: payload checksum");
+    m.chunks[1].transport_checksum ^= 1;
+    expect(m, "header disagrees with the manifest: transport checksum");
+    m = good;
+    m.chunks[1].detail_checksum ^= 1;
+    expect(m, "header disagrees with the manifest: detail checksum");
+    m = good;
+    m.chunks[1].run_count -= 1;
+    expect(m, "header disagrees with the manifest: run count");
     // A chunk numbered for another position: drop chunk 0 from the manifest.
     m = good;
     m.chunks.erase(m.chunks.begin());
@@ -394,7 +461,7 @@ TEST_F(LinkStoreCorruption, InvalidRecordsInAWellFormedChunk) {
 
 // Sizes read from a file are checked against hard limits before anything is allocated.
 TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
-    LinkStoreManifest m{{1, 2, 100, 50}, {{0, 10, 5, 40, 0}, {10, 20, 5, 40, 0}}};
+    LinkStoreManifest m{{1, 2, 100, 50}, {{0, 10, 5, 2, 40, 30, 0, 0}, {10, 20, 5, 1, 40, 30, 0, 0}}};
     const std::vector<uint8_t> good = encode_manifest(m);
     EXPECT_NO_THROW(decode_manifest(good.data(), good.size(), "m"));
     auto refused = [](std::vector<uint8_t> bytes, const std::string& what) {
@@ -408,19 +475,31 @@ TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
     refused(b, "4294967295 chunks, more than the maximum");
     b = good;
     b[20] = 3;  // three chunks claimed, two present
-    refused(b, "truncated: expected 240 bytes, found 176 for 3 chunks");
+    refused(b, "truncated: expected 312 bytes, found 224 for 3 chunks");
     b = good;
     put64(b.data() + 40 + 40, uint64_t(1) << 40);  // chunk 0's link count
     refused(b, "chunk 0 (chunk-00000000-0000000a.hlc): 1099511627776 links");
     b = good;
-    put64(b.data() + 40 + 48, uint64_t(1) << 40);  // chunk 0's compressed size
-    refused(b, "compressed size 1099511627776 impossible");
+    put64(b.data() + 40 + 56, uint64_t(1) << 40);  // chunk 0's transport section size
+    refused(b, "transport section size 1099511627776 impossible");
     b = good;
-    b[40 + 64 + 32] = 9;  // chunk 1 begins at 9, inside chunk 0
+    put64(b.data() + 40 + 56, 15);  // no more than the 3 raw coupling bytes of its 5 links
+    refused(b, "transport section size 15 impossible");
+    b = good;
+    put64(b.data() + 40 + 64, 0);  // chunk 0's detail section size
+    refused(b, "detail section size 0 impossible");
+    b = good;
+    put32(b.data() + 40 + 48, 6);  // chunk 0's run count: more runs than links
+    refused(b, "6 runs impossible for 5 links");
+    b = good;
+    put32(b.data() + 40 + 52, 1);
+    refused(b, "reserved field is not zero");
+    b = good;
+    b[40 + 88 + 32] = 9;  // chunk 1 begins at 9, inside chunk 0
     refused(b, "chunk 1 (chunk-00000009-00000014.hlc): the file name does not match");
     m.chunks[1].source_begin = 9;  // named consistently, still overlapping
     refused(encode_manifest(m), "overlaps");
-    m.chunks[1] = {20, 20, 5, 40, 0};
+    m.chunks[1] = {20, 20, 5, 1, 40, 30, 0, 0};
     refused(encode_manifest(m), "group range [20, 20) is empty");
     m.chunks.pop_back();
     m.info.element_count = 101;

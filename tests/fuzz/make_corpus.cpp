@@ -2,7 +2,7 @@
 // valid manifests and chunks in each mode, and a few broken ones.
 //
 // From the repository root:
-//   g++ -std=c++17 -Iformats tests/fuzz/make_corpus.cpp formats/linkstore.cpp -lzstd -lxxhash -o build/fuzz/make_corpus
+//   g++ -std=c++17 -Iformats tests/fuzz/make_corpus.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o build/fuzz/make_corpus
 //   build/fuzz/make_corpus tests/fuzz/corpus/linkstore
 #include <cstdio>
 #include <cstdlib>
@@ -73,7 +73,7 @@ int main(int argc, char** argv) {
     ChunkEntry ignored;
     const Bytes c_bad = encode_chunk(0, 8, 10, out_of_range.data(), out_of_range.size(), ignored);
     Bytes c_garbled = c1;
-    c_garbled[kChunkHeaderSize + 8] ^= 0x5a;  // zstd reports data corruption
+    c_garbled[kChunkHeaderSize + 8] ^= 0x5a;  // inside the LZ4 block
 
     save(dir, "manifest_valid", concat({{0}, manifest}));
     save(dir, "manifest_no_chunks", concat({{0}, manifest0}));
