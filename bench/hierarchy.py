@@ -36,6 +36,9 @@ CORNELL_SCENE = ROOT / "configs/scenes/cornell_box.usda"
 HALL = ROOT.parent / "shared/data/modern_hall/usd/modern_hall.usda"
 CACHE = Path(tempfile.gettempdir()) / "hirad_bench"
 LUM = np.array([0.2126, 0.7152, 0.0722])
+# Part of the reference cache's key: bumped when the engine's reference changes (2: points on
+# quads found at the patch's own coordinates; 1 put them up to 11 cm off on trapezoids).
+REFERENCE_VERSION = "2"
 OUTPUTS_OFF = {"usd": False, "lightmaps": {"enabled": False}, "preview": {"enabled": False}, "report": True}
 
 
@@ -259,7 +262,7 @@ def reference(model, points, normals, target_rel_se: float, first_paths: int, ma
     """Path-traced exitant radiance at the points: a first pass of first_paths paths per point,
     then, per point, more paths (in power-of-two groups) until its luminance's relative standard
     error is estimated at or below target_rel_se, at most max_paths in all. Cached on disk."""
-    h = hashlib.sha1(np.ascontiguousarray(points).tobytes() + key.encode()
+    h = hashlib.sha1(np.ascontiguousarray(points).tobytes() + key.encode() + REFERENCE_VERSION.encode()
                      + f"{target_rel_se},{first_paths},{max_paths},{seed}".encode()).hexdigest()[:16]
     CACHE.mkdir(exist_ok=True)
     path = CACHE / f"ref_{h}.npz"
@@ -326,8 +329,12 @@ def timed_bake(cfg_dict: dict, base_dir: Path):
 
 FLAT_LADDER = [(0.009, 0.12), (0.0027, 0.066), (0.0009, 0.038), (0.00026, 0.021)]
 EPSILONS = [1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6]
-# Beyond the brief's ladder: finer epsilon and a smaller min_area, to see where the curve goes.
-HIER_EXTRA = [(1e-6, 2e-4), (3e-6, 5e-5), (1e-6, 5e-5)]
+# Beyond the brief's ladder (epsilon, min_area, samples, tolerance): finer epsilon and a smaller
+# min_area, to see where the curve goes; then fewer samples per link estimate (4: the oracle
+# needs only a rough figure, and the final links are many) with a tighter solve.
+HIER_EXTRA = [(1e-6, 2e-4, 16, 1e-4), (3e-6, 5e-5, 16, 1e-4), (1e-6, 5e-5, 16, 1e-4),
+              (1e-4, 2e-4, 4, 1e-5), (3e-5, 2e-4, 4, 1e-5), (1e-5, 2e-4, 4, 1e-5), (3e-6, 2e-4, 4, 1e-5),
+              (2e-6, 5e-5, 4, 1e-5), (1e-6, 5e-5, 4, 1e-5), (5e-7, 5e-5, 4, 1e-5)]
 
 
 def edge_distance(points: np.ndarray, faces: np.ndarray, patches: dict) -> np.ndarray:
@@ -375,7 +382,7 @@ def cmd_accuracy(args) -> None:
     far = edge_distance(pts, face, patches)[keep] >= 0.05
     print(f"'far': the {far.sum()} points at least 5 cm from the edges of their face")
     curves = {}
-    print(f"{'method':<14}{'setting':<26}{'patches/leaves':>15}{'links':>12}{'wall s':>8}{'RMS err':>9}"
+    print(f"{'method':<14}{'setting':<30}{'patches/leaves':>15}{'links':>12}{'wall s':>8}{'RMS err':>9}"
           f"{'(- ref noise)':>14}{'mean err':>10}{'median|e|':>10}{'max |err|':>10}{'RMS far':>9}  load")
     for kind in ("flat", "hierarchical", "extra"):
         rows = []
@@ -386,7 +393,8 @@ def cmd_accuracy(args) -> None:
             elif kind == "hierarchical":
                 cfg, label = hier_config(CORNELL_SCENE, s, args.min_area), f"eps {s:g} min_area {args.min_area:g}"
             else:
-                cfg, label = hier_config(CORNELL_SCENE, *s), f"eps {s[0]:g} min_area {s[1]:g}"
+                cfg = hier_config(CORNELL_SCENE, s[0], s[1], samples=s[2], tolerance=s[3])
+                label = f"eps {s[0]:g} ma {s[1]:g} s{s[2]} t{s[3]:g}"
             ld = load()
             result, wall = timed_bake(cfg, ROOT)
             e = rel_errors(result.radiance_at(pts, nrm), ref["radiance"])[keep]
@@ -398,10 +406,10 @@ def cmd_accuracy(args) -> None:
             rms_g = float(np.sqrt(np.mean(eg ** 2)))
             rms_c = float(np.sqrt(max(0.0, np.mean(e ** 2) - np.mean(rel_se ** 2))))
             c = result.report["counts"]
-            print(f"{kind:<14}{label:<26}{c['patches']:>15,}{c['links']:>12,}{wall:>8.2f}{rms:>9.2%}{rms_c:>14.2%}"
+            print(f"{kind:<14}{label:<30}{c['patches']:>15,}{c['links']:>12,}{wall:>8.2f}{rms:>9.2%}{rms_c:>14.2%}"
                   f"{np.mean(e):>+10.2%}{np.median(np.abs(e)):>10.2%}{np.abs(e).max():>10.2%}"
                   f"{np.sqrt(np.mean(e[far] ** 2)):>9.2%}  {ld}")
-            print(f"{'':<14}{'  final gather':<26}{'':>15}{'':>12}{wall + t_gather:>8.2f}{rms_g:>9.2%}{'':>14}"
+            print(f"{'':<14}{'  final gather':<30}{'':>15}{'':>12}{wall + t_gather:>8.2f}{rms_g:>9.2%}{'':>14}"
                   f"{np.mean(eg):>+10.2%}{np.median(np.abs(eg)):>10.2%}{np.abs(eg).max():>10.2%}"
                   f"{np.sqrt(np.mean(eg[far] ** 2)):>9.2%}  (gather {t_gather:.2f} s)")
             rows.append((wall, rms, wall + t_gather, rms_g))

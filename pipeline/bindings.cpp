@@ -736,8 +736,7 @@ public:
                 throw std::invalid_argument("point " + std::to_string(q) + ": no surface within " +
                                             std::to_string(max_distance) + " m");
             ids[q] = hit.patch;
-            // Embree's (u, v) is the patch's own (s, t): barycentric on triangles, bilinear on
-            // parallelograms.
+            // The closest point's (s, t) in the patch's own parametrisation (Patch::point).
             st[2 * q] = hit.u;
             st[2 * q + 1] = hit.v;
         }
@@ -866,9 +865,14 @@ private:
         d["balance_splits"] = balanced;
         // The hierarchy and its links as plain arrays (for tests and inspection).
         std::vector<int32_t> lr(links.size()), ls(links.size()), parent(h.nodes.size()), leaf_node(leaves.size());
-        std::vector<double> lg(links.size()), node_area(h.nodes.size());
+        std::vector<double> lg(links.size()), lu(links.size()), node_area(h.nodes.size());
         std::vector<uint8_t> node_cluster(h.nodes.size());
-        for (size_t k = 0; k < links.size(); ++k) { lr[k] = links[k].receiver; ls[k] = links[k].source; lg[k] = links[k].coupling; }
+        for (size_t k = 0; k < links.size(); ++k) {
+            lr[k] = links[k].receiver;
+            ls[k] = links[k].source;
+            lg[k] = links[k].coupling;
+            lu[k] = links[k].unoccluded;
+        }
         for (size_t i = 0; i < h.nodes.size(); ++i) {
             parent[i] = h.nodes[i].parent == kNoNode ? -1 : static_cast<int32_t>(h.nodes[i].parent);
             node_area[i] = h.nodes[i].area;
@@ -878,6 +882,7 @@ private:
         d["link_receiver"] = to_numpy(std::move(lr), {links.size()});
         d["link_source"] = to_numpy(std::move(ls), {links.size()});
         d["link_coupling"] = to_numpy(std::move(lg), {links.size()});
+        d["link_unoccluded"] = to_numpy(std::move(lu), {links.size()});
         d["node_parent"] = to_numpy(std::move(parent), {h.nodes.size()});
         d["node_area"] = to_numpy(std::move(node_area), {h.nodes.size()});
         d["node_cluster"] = to_numpy(std::move(node_cluster), {h.nodes.size()});

@@ -26,6 +26,25 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     // uneven (the floor under a block), the mean B_S times the visible fraction would count
     // the hidden dark part twice.
     const Node& node = h_.nodes[link.source];
+    if (!node.leaf() && !node.cluster) {
+        // x close to S compared with its size: the kernel is far from uniform over S, and
+        // the radiosity under it may vary (a floor at the foot of a wall). Gather from S's
+        // children, each with its own exact form factor and radiosity.
+        double gap2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = std::max({0.0, node.lo[k] - x[k], x[k] - node.hi[k]});
+            gap2 += d * d;
+        }
+        if (std::sqrt(gap2) < node.diagonal()) {
+            RGB sum;
+            for (uint32_t c = 0; c < node.child_count; ++c) {
+                Link child = link;
+                child.source = node.first_child + c;
+                sum += element_transfer(child, x, n, rng);
+            }
+            return sum;
+        }
+    }
     const Patch& s = node.shape;
     const double f = point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
     if (f <= 0) return {};

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "patches.h"
+
 namespace hirad {
 
 namespace {
@@ -21,22 +23,6 @@ bool barycentric(const Vec2& a, const Vec2& b, const Vec2& c, const Vec2& p, dou
     wc = cross2(sub(b, a), sub(p, a)) / d;
     const double eps = -1e-9;
     return wb >= eps && wc >= eps && 1 - wb - wc >= eps;
-}
-
-// (s, t) of p in the bilinear quad q (Newton iterations from the triangle estimate).
-void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t) {
-    for (int it = 0; it < 8; ++it) {
-        Vec2 f{(1 - s) * (1 - t) * q[0].u + s * (1 - t) * q[1].u + s * t * q[2].u + (1 - s) * t * q[3].u - p.u,
-               (1 - s) * (1 - t) * q[0].v + s * (1 - t) * q[1].v + s * t * q[2].v + (1 - s) * t * q[3].v - p.v};
-        Vec2 ds{(1 - t) * (q[1].u - q[0].u) + t * (q[2].u - q[3].u), (1 - t) * (q[1].v - q[0].v) + t * (q[2].v - q[3].v)};
-        Vec2 dt{(1 - s) * (q[3].u - q[0].u) + s * (q[2].u - q[1].u), (1 - s) * (q[3].v - q[0].v) + s * (q[2].v - q[1].v)};
-        double det = cross2(ds, dt);
-        if (std::fabs(det) < 1e-30) break;
-        s -= cross2(f, dt) / det;
-        t -= cross2(ds, f) / det;
-    }
-    s = std::clamp(s, 0.0, 1.0);
-    t = std::clamp(t, 0.0, 1.0);
 }
 
 }  // namespace

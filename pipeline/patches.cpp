@@ -14,6 +14,41 @@ Vec3 Patch::point(double s, double t) const {
     return p[0] + (p[1] - p[0]) * s + (p[2] - p[0]) * t;
 }
 
+void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t) {
+    auto cross2 = [](const Vec2& a, const Vec2& b) { return a.u * b.v - a.v * b.u; };
+    for (int it = 0; it < 8; ++it) {
+        Vec2 f{(1 - s) * (1 - t) * q[0].u + s * (1 - t) * q[1].u + s * t * q[2].u + (1 - s) * t * q[3].u - p.u,
+               (1 - s) * (1 - t) * q[0].v + s * (1 - t) * q[1].v + s * t * q[2].v + (1 - s) * t * q[3].v - p.v};
+        Vec2 ds{(1 - t) * (q[1].u - q[0].u) + t * (q[2].u - q[3].u), (1 - t) * (q[1].v - q[0].v) + t * (q[2].v - q[3].v)};
+        Vec2 dt{(1 - s) * (q[3].u - q[0].u) + s * (q[2].u - q[1].u), (1 - s) * (q[3].v - q[0].v) + s * (q[2].v - q[1].v)};
+        double det = cross2(ds, dt);
+        if (std::fabs(det) < 1e-30) break;
+        s -= cross2(f, dt) / det;
+        t -= cross2(ds, f) / det;
+    }
+    s = std::clamp(s, 0.0, 1.0);
+    t = std::clamp(t, 0.0, 1.0);
+}
+
+Vec2 Patch::coordinates(const Vec3& x, Vec2 guess) const {
+    // In a frame of the patch's plane: the corners and x projected onto it.
+    const Vec3 e1 = normalize(p[1] - p[0]), e2 = cross(normal, e1);
+    auto flat = [&](const Vec3& y) { return Vec2{dot(y - p[0], e1), dot(y - p[0], e2)}; };
+    const Vec2 at = flat(x);
+    if (nv == 3) {
+        const Vec2 b = flat(p[1]), c = flat(p[2]);
+        const double d = b.u * c.v - b.v * c.u;
+        if (std::fabs(d) < 1e-30) return {0, 0};
+        double s = (at.u * c.v - at.v * c.u) / d, t = (b.u * at.v - b.v * at.u) / d;
+        s = std::clamp(s, 0.0, 1.0);
+        t = std::clamp(t, 0.0, 1.0 - s);
+        return {s, t};
+    }
+    double s = guess.u, t = guess.v;
+    inverse_bilinear({flat(p[0]), flat(p[1]), flat(p[2]), flat(p[3])}, at, s, t);
+    return {s, t};
+}
+
 namespace {
 
 // The point i/n of the way from a to b, computed the same way whichever face asks and

@@ -31,7 +31,15 @@ struct Patch {
     // A point on the patch from coordinates in the unit square (quads: bilinear; triangles:
     // the square folded onto the triangle so stratified squares stay stratified).
     Vec3 point(double s, double t) const;
+    // The inverse for a point x on the patch (its projection onto the patch's plane, for a
+    // point off it): the (s, t) with point(s, t) = x, clamped to the square. `guess` starts
+    // the Newton iterations of quads.
+    Vec2 coordinates(const Vec3& x, Vec2 guess = {0.5, 0.5}) const;
 };
+
+// (s, t) of p in the bilinear quad q: corner 0 at (0, 0), 1 at (1, 0), 2 at (1, 1), 3 at
+// (0, 1). Newton iterations from the (s, t) given; clamped to [0, 1].
+void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t);
 
 struct PatchSet {
     std::vector<Patch> patches;

@@ -28,6 +28,30 @@ bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
     return std::sqrt(gap2) < 0.5 * size;
 }
 
+bool Refiner::may_face(uint32_t a, uint32_t b) const {
+    // Whether light can pass between two nodes at all: some corner of each in front of the
+    // other's plane. A cluster holds surfaces facing every way: only its box is known, which
+    // must reach in front of an element's plane (tiles of one floor never light each other).
+    const Node& na = h_.nodes[a];
+    const Node& nb = h_.nodes[b];
+    auto in_front = [](const Patch& of, const Patch& plane) {
+        for (int k = 0; k < of.nv; ++k)
+            if (dot(of.p[k] - plane.p[0], plane.normal) > 1e-9) return true;
+        return false;
+    };
+    auto box_in_front = [](const Node& box, const Patch& plane) {
+        for (int k = 0; k < 8; ++k) {
+            const Vec3 c{k & 1 ? box.hi.x : box.lo.x, k & 2 ? box.hi.y : box.lo.y, k & 4 ? box.hi.z : box.lo.z};
+            if (dot(c - plane.p[0], plane.normal) > 1e-9) return true;
+        }
+        return false;
+    };
+    if (na.cluster && nb.cluster) return true;
+    if (na.cluster) return box_in_front(na, nb.shape);
+    if (nb.cluster) return box_in_front(nb, na.shape);
+    return in_front(nb.shape, na.shape) && in_front(na.shape, nb.shape);
+}
+
 Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     Link link;
     link.receiver = r;
@@ -116,12 +140,17 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
     // stay clusters: the estimate sees each source surface with its own normal.
     if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
     if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
-    if (link.unoccluded <= 0) return Action::Drop;
+    // No sample pair faced both ways: dropped only when the two cannot face each other or
+    // neither end can split; else split, since a few samples miss the part of a large pair
+    // that does face (dropping them for good biased the transport dark).
+    if (link.unoccluded <= 0)
+        return (receiver_splits || source_splits) && may_face(link.receiver, link.source) ? split_larger()
+                                                                                         : Action::Drop;
     // Partly visible links refine towards the shadow boundary, and a link none of whose rays
     // arrived is only dropped when even its unoccluded transfer is negligible.
     const double error = link_error(link, peak);
     // Kept whatever its own rays saw: dropping the links none of whose oracle rays arrived
-    // would bias the transport dark; a link whose transport estimate is zero is dropped later.
+    // would bias the transport dark.
     if (error <= opt_.epsilon || (!receiver_splits && !source_splits)) return Action::Keep;
     return split_larger();
 }
@@ -216,7 +245,10 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
             const Link& l = frontier[k];
             switch (action[k]) {
                 case Action::Keep:
-                    if (!(l.coupling > 0)) break;
+                    // A zero transport estimate with light that could pass is kept: later
+                    // rounds may split it, and the final gather evaluates it again at each
+                    // point (dropping it biased the transport dark).
+                    if (!(l.coupling > 0) && !(l.unoccluded > 0)) break;
                     kept.push_back(l);
                     kept.back().error = static_cast<float>(link_error(l, peak));
                     break;

@@ -81,6 +81,7 @@ private:
     Action decide(const Link& link, const std::vector<double>& peak) const;
     double link_error(const Link& link, const std::vector<double>& peak) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
+    bool may_face(uint32_t a, uint32_t b) const;
     Hierarchy& h_;
     std::vector<double> peak_;   // per node: the brightest luminance below it
     const Visibility& vis_;

@@ -51,8 +51,7 @@ bool point_query(RTCPointQueryFunctionArguments* args) {
     auto* st = static_cast<PointQueryState*>(args->userPtr);
     const Patch& patch = (*st->patches)[args->primID];
     if (st->use_normal && dot(patch.normal, st->normal) < 0.5) return false;
-    // Quads as two triangles (0,1,2) and (0,2,3); (u,v) expressed in Embree's quad
-    // parametrisation so callers interpolate the same way for rays and point queries.
+    // Quads as two triangles (0,1,2) and (0,2,3) for the distance.
     double v, w, u_quad = 0, v_quad = 0;
     Vec3 q = closest_on_triangle(st->point, patch.p[0], patch.p[1], patch.p[2], v, w);
     if (patch.nv == 3) { u_quad = v; v_quad = w; }
@@ -65,6 +64,13 @@ bool point_query(RTCPointQueryFunctionArguments* args) {
     double d = length(q - st->point);
     if (d < st->best_distance) {
         st->best_distance = d;
+        // Quads: the closest point's coordinates in the patch's own bilinear map (the two
+        // triangles' coordinates agree with it only on parallelograms).
+        if (patch.nv == 4) {
+            const Vec2 c = patch.coordinates(q, {u_quad, v_quad});
+            u_quad = c.u;
+            v_quad = c.v;
+        }
         st->best = {static_cast<int32_t>(args->primID), d, u_quad, v_quad};
         args->query->radius = static_cast<float>(d);
         return true;

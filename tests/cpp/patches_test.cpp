@@ -1,5 +1,6 @@
 // mesh_patches: patches tile their face within the size limits and weld along shared edges.
 #include "patches.h"
+#include "visibility.h"
 
 #include <gtest/gtest.h>
 
@@ -278,6 +279,41 @@ TEST(InterpolateCorners, BilinearOnQuadsBarycentricOnTriangles) {
     EXPECT_DOUBLE_EQ(t.x, 0.25);
     EXPECT_DOUBLE_EQ(t.y, 0.5);
     EXPECT_DOUBLE_EQ(t.z, 2.0);
+}
+
+// Patch::coordinates inverts Patch::point, on trapezoids (not parallelograms) and triangles.
+TEST(PatchCoordinates, InvertPointOnEveryShape) {
+    for (const Case& c : cases()) {
+        const PatchSet set = mesh_patches(scene_of({c.face}), c.options);
+        for (const Patch& p : set.patches)
+            for (double s = 0.05; s < 1; s += 0.15)
+                for (double t = 0.05; t < 1; t += 0.15) {
+                    if (p.nv == 3 && s + t > 1) continue;
+                    const Vec3 x = p.point(s, t);
+                    const Vec2 st = p.coordinates(x);
+                    EXPECT_NEAR(st.u, s, 1e-9) << c.name;
+                    EXPECT_NEAR(st.v, t, 1e-9) << c.name;
+                }
+    }
+}
+
+// The closest point's coordinates are the patch's own: point(u, v) is the point queried.
+// (The two triangles' barycentric coordinates differ from them by several percent of the
+// patch on a trapezoid.)
+TEST(PatchCoordinates, ClosestPointGivesThePatchsOwnCoordinates) {
+    Patch trap;
+    trap.nv = 4;
+    trap.p = {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{0.7, 0.4, 0}, Vec3{0.1, 0.4, 0}};
+    trap.normal = {0, 0, 1};
+    const std::vector<Patch> patches{trap};  // the scene keeps a reference to its patches
+    const Visibility vis(patches);
+    for (double s = 0.1; s < 1; s += 0.2)
+        for (double t = 0.1; t < 1; t += 0.2) {
+            const Vec3 x = trap.point(s, t);
+            const RayHit hit = vis.closest_point(x + Vec3{0, 0, 0.01}, {0, 0, 1}, 1.0);
+            ASSERT_EQ(hit.patch, 0);
+            EXPECT_LT(length(trap.point(hit.u, hit.v) - x), 1e-6) << s << " " << t;
+        }
 }
 
 }  // namespace
