@@ -4,9 +4,10 @@
 //
 // Round 1 links every source group from the root (the link from the whole scene to the
 // group's subtree, refined down); round r + 1 re-judges round r's links group by group with
-// the radiosity of round r's solve. A group's links go to disk as soon as it is refined, so
-// link generation holds one group's links at a time. Rounds stop when nothing splits or at
-// max_rounds.
+// the radiosity of round r's solve, a stored part at a time. Refinement judges the links
+// kChunkLinks at a time, depth first, and the kept ones go to disk a part (kChunkLinks) at a
+// time, so link generation holds a bounded number of links, not a group's. Rounds stop when
+// nothing splits or at max_rounds.
 //
 // The store directory holds
 //   round-<r>/        the links of round r (formats/linkstore), the last two rounds kept

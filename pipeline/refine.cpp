@@ -140,12 +140,23 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
     // stay clusters: the estimate sees each source surface with its own normal.
     if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
     if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
-    // No sample pair faced both ways: dropped only when the two cannot face each other or
-    // neither end can split; else split, since a few samples miss the part of a large pair
-    // that does face (dropping them for good biased the transport dark).
-    if (link.unoccluded <= 0)
-        return (receiver_splits || source_splits) && may_face(link.receiver, link.source) ? split_larger()
-                                                                                         : Action::Drop;
+    // No sample pair faced both ways. A few samples miss the part of a large pair that does
+    // face (dropping all such links for good biased the transport dark), so the link is split
+    // when the two can face each other and the most it could carry exceeds epsilon: G is at
+    // most min(A_R, A_S) (F <= 1, reciprocity) and A_R A_S / (pi d^2) at a distance d apart.
+    if (link.unoccluded <= 0) {
+        if (!(receiver_splits || source_splits) || !may_face(link.receiver, link.source)) return Action::Drop;
+        const Node& nr = h_.nodes[link.receiver];
+        const Node& ns = h_.nodes[link.source];
+        double gap2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = std::max({0.0, nr.lo[k] - ns.hi[k], ns.lo[k] - nr.hi[k]});
+            gap2 += d * d;
+        }
+        double bound = std::min(nr.area, ns.area);
+        if (gap2 > 0) bound = std::min(bound, nr.area * ns.area / (kPi * gap2));
+        return peak[link.source] * bound > opt_.epsilon ? split_larger() : Action::Drop;
+    }
     // Partly visible links refine towards the shadow boundary, and a link none of whose rays
     // arrived is only dropped when even its unoccluded transfer is negligible.
     const double error = link_error(link, peak);
@@ -292,7 +303,7 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
             stack.push_back(std::move(b));
             end = begin;
         }
-        held_peak = std::max<uint64_t>(held_peak, waiting + kept.size());
+        held_peak = std::max<uint64_t>(held_peak, frontier.size() + waiting + kept.size());
         flush(false);
     }
     flush(true);

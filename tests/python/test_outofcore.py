@@ -146,6 +146,21 @@ def _final_round(store: Path) -> Path:
     return rounds[-1]
 
 
+def test_link_generation_holds_a_bounded_part_of_the_links(tmp_path):
+    # The whole Cornell box as one source group: link generation takes the links to judge a
+    # batch at a time, depth first, and hands the kept ones to the store a part at a time,
+    # so it never holds the group's links at once (it did: all of them, here).
+    store = tmp_path / "links"
+    r = solve(cornell_model(), store, epsilon=3e-6, group_faces=32)
+    assert r["source_groups"] == 1 and r["links"] > 400_000
+    assert r["peak_refine_links"] < r["links"] / 3
+    # The group's links are parts of 16,384 (the last one shorter), the same as in memory.
+    chunks = sorted(_final_round(store).glob("chunk-*.hlc"))
+    assert len(chunks) == -(-r["links"] // 16384)
+    memory = solve(cornell_model(), "", epsilon=3e-6, group_faces=32)
+    assert np.array_equal(memory["radiosity"], r["radiosity"])
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "manifest"])
 def test_damaged_store_is_detected_with_the_file_named(damage, tmp_path):
     store = tmp_path / "links"
