@@ -141,11 +141,14 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
     if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
     if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
     // No sample pair faced both ways. A few samples miss the part of a large pair that does
-    // face (dropping all such links for good biased the transport dark), so the link is split
-    // when the two can face each other and the most it could carry exceeds epsilon: G is at
-    // most min(A_R, A_S) (F <= 1, reciprocity) and A_R A_S / (pi d^2) at a distance d apart.
+    // face: dropping such links for good biased the transport dark (the kept links' transport
+    // comes from an independent estimate, which would not have been zero). So when the two
+    // can face each other, the link is split if the most it could carry exceeds epsilon (G is
+    // at most min(A_R, A_S), by F <= 1 and reciprocity, and A_R A_S / (pi d^2) at a distance
+    // d apart), and kept otherwise, with its independent transport estimate like any other.
     if (link.unoccluded <= 0) {
-        if (!(receiver_splits || source_splits) || !may_face(link.receiver, link.source)) return Action::Drop;
+        if (!may_face(link.receiver, link.source)) return Action::Drop;
+        if (!receiver_splits && !source_splits) return Action::Keep;
         const Node& nr = h_.nodes[link.receiver];
         const Node& ns = h_.nodes[link.source];
         double gap2 = 0;
@@ -155,7 +158,7 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
         }
         double bound = std::min(nr.area, ns.area);
         if (gap2 > 0) bound = std::min(bound, nr.area * ns.area / (kPi * gap2));
-        return peak[link.source] * bound > opt_.epsilon ? split_larger() : Action::Drop;
+        return peak[link.source] * bound > opt_.epsilon ? split_larger() : Action::Keep;
     }
     // Partly visible links refine towards the shadow boundary, and a link none of whose rays
     // arrived is only dropped when even its unoccluded transfer is negligible.
