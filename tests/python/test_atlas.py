@@ -577,3 +577,22 @@ def test_manifest(tmp_path):
     assert floor["scaleOffset"] == [1.0, 1.0, 0.0, 0.0] and floor["uvSource"] == "generated"
     assert box["texelsPerMetre"] == pytest.approx(T)
     assert sorted(x.name for x in tmp_path.iterdir()) == ["lightmaps.json"]
+
+
+def _raise_value_error():
+    raise ValueError("bad chart")
+
+
+def _die_without_result():
+    import os
+    os._exit(3)
+
+
+def test_isolated_returns_the_childs_result_and_reports_its_failures():
+    # xatlas runs in a forked child (its scheduler can hang when an Atlas is destroyed); the
+    # child's result, its exception and its death without a result must all reach the caller.
+    assert A._isolated(np.add, np.arange(3), 1).tolist() == [1, 2, 3]
+    with pytest.raises(RuntimeError, match="ValueError: bad chart"):
+        A._isolated(_raise_value_error)
+    with pytest.raises(RuntimeError, match="ended without a result"):
+        A._isolated(_die_without_result)

@@ -38,6 +38,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import pickle
+import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Literal, Sequence
@@ -317,12 +319,72 @@ def chart_area_bound(area: np.ndarray, texels_per_metre: float) -> float:
     return float(np.clip(target, mean * _CHART_TRIANGLES[0], mean * _CHART_TRIANGLES[1]))
 
 
+def _isolated(fn, *args):
+    """fn(*args) computed in a forked child process, its result returned through a pipe.
+
+    xatlas's task scheduler can lose the wake-up it sends its worker threads when an Atlas is
+    destroyed (the notify is sent without the worker's mutex, so it can fall between the
+    worker's predicate check and its wait), and the destructor then joins that worker
+    forever. The child never destroys its Atlas: it writes the result and leaves with
+    os._exit, which runs no destructors. A child that dies without a result is an error."""
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: compute, send, leave without any teardown
+        os.close(read_fd)
+        code = 0
+        try:
+            try:
+                payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
+            except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
+                payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
+            with os.fdopen(write_fd, "wb") as out:
+                out.write(payload)
+        except BaseException:  # noqa: BLE001 - the parent sees the missing result
+            code = 1
+        os._exit(code)
+    os.close(write_fd)
+    try:
+        with os.fdopen(read_fd, "rb") as result:
+            data = result.read()
+    except BaseException:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        raise
+    _, status = os.waitpid(pid, 0)
+    if not data:
+        raise RuntimeError(f"the xatlas child process ended without a result (wait status {status})")
+    ok, value = pickle.loads(data)
+    if not ok:
+        raise value
+    return value
+
+
+def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding):
+    """xatlas charts and packs one mesh: (width, height, vertex map, indices, uv, chart of
+    each output vertex). Run through _isolated."""
+    import xatlas
+
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(positions, faces)
+    co = xatlas.ChartOptions()
+    co.max_chart_area = max_chart_area
+    co.max_boundary_length = max_boundary_length
+    po = xatlas.PackOptions()
+    po.texels_per_unit = density
+    po.padding = padding
+    po.resolution = 0
+    po.bilinear = False
+    po.blockAlign = False  # it rounds chart sizes up to 4 texels: a density change
+    atlas.generate(co, po)
+    vmap, idx, uv = atlas[0]
+    _, chart_of_vertex = atlas.get_mesh_vertex_assignment(0)
+    return int(atlas.width), int(atlas.height), vmap, idx, uv, chart_of_vertex
+
+
 def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padding: int, limit: int,
                      name: str, warnings: list[str]) -> _Block:
     """xatlas charts and packs the mesh into a block of its own at the given density; if the
     block is larger than a page, the density is lowered and it is done again."""
-    import xatlas
-
     area3 = _areas3(p, t)
     good = area3 > 0
     if not good.any():
@@ -338,28 +400,16 @@ def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padd
     faces = t.astype(np.uint32)
     pack_padding = (padding + 1) // 2  # xatlas pads each chart, so gaps are twice this
     for _attempt in range(8):
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(centred, faces)
-        co = xatlas.ChartOptions()
         # Bound chart growth twice: by area (cost, see chart_area_bound) and by boundary
         # length, so a chart's extent (at most half its perimeter) fits a page.
-        co.max_chart_area = chart_area_bound(area3, density)
-        co.max_boundary_length = float(2.0 * 0.95 * (limit - 2) / density)
-        po = xatlas.PackOptions()
-        po.texels_per_unit = float(density)
-        po.padding = int(pack_padding)
-        po.resolution = 0
-        po.bilinear = False
-        po.blockAlign = False  # it rounds chart sizes up to 4 texels: a density change
-        atlas.generate(co, po)
-        w, h = int(atlas.width), int(atlas.height)
+        w, h, vmap, idx, uv, chart_of_vertex = _isolated(
+            _xatlas_chart, centred, faces, chart_area_bound(area3, density),
+            float(2.0 * 0.95 * (limit - 2) / density), float(density), int(pack_padding))
         if max(w, h) <= limit:
             break
         density *= (limit - 1) / max(w, h) * 0.99
     else:
         raise RuntimeError(f"xatlas could not fit the mesh in {limit} texels")
-    vmap, idx, uv = atlas[0]
-    _, chart_of_vertex = atlas.get_mesh_vertex_assignment(0)
     idx = idx.astype(np.int64)
     if idx.shape != t.shape or not np.array_equal(vmap[idx], t):
         raise RuntimeError("xatlas reordered faces or corners; cannot map its UVs back")
@@ -497,26 +547,32 @@ def _pack_rigid(uvt, islands, padding):
 
 
 def _pack_xatlas(uvt, islands, padding):
-    import xatlas
-
     corners = uvt.reshape(-1, 2)
     # One vertex per (corner uv, island): xatlas finds charts by shared vertices, and the
     # island id as material keeps islands that only touch apart.
     keys = np.concatenate([corners, np.repeat(islands, 3)[:, None].astype(np.float64)], axis=1)
     verts, inverse = np.unique(keys, axis=0, return_inverse=True)
     origin = verts[:, :2].min(axis=0)
+    out, idx, w, h = _isolated(_xatlas_pack, (verts[:, :2] - origin).astype(np.float32),
+                               inverse.reshape(-1, 3).astype(np.uint32),
+                               islands.astype(np.uint32).reshape(-1, 1), int((padding + 1) // 2))
+    return out.astype(np.float64)[idx.astype(np.int64)] * np.array([w, h], float), w, h
+
+
+def _xatlas_pack(uv, faces, materials, padding):
+    """xatlas packs existing UV islands: (uv, indices, width, height). Run through _isolated."""
+    import xatlas
+
     a = xatlas.Atlas()
-    a.add_uv_mesh((verts[:, :2] - origin).astype(np.float32), inverse.reshape(-1, 3).astype(np.uint32),
-                  islands.astype(np.uint32).reshape(-1, 1))
+    a.add_uv_mesh(uv, faces, materials)
     po = xatlas.PackOptions()
     po.texels_per_unit = 1.0
-    po.padding = int((padding + 1) // 2)
+    po.padding = padding
     po.resolution = 0
     po.blockAlign = False
     a.generate(xatlas.ChartOptions(), po)
     _, idx, out = a[0]
-    w, h = int(a.width), int(a.height)
-    return out.astype(np.float64)[idx.astype(np.int64)] * np.array([w, h], float), w, h
+    return out, idx, int(a.width), int(a.height)
 
 
 def _box_islands(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
