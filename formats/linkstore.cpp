@@ -2,8 +2,10 @@
 
 #include <fcntl.h>
 #include <sys/stat.h>
+#include <sys/uio.h>
 #include <unistd.h>
 #include <lz4.h>
+#define XXH_STATIC_LINKING_ONLY  // XXH3_state_t on the stack
 #include <xxhash.h>
 #include <zstd.h>
 
@@ -18,6 +20,9 @@
 #include <memory>
 #include <stdexcept>
 
+// The transport section's per-link arrays are read and written in place.
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the link store needs a little-endian machine");
+
 namespace hirad {
 namespace {
 
@@ -30,7 +35,6 @@ constexpr size_t kManifestHeaderSize = 40;
 constexpr size_t kManifestEntrySize = 88;
 constexpr size_t kNameSize = 32;
 constexpr size_t kDetailBytesPerLink = 12;  // three words per link
-constexpr size_t kRawCouplingPlanes = 3;     // the coupling's byte planes stored uncompressed
 constexpr int kZstdLevel = 1;          // level 3 saves ~1 % of the bytes, compressing ~30 % slower
 constexpr int kZstdWindowLogMax = 24;  // bounds the decoder's memory whatever a frame asks for
 const char* const kManifestName = "manifest";
@@ -168,6 +172,7 @@ std::array<uint8_t, kChunkHeaderSize> chunk_header(const ChunkEntry& e, uint32_t
     put32(&h[20], e.source_end);
     put64(&h[24], e.link_count);
     put32(&h[32], e.run_count);
+    put32(&h[36], e.escape_count);
     put64(&h[40], e.transport_size);
     put64(&h[48], e.detail_size);
     put64(&h[56], e.transport_checksum);
@@ -262,17 +267,15 @@ size_t compress_lz4(const uint8_t* raw, size_t n, std::vector<uint8_t>& out) {
     return size_t(r);
 }
 
-// The inverse, into a per-thread buffer: must give exactly `raw_size` bytes. LZ4's safe
-// decoder never reads or writes outside the buffers it is given, whatever the input.
-const uint8_t* decompress_lz4(const uint8_t* data, size_t size, size_t raw_size, const std::string& path, size_t k) {
-    uint8_t* raw = byte_scratch(kSectionBytes, raw_size);
-    const int r = LZ4_decompress_safe(reinterpret_cast<const char*>(data), reinterpret_cast<char*>(raw), int(size),
+// The inverse, into `raw`: must give exactly `raw_size` bytes. LZ4's safe decoder never
+// reads or writes outside the buffers it is given, whatever the input.
+void decompress_lz4(const uint8_t* data, size_t size, void* raw, size_t raw_size, const std::string& path, size_t k) {
+    const int r = LZ4_decompress_safe(reinterpret_cast<const char*>(data), static_cast<char*>(raw), int(size),
                                       int(raw_size));
     if (r < 0) chunk_fail(path, k, "corrupt compressed transport section (lz4)");
     if (size_t(r) != raw_size)
         chunk_fail(path, k, "transport section decompresses to " + std::to_string(r) + " bytes, expected " +
                                 std::to_string(raw_size));
-    return raw;
 }
 
 // Decompresses a section that must give exactly `raw_size` bytes into a per-thread buffer.
@@ -300,7 +303,7 @@ void check_header(const uint8_t* data, uint64_t size, const LinkStoreManifest& m
     if (k >= manifest.chunks.size())
         chunk_fail(path, k, "no such chunk: the manifest lists " + std::to_string(manifest.chunks.size()));
     const ChunkEntry& e = manifest.chunks[k];
-    if (e.link_count > kMaxLinksPerChunk || e.run_count > e.link_count)
+    if (e.link_count > kMaxLinksPerChunk || e.run_count > e.link_count || e.escape_count > e.link_count)
         chunk_fail(path, k, "the manifest entry was not validated");
     const uint64_t expected_size = kChunkHeaderSize + e.transport_size + e.detail_size;
     if (size != expected_size) chunk_fail(path, k, size_problem(expected_size, size));
@@ -320,7 +323,7 @@ void check_header(const uint8_t* data, uint64_t size, const LinkStoreManifest& m
     agree("source_end", get32(data + 20), e.source_end);
     agree("link count", get64(data + 24), e.link_count);
     agree("run count", get32(data + 32), e.run_count);
-    agree("reserved field", get32(data + 36), 0);
+    agree("escape count", get32(data + 36), e.escape_count);
     agree("transport size", get64(data + 40), e.transport_size);
     agree("detail size", get64(data + 48), e.detail_size);
     agree("transport checksum", get64(data + 56), e.transport_checksum);
@@ -338,32 +341,65 @@ std::string link_name(size_t i, uint32_t receiver, uint32_t source) {
            std::to_string(source) + ")";
 }
 
-// The transport section of a chunk whose header check_header() accepted: decoded into `out`
-// and validated (runs, index ranges, order, couplings).
-void decode_transport_section(const uint8_t* data, const LinkStoreManifest& manifest, size_t k,
+// The transport section's checksum: the couplings, then the LZ4 block (one pass over
+// the section's bytes, wherever the two parts were read to).
+uint64_t transport_checksum(const float* coupling, size_t n, const uint8_t* block, size_t block_size) {
+    XXH3_state_t state;
+    XXH3_64bits_reset(&state);
+    XXH3_64bits_update(&state, coupling, 4 * n);
+    XXH3_64bits_update(&state, block, block_size);
+    return XXH3_64bits_digest(&state);
+}
+
+// The first link of a run [begin, stop) of `source` whose receiver is at or past
+// `node_count` or does not increase, named (a slow walk, for the error only).
+[[noreturn]] void bad_receiver(const TransportLinks& t, size_t begin, size_t stop, size_t first_escape,
+                               uint32_t source, uint32_t node_count, const std::string& path, size_t k) {
+    const char* const unsorted = "links must be sorted by source, then receiver, without duplicates";
+    const uint16_t* dl = t.deltas();
+    uint32_t receiver = 0;
+    for (size_t i = begin, j = first_escape; i < stop; ++i) {
+        const uint32_t d = dl[i] ? dl[i] : (j < t.escape_count ? t.escape(j++) : 0);
+        const uint32_t next = receiver + d;
+        // Unsigned deltas: a receiver before the previous one wraps around past it.
+        if (i > begin && (d == 0 || next < receiver))
+            chunk_fail(path, k, link_name(i, next, source) + ": after receiver " + std::to_string(receiver) + ": " +
+                                    unsorted);
+        if (next >= node_count)
+            chunk_fail(path, k, link_name(i, next, source) + ": receiver index " + std::to_string(next) +
+                                    " >= node count " + std::to_string(node_count));
+        receiver = next;
+    }
+    chunk_fail(path, k, "runs use more escapes than the chunk's " + std::to_string(t.escape_count));
+}
+
+// The transport section of a chunk whose header check_header() accepted, its couplings
+// already in out.coupling and its LZ4 block at `block`: checked against its checksum,
+// decoded into `out` and validated (runs, index ranges, order, couplings).
+void decode_transport_section(const uint8_t* block, const LinkStoreManifest& manifest, size_t k,
                               const std::string& path, TransportLinks& out) {
     const ChunkEntry& e = manifest.chunks[k];
-    const uint8_t* section = data + kChunkHeaderSize;
-    if (checksum(section, e.transport_size) != e.transport_checksum)
+    const size_t n = size_t(e.link_count), m = e.run_count, ne = e.escape_count;
+    const size_t block_size = size_t(e.transport_size) - 4 * n;
+    if (out.coupling.size() != n) throw std::logic_error("decode_transport_section: couplings not read");
+    if (transport_checksum(out.coupling.data(), n, block, block_size) != e.transport_checksum)
         chunk_fail(path, k, "transport checksum mismatch");
-    const size_t n = size_t(e.link_count), m = e.run_count;
-    // The frame, then the coupling's low byte planes as they are (see the header).
-    const size_t frame_size = size_t(e.transport_size) - kRawCouplingPlanes * n;
-    const uint8_t* raw = decompress_lz4(section, frame_size, 8 * m + (8 - kRawCouplingPlanes) * n, path, k);
-    const uint8_t* low_planes = section + frame_size;
+    out.escape_count = ne;
+    out.packed.resize(2 * ne + n + 4 * m);
+    uint16_t none = 0;  // where an empty chunk's block decompresses to (nothing)
+    decompress_lz4(block, block_size, out.packed.empty() ? &none : out.packed.data(), 2 * out.packed.size(), path, k);
+    const uint8_t* planes = reinterpret_cast<const uint8_t*>(out.packed.data() + 2 * ne + n);
     out.sources.resize(m);
     out.run_end.resize(m);
-    out.receivers.resize(n);
-    out.coupling.resize(n);
-    get_planes(raw, m, out.sources.data());
-    get_planes(raw + 4 * m, m, out.run_end.data());
+    get_planes(planes, m, out.sources.data());
+    get_planes(planes + 4 * m, m, out.run_end.data());
     const uint32_t node_count = manifest.info.node_count;
     const char* const unsorted = "links must be sorted by source, then receiver, without duplicates";
-    // The receivers' deltas, from their byte planes (a loop the compiler vectorises).
-    uint32_t* rc = out.receivers.data();
-    get_planes(raw + 8 * m, n, rc);
+    const uint16_t* dl = out.deltas();
     uint32_t source = 0;
     uint64_t end = 0;
+    size_t escapes = 0;
+    uint64_t receiver_end = 0;
     for (size_t r = 0; r < m; ++r) {
         const uint32_t delta = out.sources[r], length = out.run_end[r];
         auto first = [&](uint32_t s) { return "link " + std::to_string(end) + " (source " + std::to_string(s); };
@@ -378,56 +414,54 @@ void decode_transport_section(const uint8_t* data, const LinkStoreManifest& mani
         if (end + length > n)
             chunk_fail(path, k, first(source) + "): runs hold more than the chunk's " + std::to_string(n) + " links");
         out.sources[r] = source;
-        // Summed along the run. Deltas after the first must not be 0; the sum is taken wide,
-        // so that a last receiver below the node count means no sum wrapped around.
+        // The run's last receiver is the sum of its deltas (a loop the compiler vectorises),
+        // and the largest, since every delta after the first is at least 1: an inline delta
+        // is never 0, an escaped one must not be.
         const size_t begin = size_t(end), stop = size_t(end + length);
-        uint32_t zero = 0;
-        for (size_t i = begin + 1; i < stop; ++i) zero |= uint32_t(rc[i] == 0);
-        uint64_t receiver = 0;
-        for (size_t i = begin; i < stop; ++i) rc[i] = uint32_t(receiver += rc[i]);
-        if (zero || receiver >= node_count) {
-            // Find the first bad link again, from the planes, to name it.
-            const uint8_t* q = raw + 8 * m;
-            uint32_t previous = 0;
-            for (size_t i = begin; i < stop; ++i) {
-                const uint32_t d = uint32_t(q[i]) | uint32_t(q[n + i]) << 8 | uint32_t(q[2 * n + i]) << 16 |
-                                   uint32_t(q[3 * n + i]) << 24;
-                const uint32_t next = previous + d;
-                if (i > begin && (d == 0 || next < previous))
-                    chunk_fail(path, k, link_name(i, next, source) + ": after receiver " + std::to_string(previous) +
-                                            ": " + unsorted);
-                if (next >= node_count)
-                    chunk_fail(path, k, link_name(i, next, source) + ": receiver index " + std::to_string(next) +
-                                            " >= node count " + std::to_string(node_count));
-                previous = next;
+        uint64_t sum = 0;
+        uint32_t zeros = 0;
+        for (size_t i = begin; i < stop; ++i) {
+            sum += dl[i];
+            zeros += uint32_t(dl[i] == 0);
+        }
+        if (zeros > 0) {
+            if (zeros > ne - escapes) bad_receiver(out, begin, stop, escapes, source, node_count, path, k);
+            for (size_t j = escapes; j < escapes + zeros; ++j) {
+                const uint32_t v = out.escape(j);
+                if (v == 0 && !(j == escapes && dl[begin] == 0))
+                    bad_receiver(out, begin, stop, escapes, source, node_count, path, k);
+                sum += v;
             }
         }
+        if (sum >= node_count) bad_receiver(out, begin, stop, escapes, source, node_count, path, k);
+        escapes += zeros;
+        receiver_end = std::max(receiver_end, sum + 1);
         end = stop;
         out.run_end[r] = uint32_t(end);
     }
     if (end != n)
         chunk_fail(path, k, "runs hold " + std::to_string(end) + " links, the chunk " + std::to_string(n));
-    // The coupling's bits, placed and checked in one loop the compiler vectorises.
+    if (escapes != ne)
+        chunk_fail(path, k, "runs use " + std::to_string(escapes) + " escapes, the chunk has " + std::to_string(ne));
+    out.receiver_end = uint32_t(receiver_end);
+    out.packed.resize(2 * ne + n);  // the planes are decoded (the capacity stays)
+    // The couplings' bits, checked in one loop the compiler vectorises.
     {
-        const uint8_t *p0 = low_planes, *p1 = low_planes + n, *p2 = low_planes + 2 * n, *p3 = raw + 8 * m + 4 * n;
-        float* coupling = out.coupling.data();
+        const float* c = out.coupling.data();
         uint32_t bad = 0;
         for (size_t i = 0; i < n; ++i) {
-            const uint32_t u = uint32_t(p0[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 | uint32_t(p3[i]) << 24;
             // Finite and >= 0 (-0 included): below the bits of +inf, or -0 itself.
+            const uint32_t u = bits(c[i]);
             bad |= uint32_t(u >= 0x7f800000u) & uint32_t(u != 0x80000000u);
-            std::memcpy(coupling + i, &u, 4);
         }
         if (!bad) return;
     }
-    {
-        size_t r = 0;
-        for (size_t i = 0; i < n; ++i) {
-            while (out.run_end[r] <= i) ++r;
-            if (!(std::isfinite(out.coupling[i]) && out.coupling[i] >= 0))
-                chunk_fail(path, k, link_name(i, out.receivers[i], out.sources[r]) + ": coupling " +
-                                        std::to_string(out.coupling[i]) + " is not finite and >= 0");
-        }
+    const std::vector<uint32_t> receivers = out.receivers();
+    for (size_t r = 0, i = 0; i < n; ++i) {
+        while (out.run_end[r] <= i) ++r;
+        if (!(std::isfinite(out.coupling[i]) && out.coupling[i] >= 0))
+            chunk_fail(path, k, link_name(i, receivers[i], out.sources[r]) + ": coupling " +
+                                    std::to_string(out.coupling[i]) + " is not finite and >= 0");
     }
 }
 
@@ -457,6 +491,7 @@ std::vector<uint8_t> encode_manifest(const LinkStoreManifest& m) {
         put32(p + 36, e.source_end);
         put64(p + 40, e.link_count);
         put32(p + 48, e.run_count);
+        put32(p + 52, e.escape_count);
         put64(p + 56, e.transport_size);
         put64(p + 64, e.detail_size);
         put64(p + 72, e.transport_checksum);
@@ -497,6 +532,7 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
         e.source_end = get32(p + 36);
         e.link_count = get64(p + 40);
         e.run_count = get32(p + 48);
+        e.escape_count = get32(p + 52);
         e.transport_size = get64(p + 56);
         e.detail_size = get64(p + 64);
         e.transport_checksum = get64(p + 72);
@@ -516,12 +552,14 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
         if (e.link_count > kMaxLinksPerChunk || e.link_count > uint64_t(m.info.node_count) * m.info.node_count)
             fail(where + std::to_string(e.link_count) + " links: more than the maximum " +
                  std::to_string(kMaxLinksPerChunk) + " or than the nodes can have");
-        if (get32(p + 52) != 0) fail(where + "reserved field is not zero");
+        if (e.escape_count > e.link_count)
+            fail(where + std::to_string(e.escape_count) + " escapes: more than the " + std::to_string(e.link_count) +
+                 " links");
         if (e.run_count > e.link_count || (e.run_count == 0) != (e.link_count == 0))
             fail(where + std::to_string(e.run_count) + " runs impossible for " + std::to_string(e.link_count) +
                  " links");
-        const uint64_t stored_raw = kRawCouplingPlanes * e.link_count;
-        const uint64_t frame_raw = 8 * uint64_t(e.run_count) + (8 - kRawCouplingPlanes) * e.link_count;
+        const uint64_t stored_raw = 4 * e.link_count;
+        const uint64_t frame_raw = 4 * uint64_t(e.escape_count) + 2 * e.link_count + 8 * uint64_t(e.run_count);
         if (e.transport_size <= stored_raw || e.transport_size - stored_raw > uint64_t(LZ4_compressBound(int(frame_raw))))
             fail(where + "transport section size " + std::to_string(e.transport_size) + " impossible for " +
                  std::to_string(e.link_count) + " links");
@@ -535,17 +573,40 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
 void TransportLinks::assign(const LinkRecord* links, size_t count) {
     sources.clear();
     run_end.clear();
-    receivers.resize(count);
     coupling.resize(count);
+    std::vector<uint16_t> deltas(count);
+    std::vector<uint32_t> escaped;
     for (size_t i = 0; i < count; ++i) {
-        if (i == 0 || links[i].source != links[i - 1].source) {
+        const bool first = i == 0 || links[i].source != links[i - 1].source;
+        if (first) {
             if (i > 0) run_end.push_back(uint32_t(i));
             sources.push_back(links[i].source);
         }
-        receivers[i] = links[i].receiver;
+        const uint32_t d = links[i].receiver - (first ? 0 : links[i - 1].receiver);
+        deltas[i] = d > 0 && d <= 0xffff ? uint16_t(d) : 0;
+        if (deltas[i] == 0) escaped.push_back(d);
         coupling[i] = links[i].coupling;
     }
     if (count > 0) run_end.push_back(uint32_t(count));
+    escape_count = escaped.size();
+    packed.resize(2 * escape_count + count);
+    for (size_t j = 0; j < escape_count; ++j) {
+        packed[2 * j] = uint16_t(escaped[j]);
+        packed[2 * j + 1] = uint16_t(escaped[j] >> 16);
+    }
+    std::copy(deltas.begin(), deltas.end(), packed.begin() + 2 * escape_count);
+    receiver_end = 0;
+    for (size_t i = 0; i < count; ++i) receiver_end = std::max(receiver_end, links[i].receiver + 1);
+}
+
+std::vector<uint32_t> TransportLinks::receivers() const {
+    std::vector<uint32_t> out(size());
+    const uint16_t* dl = deltas();
+    for (size_t r = 0, i = 0, j = 0; r < runs(); ++r) {
+        uint32_t receiver = 0;
+        for (; i < run_end[r]; ++i) out[i] = receiver += dl[i] ? dl[i] : escape(j++);
+    }
+    return out;
 }
 
 std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_t source_end,
@@ -556,43 +617,34 @@ std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_
     TransportLinks t;
     t.assign(links, count);
     const size_t n = count, m = t.runs();
-    // The words of both sections, as the header describes them.
-    std::vector<uint32_t> words(2 * m + 2 * n);
+    // The LZ4 block: escapes and deltas as the solver holds them, then the runs as planes.
+    std::vector<uint32_t> words(2 * m);
     for (size_t r = 0; r < m; ++r) {
         words[r] = t.sources[r] - (r > 0 ? t.sources[r - 1] : 0);
         words[m + r] = t.run_end[r] - (r > 0 ? t.run_end[r - 1] : 0);
     }
-    for (size_t i = 0; i < n; ++i) {
-        const bool first = i == 0 || links[i].source != links[i - 1].source;
-        words[2 * m + i] = links[i].receiver - (first ? 0 : links[i - 1].receiver);
-        words[2 * m + n + i] = bits(links[i].coupling);
-    }
-    std::vector<uint8_t> raw(4 * words.size());
-    put_planes(words.data(), m, raw.data());
-    put_planes(words.data() + m, m, raw.data() + 4 * m);
-    put_planes(words.data() + 2 * m, n, raw.data() + 8 * m);
-    put_planes(words.data() + 2 * m + n, n, raw.data() + 8 * m + 4 * n);
-    // Compressed: the runs, the receivers and the coupling's high byte plane; then the
-    // coupling's three low byte planes as they are (mantissa bits: incompressible).
-    std::vector<uint8_t> frame(raw.begin(), raw.begin() + 8 * m + 4 * n);
-    frame.insert(frame.end(), raw.begin() + 8 * m + 7 * n, raw.end());
-    std::vector<uint8_t> out(kChunkHeaderSize);
-    entry.transport_size = compress_lz4(frame.data(), frame.size(), out);
-    out.insert(out.end(), raw.begin() + 8 * m + 4 * n, raw.begin() + 8 * m + 7 * n);
-    entry.transport_size += kRawCouplingPlanes * n;
+    std::vector<uint8_t> block(2 * t.packed.size() + 8 * m);
+    if (!t.packed.empty()) std::memcpy(block.data(), t.packed.data(), 2 * t.packed.size());
+    put_planes(words.data(), m, block.data() + 2 * t.packed.size());
+    put_planes(words.data() + m, m, block.data() + 2 * t.packed.size() + 4 * m);
+    std::vector<uint8_t> out(kChunkHeaderSize + 4 * n);
+    if (n > 0) std::memcpy(out.data() + kChunkHeaderSize, t.coupling.data(), 4 * n);
+    const size_t block_size = compress_lz4(block.data(), block.size(), out);
+    entry.transport_size = 4 * n + block_size;
     words.assign(3 * n, 0);
     for (size_t i = 0; i < n; ++i) {
         words[i] = bits(links[i].unoccluded) ^ bits(links[i].coupling);
         words[n + i] = bits(links[i].visibility);
         words[2 * n + i] = bits(links[i].error);
     }
-    raw.resize(kDetailBytesPerLink * n);
+    std::vector<uint8_t> raw(kDetailBytesPerLink * n);
     for (size_t c = 0; c < 3; ++c) put_planes(words.data() + c * n, n, raw.data() + 4 * c * n);
     entry.detail_size = compress_section(raw.data(), raw.size(), out);
     entry.source_begin = source_begin;
     entry.source_end = source_end;
     entry.link_count = count;
     entry.run_count = uint32_t(m);
+    entry.escape_count = uint32_t(t.escape_count);
     entry.transport_checksum = checksum(out.data() + kChunkHeaderSize, entry.transport_size);
     entry.detail_checksum = checksum(out.data() + kChunkHeaderSize + entry.transport_size, entry.detail_size);
     const auto header = chunk_header(entry, index);
@@ -608,16 +660,16 @@ void decode_transport(const uint8_t* data, size_t available, uint64_t file_size,
         throw std::invalid_argument(path + ": chunk " + std::to_string(k) + ": " + std::to_string(available) +
                                     " bytes given: not the header and the transport section of a file of " +
                                     std::to_string(file_size));
-    decode_transport_section(data, manifest, k, path, out);
+    out.coupling.resize(size_t(e.link_count));
+    if (!out.coupling.empty()) std::memcpy(out.coupling.data(), data + kChunkHeaderSize, 4 * out.coupling.size());
+    decode_transport_section(data + kChunkHeaderSize + 4 * out.coupling.size(), manifest, k, path, out);
     if (available == file_size) check_detail_checksum(data, manifest, k, path);
 }
 
 void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
                   const std::string& path, LinkRecord* out) {
-    check_header(data, size, manifest, k, path);
     thread_local TransportLinks t;
-    decode_transport_section(data, manifest, k, path, t);
-    check_detail_checksum(data, manifest, k, path);
+    decode_transport(data, size, size, manifest, k, path, t);
     const ChunkEntry& e = manifest.chunks[k];
     const uint8_t* section = data + kChunkHeaderSize + e.transport_size;
     const size_t n = t.size();
@@ -626,10 +678,12 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
     thread_local size_t words_capacity = 0;
     uint32_t* w = scratch(words_buffer, words_capacity, std::max<size_t>(3 * n, 1));
     for (size_t c = 0; c < 3; ++c) get_planes(raw + 4 * c * n, n, w + c * n);
-    for (size_t r = 0, i = 0; r < t.runs(); ++r)
+    const uint16_t* dl = t.deltas();
+    for (size_t r = 0, i = 0, j = 0; r < t.runs(); ++r) {
+        uint32_t receiver = 0;
         for (; i < t.run_end[r]; ++i) {
             LinkRecord& o = out[i];
-            o.receiver = t.receivers[i];
+            o.receiver = receiver += dl[i] ? dl[i] : t.escape(j++);
             o.source = t.sources[r];
             o.coupling = t.coupling[i];
             o.unoccluded = from_bits(w[i] ^ bits(o.coupling));
@@ -640,6 +694,7 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
                 chunk_fail(path, k, link_name(i, o.receiver, o.source) + ": " +
                                         record_problem(o, nullptr, manifest.info.node_count));
         }
+    }
 }
 
 void write_file_synced(const std::string& path, const uint8_t* data, size_t size) {
@@ -818,26 +873,52 @@ uint64_t LinkStoreReader::total_transport_bytes() const {
 
 namespace {
 
-// The first `size` bytes of chunk k's file (its whole size when 0) into a per-thread buffer,
-// the file's size checked against the manifest before anything is read.
-const uint8_t* read_chunk_file(const std::string& path, size_t k, const ChunkEntry& e, size_t& size) {
-    Fd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
-    if (fd.fd < 0) chunk_fail(path, k, std::string("cannot open: ") + std::strerror(errno));
+// Chunk k's file opened, its size checked against the manifest before anything is read (so
+// nothing larger than the manifest allows is ever allocated).
+int open_chunk(const std::string& path, size_t k, const ChunkEntry& e) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) chunk_fail(path, k, std::string("cannot open: ") + std::strerror(errno));
     struct stat st;
-    if (::fstat(fd.fd, &st) != 0) chunk_fail(path, k, std::string("cannot stat: ") + std::strerror(errno));
-    // The manifest bounds the size, so nothing larger than it allows is ever allocated.
     const uint64_t expected = kChunkHeaderSize + e.compressed_size();
-    if (uint64_t(st.st_size) != expected) chunk_fail(path, k, size_problem(expected, uint64_t(st.st_size)));
-    if (size == 0 || size > expected) size = size_t(expected);
-    uint8_t* data = byte_scratch(kFileBytes, size);
-    size_t got = 0;
-    while (got < size) {
-        const ssize_t r = ::read(fd.fd, data + got, size - got);
+    if (::fstat(fd, &st) != 0) {
+        const int err = errno;
+        ::close(fd);
+        chunk_fail(path, k, std::string("cannot stat: ") + std::strerror(err));
+    }
+    if (uint64_t(st.st_size) != expected) {
+        ::close(fd);
+        chunk_fail(path, k, size_problem(expected, uint64_t(st.st_size)));
+    }
+    return fd;
+}
+
+// Fills the buffers from the start of the file, in order (short reads resumed).
+void read_fully(int fd, iovec* iov, int count, const std::string& path, size_t k, const ChunkEntry& e) {
+    off_t at = 0;
+    while (count > 0) {
+        const ssize_t r = ::preadv(fd, iov, count, at);
         if (r < 0 && errno == EINTR) continue;
         if (r < 0) chunk_fail(path, k, std::string("read failed: ") + std::strerror(errno));
-        if (r == 0) chunk_fail(path, k, size_problem(expected, got));
-        got += size_t(r);
+        if (r == 0) chunk_fail(path, k, size_problem(kChunkHeaderSize + e.compressed_size(), uint64_t(at)));
+        at += r;
+        for (size_t left = size_t(r); left > 0 && count > 0;) {
+            const size_t step = std::min(left, iov->iov_len);
+            iov->iov_base = static_cast<uint8_t*>(iov->iov_base) + step;
+            iov->iov_len -= step;
+            left -= step;
+            if (iov->iov_len == 0) ++iov, --count;
+        }
+        while (count > 0 && iov->iov_len == 0) ++iov, --count;
     }
+}
+
+// Chunk k's whole file into a per-thread buffer.
+const uint8_t* read_chunk_file(const std::string& path, size_t k, const ChunkEntry& e, size_t& size) {
+    Fd fd(open_chunk(path, k, e));
+    size = size_t(kChunkHeaderSize + e.compressed_size());
+    uint8_t* data = byte_scratch(kFileBytes, size);
+    iovec iov{data, size};
+    read_fully(fd.fd, &iov, 1, path, k, e);
     return data;
 }
 
@@ -870,10 +951,24 @@ void LinkStoreReader::read_transport(size_t k, TransportLinks& out) const {
     const ChunkEntry& e = chunk(k);
     const std::string path = chunk_path(k);
     const bool whole = !verified_[k].load(std::memory_order_relaxed);
-    size_t size = whole ? 0 : size_t(kChunkHeaderSize + e.transport_size);
-    const uint8_t* data = read_chunk_file(path, k, e, size);
-    decode_transport(data, size, kChunkHeaderSize + e.compressed_size(), manifest_, k, path, out);
-    if (whole) verified_[k].store(true, std::memory_order_relaxed);
+    Fd fd(open_chunk(path, k, e));
+    // One read: the header, the couplings straight into `out`, the LZ4 block (and the detail
+    // section the first time) into a per-thread buffer.
+    const size_t n = size_t(e.link_count), block = size_t(e.transport_size) - 4 * n;
+    const size_t tail = block + (whole ? size_t(e.detail_size) : 0);
+    uint8_t header[kChunkHeaderSize];
+    out.coupling.resize(n);
+    uint8_t* rest = byte_scratch(kFileBytes, tail);
+    iovec iov[3] = {{header, kChunkHeaderSize}, {out.coupling.data(), 4 * n}, {rest, tail}};
+    read_fully(fd.fd, iov, 3, path, k, e);
+    fd.close(path);
+    check_header(header, kChunkHeaderSize + e.compressed_size(), manifest_, k, path);
+    decode_transport_section(rest, manifest_, k, path, out);
+    if (whole) {
+        if (checksum(rest + block, size_t(e.detail_size)) != e.detail_checksum)
+            chunk_fail(path, k, "detail checksum mismatch");
+        verified_[k].store(true, std::memory_order_relaxed);
+    }
 }
 
 }  // namespace hirad

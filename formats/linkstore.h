@@ -8,13 +8,15 @@
 //   <dir>/manifest                              written last, atomically, by commit()
 //   <dir>/chunk-<begin:08x>-<end:08x>.hlc       one per write_chunk() call
 //
-// All integers are little-endian, written byte by byte (no struct is written as is).
+// All integers are little-endian. Header fields are written byte by byte; the per-link arrays
+// of the transport section are read and written in place (a little-endian machine is
+// required, and checked when this is compiled).
 // Checksums are XXH3_64bits (seed 0).
 //
-// Chunk file: an 80-byte header, then two compressed sections. The transport section holds
-// what a solve reads (who shoots to whom, and the coupling); the detail section holds what
-// only refinement reads (unoccluded coupling, visibility, error estimate). A solve checks the
-// whole file but decompresses and decodes only the transport section.
+// Chunk file: an 80-byte header, then two sections. The transport section holds what a
+// solve reads (who shoots to whom, and the coupling); the detail section holds what only
+// refinement reads (unoccluded coupling, visibility, error estimate). A solve checks the
+// whole file the first time it reads it, then reads and decodes only the transport section.
 //    0  char[8]  magic "HRDLINKC"
 //    8  u32      format version (kLinkStoreVersion)
 //   12  u32      chunk index: the chunk's position in the manifest (0xffffffff until commit()
@@ -23,24 +25,26 @@
 //   20  u32      source_end
 //   24  u64      link count n
 //   32  u32      run count m: the distinct sources (runs of links with the same source)
-//   36  u32      zero
-//   40  u64      transport section size T (compressed)
+//   36  u32      escape count e: receiver deltas that do not fit 16 bits (see below)
+//   40  u64      transport section size T
 //   48  u64      detail section size D (compressed); the file is exactly 80 + T + D bytes
 //   56  u64      checksum of the transport section
 //   64  u64      checksum of the detail section
 //   72  u64      checksum of header bytes [0, 72)
 // Records are sorted by source, then receiver, strictly (no two links join the same pair);
-// the writer sorts them. Sequences of 32-bit words are stored as byte planes: byte 0 of
-// every word, then byte 1 of every word, and so on, so that the bytes of similar magnitude
-// line up and the mostly-zero high bytes of the deltas compress to almost nothing.
-//   transport section: one LZ4 block, then 3 n bytes stored as they are. The block holds, as
-//     byte planes, per run the source - the previous run's source (the first: the source
-//     itself), per run its link count (each >= 1, summing to n), per link the receiver - the
-//     previous receiver of its run (the first of a run: the receiver itself), then byte 3 of
-//     every link's coupling bits (8 m + 5 n bytes). The stored bytes are the coupling's
-//     planes 0, 1 and 2: mantissa bits, which no compressor shrinks. LZ4 rather than zstd
-//     because a solve decodes every chunk in every round: it decodes several times faster,
-//     for about 0.3 byte per link more.
+// the writer sorts them.
+//   transport section: per link its coupling, a little-endian f32 (4 n bytes, stored as they
+//     are: mantissa bits, which no compressor shrinks, and a solve reads them in place), then
+//     one LZ4 block of 4 e + 2 n + 8 m bytes:
+//       the escapes, u32 each;
+//       per link its receiver delta, u16: the receiver minus the previous receiver of its run
+//         (the first of a run: the receiver itself), or 0 when that difference is 0 or does
+//         not fit 16 bits, in which case it is the run's next escape;
+//       per run the source - the previous run's source (the first: the source itself), then
+//         per run its link count (each >= 1, summing to n), as byte planes: byte 0 of every
+//         word, then byte 1 of every word, and so on.
+//     A solve sums the deltas as it shoots: decoding does not rebuild the receivers. LZ4
+//     rather than zstd because a solve decodes every chunk in every round.
 //   detail section: one zstd frame of the byte planes of, per link, unoccluded XOR coupling
 //     (zero when the link is fully visible), then visibility, then error (12 n bytes).
 //
@@ -58,7 +62,7 @@
 //   36  u32      source_end
 //   40  u64      link count
 //   48  u32      run count
-//   52  u32      zero
+//   52  u32      escape count
 //   56  u64      transport section size
 //   64  u64      detail section size
 //   72  u64      checksum of the transport section
@@ -94,24 +98,34 @@ struct LinkRecord {
 static_assert(sizeof(LinkRecord) == 24, "LinkRecord must be 24 bytes without padding");
 static_assert(std::is_trivially_copyable_v<LinkRecord>, "LinkRecord must be memcpy-able");
 
-constexpr uint32_t kLinkStoreVersion = 2;
+constexpr uint32_t kLinkStoreVersion = 3;
 constexpr size_t kChunkHeaderSize = 80;
 constexpr uint64_t kMaxLinksPerChunk = uint64_t(1) << 24;  // 384 MiB decoded
 constexpr uint32_t kMaxChunks = uint32_t(1) << 20;
 
 // What a solve needs of a chunk's links, in runs of one source: links
-// [run_end[r - 1], run_end[r]) (from 0 for the first run) leave sources[r].
+// [run_end[r - 1], run_end[r]) (from 0 for the first run) leave sources[r]. A link's receiver
+// is the previous receiver of its run (0 before its first link) plus its delta: deltas()[i],
+// or, when that is 0, the next escape (escape(j), in order through the chunk). Validated when
+// decoded: receivers strictly increase within a run and are below receiver_end.
 struct TransportLinks {
     std::vector<uint32_t> sources;    // per run, strictly increasing
     std::vector<uint32_t> run_end;    // per run, strictly increasing, the last = size()
-    std::vector<uint32_t> receivers;  // per link, strictly increasing within a run
     std::vector<float> coupling;      // per link: G, m^2, finite and >= 0
+    std::vector<uint16_t> packed;     // the escapes (two words each), then the deltas
+    size_t escape_count = 0;
+    uint32_t receiver_end = 0;        // one past the largest receiver; 0 without links
 
-    size_t size() const { return receivers.size(); }
+    size_t size() const { return coupling.size(); }
     size_t runs() const { return sources.size(); }
-    // What it holds in memory (for budgets), and the same for a chunk of n links in m runs.
-    static uint64_t bytes_for(uint64_t n, uint64_t m) { return 8 * n + 8 * m; }
-    uint64_t bytes() const { return bytes_for(size(), runs()); }
+    const uint16_t* deltas() const { return packed.data() + 2 * escape_count; }
+    uint32_t escape(size_t j) const { return uint32_t(packed[2 * j]) | uint32_t(packed[2 * j + 1]) << 16; }
+    // Every link's receiver (for whole reads and tests; a solve sums the deltas itself).
+    std::vector<uint32_t> receivers() const;
+    // What it holds in memory (for budgets: with the decoder's working room), and the same
+    // for a chunk of n links in m runs with e escapes.
+    static uint64_t bytes_for(uint64_t n, uint64_t m, uint64_t e) { return 6 * n + 16 * m + 4 * e; }
+    uint64_t bytes() const { return bytes_for(size(), runs(), escape_count); }
     // From links sorted by source, then receiver.
     void assign(const LinkRecord* sorted_links, size_t count);
 };
@@ -130,10 +144,11 @@ struct ChunkEntry {
     uint32_t source_end = 0;
     uint64_t link_count = 0;
     uint32_t run_count = 0;
-    uint64_t transport_size = 0;      // compressed section bytes
+    uint64_t transport_size = 0;      // section bytes
     uint64_t detail_size = 0;
     uint64_t transport_checksum = 0;
     uint64_t detail_checksum = 0;
+    uint32_t escape_count = 0;
 
     uint64_t compressed_size() const { return transport_size + detail_size; }
 };

@@ -48,13 +48,12 @@ uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
 }
 
 MemoryChunks::MemoryChunks(std::vector<std::vector<LinkRecord>> by_group)
-    : chunks_(std::move(by_group)), runs_(chunks_.size()) {
+    : chunks_(std::move(by_group)), transport_bytes_(chunks_.size()) {
+    TransportLinks t;
     for (size_t g = 0; g < chunks_.size(); ++g)
         for (size_t p = 0; p < parts(g); ++p) {
-            const LinkRecord* l = chunks_[g].data() + p * kChunkLinks;
-            uint32_t runs = 0;
-            for (size_t i = 0; i < links(g, p); ++i) runs += i == 0 || l[i].source != l[i - 1].source;
-            runs_[g].push_back(runs);
+            read_transport(g, p, t);
+            transport_bytes_[g].push_back(t.bytes());
         }
 }
 
@@ -154,10 +153,8 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     // Per node, compact: what validating and shooting a link reads (the nodes themselves are
     // large, and receivers are scattered).
     std::vector<uint32_t> source_group(n, kNoGroup);
-    std::vector<uint8_t> element(n);
     std::vector<double> area(n);
     for (uint32_t i = 0; i < n; ++i) {
-        element[i] = !h.nodes[i].cluster;
         area[i] = h.nodes[i].area;
         if (!is_source[i]) continue;
         const uint32_t g = groups.of(h, i);
@@ -174,7 +171,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             stats.decoded_bytes += chunks.transport_bytes(g, p);
         }
     }
-    stats.state_bytes = n * (4 * sizeof(RGB) + 2 * sizeof(double) + sizeof(uint32_t) + 2 * sizeof(uint8_t));
+    stats.state_bytes = n * (4 * sizeof(RGB) + 2 * sizeof(double) + sizeof(uint32_t) + sizeof(uint8_t));
     stats.largest_chunk_bytes = largest;
     // Chunks in flight: one being shot, the others being read and decoded, two per thread
     // (decoding is what limits streaming).
@@ -255,22 +252,22 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                                      ", source " + std::to_string(source) + "): not a link of this group's"
                                      " sources to an element of the hierarchy (a store of another hierarchy?)");
         };
-        // Sources per run; receivers in range as a block (a loop the compiler vectorises).
-        // That a receiver is an element is not checked per link: a store of this hierarchy
-        // (the fingerprints say so) has no other, and another receiver is a wrong answer for a
-        // store of another hierarchy, never an access out of bounds.
+        // Sources per run, and the receivers' range as a whole (the chunk has checked that
+        // they increase within runs). That a receiver is an element is not checked per
+        // link: a store of this hierarchy (the fingerprints say so) has no other, and another
+        // receiver is a wrong answer for a store of another hierarchy, never an access out of
+        // bounds.
         for (size_t r = 0, k = 0; r < links->runs(); ++r) {
             const uint32_t s = links->sources[r];
-            if (s >= n || source_group[s] != q.group) fail(k, links->receivers[k], s);
+            if (s >= n || source_group[s] != q.group) fail(k, links->receivers()[k], s);
             k = links->run_end[r];
         }
-        const uint32_t* rc = links->receivers.data();
-        uint32_t out_of_range = 0;
-        for (size_t k = 0; k < links->size(); ++k) out_of_range |= uint32_t(rc[k] >= n);
-        if (out_of_range)
+        if (links->receiver_end > n) {
+            const std::vector<uint32_t> rc = links->receivers();
             for (size_t r = 0, k = 0; r < links->runs(); ++r)
                 for (; k < links->run_end[r]; ++k)
-                    if (rc[k] >= n || !element[rc[k]]) fail(k, rc[k], links->sources[r]);
+                    if (rc[k] >= n) fail(k, rc[k], links->sources[r]);
+        }
         return links;
     };
 
@@ -328,10 +325,15 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     (in.hit ? stats.chunk_hits : stats.chunk_reads) += 1;
                     auto t0 = std::chrono::steady_clock::now();
                     const TransportLinks& t = *in.links;
-                    for (size_t r = 0, k = 0; r < t.runs(); ++r) {
+                    const uint16_t* delta = t.deltas();
+                    const float* coupling = t.coupling.data();
+                    for (size_t r = 0, k = 0, j = 0; r < t.runs(); ++r) {
                         const RGB d = b[t.sources[r]] - shot[t.sources[r]];
-                        for (const size_t end = t.run_end[r]; k < end; ++k)
-                            gathered[t.receivers[k]] += d * (double(t.coupling[k]) / area[t.receivers[k]]);
+                        uint32_t rc = 0;
+                        for (const size_t end = t.run_end[r]; k < end; ++k) {
+                            rc += delta[k] ? delta[k] : t.escape(j++);
+                            gathered[rc] += d * (double(coupling[k]) / area[rc]);
+                        }
                     }
                     // A group's sources shoot B - shot as it was when the group began; shot
                     // is updated after its last part.

@@ -77,9 +77,7 @@ public:
     uint64_t links(size_t g, size_t p) const override {
         return std::min<uint64_t>(kChunkLinks, chunks_[g].size() - p * kChunkLinks);
     }
-    uint64_t transport_bytes(size_t g, size_t p) const override {
-        return TransportLinks::bytes_for(links(g, p), runs_[g][p]);
-    }
+    uint64_t transport_bytes(size_t g, size_t p) const override { return transport_bytes_[g][p]; }
     void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override {
         const auto begin = chunks_[g].begin() + p * kChunkLinks;
         out.assign(begin, begin + links(g, p));
@@ -90,7 +88,7 @@ public:
 
 private:
     std::vector<std::vector<LinkRecord>> chunks_;
-    std::vector<std::vector<uint32_t>> runs_;  // per group and part: distinct sources
+    std::vector<std::vector<uint64_t>> transport_bytes_;  // per group and part
 };
 
 class StoreChunks : public LinkChunks {
@@ -103,7 +101,7 @@ public:
     uint64_t links(size_t g, size_t p) const override { return reader_.chunk(parts_[g][p]).link_count; }
     uint64_t transport_bytes(size_t g, size_t p) const override {
         const ChunkEntry& e = reader_.chunk(parts_[g][p]);
-        return TransportLinks::bytes_for(e.link_count, e.run_count);
+        return TransportLinks::bytes_for(e.link_count, e.run_count, e.escape_count);
     }
     void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override { reader_.read_chunk(parts_[g][p], out); }
     void read_transport(size_t g, size_t p, TransportLinks& out) const override {

@@ -219,6 +219,41 @@ TEST_F(LinkStore, RoundTripOfManyChunksWrittenFromSeveralThreads) {
     EXPECT_EQ(mismatches.load(), 0);
 }
 
+TEST_F(LinkStore, ReceiverDeltasBeyondSixteenBitsAndReceiverZeroRoundTrip) {
+    // Receivers spread over 2^22 nodes: most deltas need an escape; some runs start at
+    // receiver 0 (an escaped delta of 0, allowed only first in a run) or have deltas of
+    // exactly 65535 and 65536 (the last inline one, the first escaped one).
+    constexpr LinkStoreInfo info{1, 2, 1u << 22, 1u << 21};
+    std::mt19937_64 rng(3);
+    std::vector<LinkRecord> links = random_links(rng, info.node_count, 0, 40, 3000);
+    for (uint32_t s = 0; s < 40; s += 3) {
+        links.push_back({0, s, 0.5f, 0.5f, 1, 0});
+        links.push_back({1u << 21, s, 0.25f, 0.5f, 0.5f, 0});
+        links.push_back({(1u << 21) + 65535, s, 0.25f, 0.5f, 0.5f, 0});
+        links.push_back({(1u << 21) + 2 * 65535 + 1, s, 0.25f, 0.5f, 0.5f, 0});
+    }
+    std::sort(links.begin(), links.end(), by_source_receiver);
+    links.erase(std::unique(links.begin(), links.end(),
+                            [](const LinkRecord& a, const LinkRecord& b) {
+                                return a.source == b.source && a.receiver == b.receiver;
+                            }),
+                links.end());
+    LinkStoreWriter w(store().string(), info);
+    w.write_chunk(0, 1, links);
+    w.commit();
+    LinkStoreReader r(store().string());
+    EXPECT_GT(r.chunk(0).escape_count, links.size() / 4);
+    std::vector<LinkRecord> out;
+    r.read_chunk(0, out);
+    EXPECT_TRUE(same_bits(out, links));
+    TransportLinks t;
+    r.read_transport(0, t);
+    EXPECT_EQ(t.escape_count, r.chunk(0).escape_count);
+    const std::vector<uint32_t> receivers = t.receivers();
+    ASSERT_EQ(receivers.size(), links.size());
+    for (size_t i = 0; i < links.size(); ++i) ASSERT_EQ(receivers[i], links[i].receiver) << i;
+}
+
 TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
     const std::vector<Chunk> chunks = small_store();
     LinkStoreReader r(store().string());
@@ -236,13 +271,18 @@ TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
         r.read_transport(k, t);
         ASSERT_EQ(t.size(), chunks[k].links.size());
         ASSERT_EQ(t.runs(), r.chunk(k).run_count);
-        EXPECT_EQ(t.bytes(), TransportLinks::bytes_for(r.chunk(k).link_count, r.chunk(k).run_count));
+        EXPECT_EQ(t.bytes(),
+                  TransportLinks::bytes_for(r.chunk(k).link_count, r.chunk(k).run_count, r.chunk(k).escape_count));
+        const std::vector<uint32_t> receivers = t.receivers();
+        uint32_t receiver_end = 0;
+        for (const LinkRecord& l : chunks[k].links) receiver_end = std::max(receiver_end, l.receiver + 1);
+        EXPECT_EQ(t.receiver_end, receiver_end);
         for (size_t run = 0, i = 0; run < t.runs(); ++run) {
             ASSERT_GT(t.run_end[run], i);
             for (; i < t.run_end[run]; ++i) {
                 const LinkRecord& l = chunks[k].links[i];
                 EXPECT_EQ(t.sources[run], l.source);
-                EXPECT_EQ(t.receivers[i], l.receiver);
+                EXPECT_EQ(receivers[i], l.receiver);
                 EXPECT_EQ(std::memcmp(&t.coupling[i], &l.coupling, 4), 0);
             }
             EXPECT_TRUE(run + 1 == t.runs() || t.sources[run + 1] > t.sources[run]);
@@ -483,8 +523,8 @@ TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
     put64(b.data() + 40 + 56, uint64_t(1) << 40);  // chunk 0's transport section size
     refused(b, "transport section size 1099511627776 impossible");
     b = good;
-    put64(b.data() + 40 + 56, 15);  // no more than the 3 raw coupling bytes of its 5 links
-    refused(b, "transport section size 15 impossible");
+    put64(b.data() + 40 + 56, 20);  // no more than the 4 coupling bytes of each of its 5 links
+    refused(b, "transport section size 20 impossible");
     b = good;
     put64(b.data() + 40 + 64, 0);  // chunk 0's detail section size
     refused(b, "detail section size 0 impossible");
@@ -492,8 +532,8 @@ TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
     put32(b.data() + 40 + 48, 6);  // chunk 0's run count: more runs than links
     refused(b, "6 runs impossible for 5 links");
     b = good;
-    put32(b.data() + 40 + 52, 1);
-    refused(b, "reserved field is not zero");
+    put32(b.data() + 40 + 52, 6);  // chunk 0's escape count: more escapes than links
+    refused(b, "6 escapes: more than the 5 links");
     b = good;
     b[40 + 88 + 32] = 9;  // chunk 1 begins at 9, inside chunk 0
     refused(b, "chunk 1 (chunk-00000009-00000014.hlc): the file name does not match");

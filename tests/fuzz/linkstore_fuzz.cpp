@@ -70,7 +70,7 @@ void repaired_chunk(const uint8_t* data, size_t size) {
     LinkStoreManifest m;
     m.info.node_count = node_count;
     m.chunks.push_back({get32(h + 16), get32(h + 20), links, get32(h + 32), transport, detail, get64(h + 56),
-                        get64(h + 64)});
+                        get64(h + 64), get32(h + 36)});
     // Through the manifest's own validation, as the reader would see it.
     const std::vector<uint8_t> manifest = encode_manifest(m);
     check_chunk(chunk.data(), chunk.size(), decode_manifest(manifest.data(), manifest.size(), "fuzz-manifest"));
