@@ -148,10 +148,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     if (ng != groups.count()) throw std::invalid_argument("streaming solve: the links' groups are not the hierarchy's");
 
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
-    std::vector<RGB> shot(n), gathered(n), irradiance(n);
+    // received: per node, the flux density G (B_S - shot_S) its links brought in (divided by
+    // the node's area only before push-pull, so that shooting a link is a multiply-add).
+    std::vector<RGB> shot(n), received(n), irradiance(n);
     std::vector<std::vector<uint32_t>> sources(ng);
-    // Per node, compact: what validating and shooting a link reads (the nodes themselves are
-    // large, and receivers are scattered).
+    // Per node, compact: what validating a link and gathering read (the nodes themselves are
+    // large).
     std::vector<uint32_t> source_group(n, kNoGroup);
     std::vector<double> area(n);
     for (uint32_t i = 0; i < n; ++i) {
@@ -194,13 +196,21 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     for (uint32_t i : leaves) enorm += h.nodes[i].area * dot(h.nodes[i].shape.emission, h.nodes[i].shape.emission);
     enorm = enorm > 0 ? std::sqrt(enorm) : 1.0;
 
+    // The irradiance gathered at each node is what it received over its area; push-pull reads
+    // it from `irradiance` and overwrites it in place (parents before children, each node read
+    // before it is written).
+    auto gather_and_push_pull = [&] {
+        for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
+        push_pull(h, irradiance, irradiance, b);
+    };
+
     HierarchicalSolution sol;
     uint64_t round = 0;
     const uint64_t fingerprint = opt.checkpoint_fingerprint ^ (n * 0x9E3779B97F4A7C15ull) ^ ng;
     if (!opt.checkpoint_path.empty() && std::filesystem::exists(opt.checkpoint_path)) {
         StateFile cp = StateFile::read(opt.checkpoint_path);
         if (cp.fingerprint == fingerprint) {
-            gathered = unflatten_rgb(cp.f64("gathered"), n, opt.checkpoint_path);
+            received = unflatten_rgb(cp.f64("received"), n, opt.checkpoint_path);
             shot = unflatten_rgb(cp.f64("shot"), n, opt.checkpoint_path);
             const std::vector<uint64_t>& counters = cp.u64("counters");
             if (counters.size() != 3) throw std::runtime_error(opt.checkpoint_path + ": bad counters");
@@ -208,14 +218,14 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             stats.groups_shot = counters[1];
             stats.links_shot = counters[2];
             sol.residual_history = cp.f64("history");
-            push_pull(h, gathered, irradiance, b);
+            gather_and_push_pull();
             stats.resumed = true;
         }
     }
     auto checkpoint = [&] {
         StateFile cp;
         cp.fingerprint = fingerprint;
-        cp.put("gathered", flatten_rgb(gathered));
+        cp.put("received", flatten_rgb(received));
         cp.put("shot", flatten_rgb(shot));
         cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
         cp.put("history", sol.residual_history);
@@ -332,7 +342,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                         uint32_t rc = 0;
                         for (const size_t end = t.run_end[r]; k < end; ++k) {
                             rc += delta[k] ? delta[k] : t.escape(j++);
-                            gathered[rc] += d * (double(coupling[k]) / area[rc]);
+                            received[rc] += d * double(coupling[k]);
                         }
                     }
                     // A group's sources shoot B - shot as it was when the group began; shot
@@ -358,7 +368,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         shot_parts = 0;
         // What the pipeline took beyond shooting: the shooter waiting for chunks.
         stats.read_wait_seconds += seconds_since(pipe_start) - (stats.shoot_seconds - shoot_before);
-        push_pull(h, gathered, irradiance, b);
+        gather_and_push_pull();
         ++round;
         sol.residual_history.push_back(residual);
         if (opt.on_round && !opt.on_round(round, residual)) break;

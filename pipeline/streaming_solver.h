@@ -6,9 +6,9 @@
 // Every source node S keeps what it has already shot, shot_S; its unshot radiosity is
 // B_S - shot_S. A round picks the groups whose unshot power (sum of A_S |B_S - shot_S| over
 // their sources) is at least half the largest, in order of that power, and shoots them:
-// each link R <- S adds G / A_R (B_S - shot_S) to the irradiance gathered at R, then
-// shot_S = B_S. Push-pull after the round turns the gathered irradiance into new leaf
-// radiosity. At the fixed point (nothing unshot) the gathered irradiance is exactly the
+// each link R <- S adds G (B_S - shot_S) to what R received, then shot_S = B_S. Push-pull
+// after the round turns what each node received over its area (the irradiance gathered at
+// it, G / A_R (B_S - shot_S) summed) into new leaf radiosity. At the fixed point (nothing unshot) the gathered irradiance is exactly the
 // hierarchical gather sum of G / A_R B_S, the same solution as Jacobi with push-pull.
 //
 // Deterministic whatever the thread count or the budget: which groups are shot and in what
