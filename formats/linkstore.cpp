@@ -509,7 +509,7 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
     if (std::memcmp(data, kManifestMagic, 8) != 0) fail("not a link store manifest (bad magic)");
     if (get32(data + 8) != kLinkStoreVersion)
         fail("format version " + std::to_string(get32(data + 8)) + ", this reader reads version " +
-             std::to_string(kLinkStoreVersion));
+             std::to_string(kLinkStoreVersion) + " (a store written by another version of hirad: rebuild it)");
     if (checksum(data, size - 8) != get64(data + size - 8)) fail("checksum mismatch");
     LinkStoreManifest m;
     m.info.node_count = get32(data + 12);

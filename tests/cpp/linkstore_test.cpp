@@ -514,6 +514,10 @@ TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
     put32(b.data() + 20, 0xffffffff);  // chunk count
     refused(b, "4294967295 chunks, more than the maximum");
     b = good;
+    put32(b.data() + 8, kLinkStoreVersion - 1);  // a store of an earlier format
+    refused(b, "format version " + std::to_string(kLinkStoreVersion - 1) + ", this reader reads version " +
+                   std::to_string(kLinkStoreVersion) + " (a store written by another version of hirad: rebuild it)");
+    b = good;
     b[20] = 3;  // three chunks claimed, two present
     refused(b, "truncated: expected 312 bytes, found 224 for 3 chunks");
     b = good;
