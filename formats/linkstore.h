@@ -39,7 +39,8 @@
 //       the escapes, u32 each;
 //       per link its receiver delta, u16: the receiver minus the previous receiver of its run
 //         (the first of a run: the receiver itself), or 0 when that difference is 0 or does
-//         not fit 16 bits, in which case it is the run's next escape;
+//         not fit 16 bits, in which case the difference is the next escape (the escapes are
+//         in link order);
 //       per run the source - the previous run's source (the first: the source itself), then
 //         per run its link count (each >= 1, summing to n), as byte planes: byte 0 of every
 //         word, then byte 1 of every word, and so on.

@@ -148,8 +148,8 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     if (ng != groups.count()) throw std::invalid_argument("streaming solve: the links' groups are not the hierarchy's");
 
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
-    // received: per node, the flux density G (B_S - shot_S) its links brought in (divided by
-    // the node's area only before push-pull, so that shooting a link is a multiply-add).
+    // received: per node, the power G (B_S - shot_S) its links brought in (divided by the
+    // node's area only before push-pull, so that shooting a link is a multiply-add).
     std::vector<RGB> shot(n), received(n), irradiance(n);
     std::vector<std::vector<uint32_t>> sources(ng);
     // Per node, compact: what validating a link and gathering read (the nodes themselves are
