@@ -205,27 +205,11 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     if len(names) != len(meshes):
         raise ValueError("names needs one entry per mesh")
 
-    geometry: list[Mesh] = []
-    blocks: list[_Block] = []
-    warnings: list[str] = []
-    for i, (p, t) in enumerate(meshes):
-        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
-        t = np.asarray(t, dtype=np.int64).reshape(-1, 3)
-        geometry.append((p, t))
-        uv = None if existing_uvs is None else existing_uvs[i]
-        if len(t) == 0:
-            blocks.append(_Block(0, 0, np.zeros((0, 3, 2)), np.zeros(0, np.int32), 0.0, "empty"))
-            continue
-        block = None
-        if uv is not None:
-            block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), texels_per_metre, padding,
-                                    limit, existing_layout, names[i], warnings)
-        if block is None:
-            block = _generated_block(p, t, texels_per_metre, padding, limit, names[i], warnings)
-        if block.scaled:
-            warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
-                            f"(asked {texels_per_metre:g}) to fit one {max_size} page")
-        blocks.append(block)
+    geometry: list[Mesh] = [(np.asarray(p, dtype=np.float64).reshape(-1, 3),
+                             np.asarray(t, dtype=np.int64).reshape(-1, 3)) for p, t in meshes]
+    # Every mesh's charts in one child process (see _isolated): one fork per atlas.
+    blocks, warnings = _isolated(_mesh_blocks, geometry, existing_uvs, names, texels_per_metre, padding, limit,
+                                 existing_layout, max_size)
 
     placed, pages = _pack_blocks([(b.width, b.height) for b in blocks], int(max_size), padding, margin)
     sizes = []
@@ -319,6 +303,29 @@ def chart_area_bound(area: np.ndarray, texels_per_metre: float) -> float:
     return float(np.clip(target, mean * _CHART_TRIANGLES[0], mean * _CHART_TRIANGLES[1]))
 
 
+def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size):
+    """Each mesh's block of charts, and the warnings. Run through _isolated: xatlas is called
+    here."""
+    blocks: list[_Block] = []
+    warnings: list[str] = []
+    for i, (p, t) in enumerate(geometry):
+        uv = None if existing_uvs is None else existing_uvs[i]
+        if len(t) == 0:
+            blocks.append(_Block(0, 0, np.zeros((0, 3, 2)), np.zeros(0, np.int32), 0.0, "empty"))
+            continue
+        block = None
+        if uv is not None:
+            block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), texels_per_metre, padding,
+                                    limit, existing_layout, names[i], warnings)
+        if block is None:
+            block = _generated_block(p, t, texels_per_metre, padding, limit, names[i], warnings)
+        if block.scaled:
+            warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
+                            f"(asked {texels_per_metre:g}) to fit one {max_size} page")
+        blocks.append(block)
+    return blocks, warnings
+
+
 def _isolated(fn, *args):
     """fn(*args) computed in a forked child process, its result returned through a pipe.
 
@@ -326,7 +333,8 @@ def _isolated(fn, *args):
     destroyed (the notify is sent without the worker's mutex, so it can fall between the
     worker's predicate check and its wait), and the destructor then joins that worker
     forever. The child never destroys its Atlas: it writes the result and leaves with
-    os._exit, which runs no destructors. A child that dies without a result is an error."""
+    os._exit, which runs no destructors. The child's exception is raised here; a child that
+    dies without a result is an error."""
     read_fd, write_fd = os.pipe()
     pid = os.fork()
     if pid == 0:  # child: compute, send, leave without any teardown
@@ -336,7 +344,10 @@ def _isolated(fn, *args):
             try:
                 payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
             except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
-                payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
+                try:  # the exception itself when it pickles, so the caller sees what it would
+                    payload = pickle.dumps((False, error))
+                except Exception:  # noqa: BLE001
+                    payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
             with os.fdopen(write_fd, "wb") as out:
                 out.write(payload)
         except BaseException:  # noqa: BLE001 - the parent sees the missing result
@@ -361,7 +372,7 @@ def _isolated(fn, *args):
 
 def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding):
     """xatlas charts and packs one mesh: (width, height, vertex map, indices, uv, chart of
-    each output vertex). Run through _isolated."""
+    each output vertex)."""
     import xatlas
 
     atlas = xatlas.Atlas()
@@ -402,8 +413,8 @@ def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padd
     for _attempt in range(8):
         # Bound chart growth twice: by area (cost, see chart_area_bound) and by boundary
         # length, so a chart's extent (at most half its perimeter) fits a page.
-        w, h, vmap, idx, uv, chart_of_vertex = _isolated(
-            _xatlas_chart, centred, faces, chart_area_bound(area3, density),
+        w, h, vmap, idx, uv, chart_of_vertex = _xatlas_chart(
+            centred, faces, chart_area_bound(area3, density),
             float(2.0 * 0.95 * (limit - 2) / density), float(density), int(pack_padding))
         if max(w, h) <= limit:
             break
@@ -553,14 +564,14 @@ def _pack_xatlas(uvt, islands, padding):
     keys = np.concatenate([corners, np.repeat(islands, 3)[:, None].astype(np.float64)], axis=1)
     verts, inverse = np.unique(keys, axis=0, return_inverse=True)
     origin = verts[:, :2].min(axis=0)
-    out, idx, w, h = _isolated(_xatlas_pack, (verts[:, :2] - origin).astype(np.float32),
+    out, idx, w, h = _xatlas_pack((verts[:, :2] - origin).astype(np.float32),
                                inverse.reshape(-1, 3).astype(np.uint32),
                                islands.astype(np.uint32).reshape(-1, 1), int((padding + 1) // 2))
     return out.astype(np.float64)[idx.astype(np.int64)] * np.array([w, h], float), w, h
 
 
 def _xatlas_pack(uv, faces, materials, padding):
-    """xatlas packs existing UV islands: (uv, indices, width, height). Run through _isolated."""
+    """xatlas packs existing UV islands: (uv, indices, width, height)."""
     import xatlas
 
     a = xatlas.Atlas()
