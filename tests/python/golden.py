@@ -1,0 +1,158 @@
+"""Fingerprints of a bake's values, for the before/after check of the redesign.
+
+`fingerprint(out_dir)` hashes what a bake computed, and nothing of where it was put:
+- every float array authored on the solution meshes (primvars and `hirad:` attributes, the
+  points and the lightmap UVs), keyed by the mesh prim's *name* (its parent may move);
+- the pixels of every EXR (lightmap pages, per-mesh crops, preview.exr) and of preview.png;
+- the grids of volume.vdb;
+- every number of report.json except timings, memory figures and paths.
+
+Run as a script to (re)write the committed reference file for the bundled configs:
+
+    .venv/bin/python tests/python/golden.py --write
+
+The file was first written *before* the redesign moved the engine's code, so the test
+that compares with it (test_golden.py) proves the move kept the physics bit for bit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+GOLDEN = Path(__file__).resolve().parent / "data" / "cornell_golden.json"
+CONFIGS = ["cornell.yaml", "cornell_hierarchical.yaml", "cornell_outofcore.yaml"]
+
+# report keys whose numbers depend on the machine or the clock, not on the physics
+_VOLATILE = ("second", "time", "timing", "elapsed", "rss", "memory", "bytes_read", "wall", "peak", "path", "store",
+             "version", "threads", "throughput", "per_s", "rate", "cpu")
+
+
+def _digest(a: np.ndarray) -> str:
+    a = np.ascontiguousarray(a)
+    h = hashlib.sha256()
+    h.update(str(a.dtype).encode() + str(a.shape).encode())
+    h.update(a.tobytes())
+    return h.hexdigest()[:24]
+
+
+def _usd_arrays(path: Path) -> dict:
+    from pxr import Usd, UsdGeom
+
+    layer_stage = Usd.Stage.Open(str(path))
+    out = {}
+    for prim in layer_stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        spec_names = [a.GetName() for a in prim.GetAuthoredAttributes()]
+        # only meshes hirad wrote carry its attributes
+        if not any(n.startswith(("primvars:hirad:", "hirad:")) for n in spec_names):
+            continue
+        for attr in prim.GetAuthoredAttributes():
+            name = attr.GetName()
+            if not (name.startswith(("primvars:hirad:", "hirad:")) or name in ("points", "faceVertexCounts",
+                                                                             "faceVertexIndices")):
+                continue
+            v = attr.Get()
+            if v is None:
+                continue
+            try:
+                a = np.asarray(v)
+            except Exception:
+                continue
+            if a.dtype.kind not in "fiu":
+                continue
+            out[f"{prim.GetName()}.{name}"] = _digest(a)
+    return out
+
+
+def _exr(path: Path) -> str:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        chans = f.channels()
+        parts = [np.asarray(chans[k].pixels) for k in sorted(chans)]
+    return _digest(np.stack([p.astype(np.float32) for p in parts]))
+
+
+def _report_numbers(data, prefix="") -> dict:
+    out = {}
+    if isinstance(data, dict):
+        for k, v in data.items():
+            key = f"{prefix}.{k}" if prefix else str(k)
+            if any(w in str(k).lower() for w in _VOLATILE):
+                continue
+            out.update(_report_numbers(v, key))
+    elif isinstance(data, list):
+        nums = [x for x in data if isinstance(x, (int, float)) and not isinstance(x, bool)]
+        if nums and len(nums) == len(data):
+            out[prefix] = _digest(np.asarray(nums, dtype=np.float64))
+        else:
+            for i, v in enumerate(data):
+                out.update(_report_numbers(v, f"{prefix}[{i}]"))
+    elif isinstance(data, (int, float)) and not isinstance(data, bool):
+        out[prefix] = repr(float(data))
+    return out
+
+
+def fingerprint(out_dir: Path) -> dict:
+    out_dir = Path(out_dir)
+    fp: dict = {"usd": {}, "exr": {}, "png": {}, "vdb": {}, "report": {}}
+    if (out_dir / "solution.usda").exists():
+        fp["usd"] = _usd_arrays(out_dir / "solution.usda")
+    for p in sorted(out_dir.rglob("*.exr")):
+        fp["exr"][str(p.relative_to(out_dir))] = _exr(p)
+    for p in sorted(out_dir.rglob("preview.png")):
+        from PIL import Image
+
+        fp["png"][str(p.relative_to(out_dir))] = _digest(np.asarray(Image.open(p)))
+    if (out_dir / "volume.vdb").exists():
+        from hirad import _engine
+
+        grids = _engine.read_vdb(str(out_dir / "volume.vdb"))["grids"]
+        for name in sorted(grids):
+            g = grids[name]
+            order = np.lexsort(np.asarray(g["coords"]).T[::-1])
+            fp["vdb"][name] = _digest(np.concatenate([np.asarray(g["coords"], np.float64)[order],
+                                                      np.asarray(g["values"], np.float64)[order]], axis=1))
+    if (out_dir / "report.json").exists():
+        fp["report"] = _report_numbers(json.loads((out_dir / "report.json").read_text()))
+    return fp
+
+
+def bake_config(name: str, out_dir: Path) -> Path:
+    """Bakes a bundled config into out_dir (its link store beside it) and returns out_dir."""
+    from hirad.bake import bake
+    from hirad.config import load_config
+
+    cfg = load_config(REPO / "configs" / name)
+    cfg.output = Path(out_dir)
+    if getattr(cfg, "links", None) is not None and getattr(cfg.links, "store", None) is not None:
+        cfg.links.store = Path(str(out_dir) + ".links")
+    bake(cfg, quiet=True)
+    return Path(out_dir)
+
+
+def main() -> int:
+    import tempfile
+
+    if "--write" not in sys.argv:
+        print(__doc__)
+        return 2
+    golden = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in CONFIGS:
+            golden[name] = fingerprint(bake_config(name, Path(tmp) / Path(name).stem))
+    GOLDEN.parent.mkdir(parents=True, exist_ok=True)
+    GOLDEN.write_text(json.dumps(golden, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {GOLDEN}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
