@@ -1,4 +1,4 @@
-#include "exr.h"
+#include "formats/exr.h"
 
 #include <Imath/half.h>
 #include <OpenEXR/ImfChannelList.h>

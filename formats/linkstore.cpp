@@ -1,4 +1,4 @@
-#include "linkstore.h"
+#include "formats/linkstore.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>

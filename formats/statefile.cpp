@@ -1,4 +1,4 @@
-#include "statefile.h"
+#include "formats/statefile.h"
 
 #include <xxhash.h>
 
@@ -7,7 +7,7 @@
 #include <iterator>
 #include <stdexcept>
 
-#include "linkstore.h"
+#include "formats/linkstore.h"
 
 namespace hirad {
 

@@ -1,5 +1,5 @@
 // The only translation unit that includes OpenVDB (see vdb.h).
-#include "vdb.h"
+#include "formats/vdb.h"
 
 #include <openvdb/openvdb.h>
 #include <openvdb/io/File.h>

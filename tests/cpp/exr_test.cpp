@@ -1,5 +1,5 @@
 // EXR output: half-float round trip, metadata, and the write-to-temporary-then-rename rule.
-#include "exr.h"
+#include "formats/exr.h"
 
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfHeader.h>

@@ -1,6 +1,6 @@
 // Form factors: the closed forms, Lambert's contour integral from a point, and the ray-cast
 // estimator built on them.
-#include "formfactors.h"
+#include "pipeline/geometry/formfactors.h"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-#include "hemicube.h"
+#include "pipeline/geometry/hemicube.h"
 
 #include <gtest/gtest.h>
 

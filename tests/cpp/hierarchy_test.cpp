@@ -1,6 +1,6 @@
 // The element hierarchy (clusters over faces, element quadtrees, 2:1 balance), refinement
 // from the root's self-link, and the three solvers with push-pull on the furnace.
-#include "hierarchy.h"
+#include "pipeline/hierarchy/hierarchy.h"
 
 #include <gtest/gtest.h>
 
@@ -9,9 +9,9 @@
 #include <utility>
 #include <vector>
 
-#include "hierarchical_solver.h"
-#include "refine.h"
-#include "visibility.h"
+#include "pipeline/hierarchy/hierarchical_solver.h"
+#include "pipeline/hierarchy/refine.h"
+#include "pipeline/geometry/visibility.h"
 
 namespace hirad {
 namespace {

@@ -1,6 +1,6 @@
 // The on-disk link store: round trips, determinism, corruption of every kind detected with a
 // message naming the file, the store's life cycle (commit, re-creation) and write errors.
-#include "linkstore.h"
+#include "formats/linkstore.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>

@@ -1,6 +1,6 @@
 // mesh_patches: patches tile their face within the size limits and weld along shared edges.
-#include "patches.h"
-#include "visibility.h"
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
 // Reconstruction of per-point values from per-patch values: the display mesh (welded corners
 // split at creases, boundary marked) and the interior-mean / boundary-extrapolation rule.
-#include "reconstruct.h"
+#include "pipeline/outputs/reconstruct.h"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // Preview rendering: primary rays from a pinhole camera onto the patches.
-#include "render.h"
+#include "pipeline/outputs/render.h"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // Scene::build: which polygons stay quads, which are triangulated, what is dropped and counted.
-#include "scene.h"
+#include "pipeline/geometry/scene.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
 // Radiosity solvers over the flat link matrix: the furnace, agreement with the direct solve,
 // residual bookkeeping, and LinkMatrix assembly.
-#include "solvers.h"
+#include "pipeline/flat/solvers.h"
 
 #include <gtest/gtest.h>
 
@@ -11,9 +11,9 @@
 #include <stdexcept>
 #include <vector>
 
-#include "formfactors.h"
-#include "patches.h"
-#include "visibility.h"
+#include "pipeline/geometry/formfactors.h"
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
 
 namespace hirad {
 namespace {

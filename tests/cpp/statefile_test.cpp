@@ -1,6 +1,6 @@
 // State files: round trip of every array type, and every byte of a file flipped or cut off is
 // detected with the file named.
-#include "statefile.h"
+#include "formats/statefile.h"
 
 #include <gtest/gtest.h>
 

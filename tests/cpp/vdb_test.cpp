@@ -4,7 +4,7 @@
 #include <cstdio>
 #include <string>
 
-#include "vdb.h"
+#include "formats/vdb.h"
 
 using namespace hirad;
 

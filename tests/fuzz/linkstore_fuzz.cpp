@@ -16,7 +16,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "linkstore.h"
+#include "formats/linkstore.h"
 
 namespace {
 

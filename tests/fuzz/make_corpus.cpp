@@ -2,14 +2,14 @@
 // valid manifests and chunks in each mode, and a few broken ones.
 //
 // From the repository root:
-//   g++ -std=c++17 -Iformats tests/fuzz/make_corpus.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o build/fuzz/make_corpus
+//   g++ -std=c++17 -I. tests/fuzz/make_corpus.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o build/fuzz/make_corpus
 //   build/fuzz/make_corpus tests/fuzz/corpus/linkstore
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <vector>
 
-#include "linkstore.h"
+#include "formats/linkstore.h"
 
 using namespace hirad;
 

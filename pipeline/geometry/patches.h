@@ -1,0 +1,63 @@
+// Meshing: every scene face is cut into a regular grid of patches no larger than the
+// configured area and edge length. Patches are the elements the flat method solves for and
+// become the leaves of the hierarchy later.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "pipeline/geometry/scene.h"
+
+namespace hirad {
+
+struct MeshingOptions {
+    double max_area = 0.01;        // m^2
+    double max_edge_length = 0.1;  // m
+};
+
+struct Patch {
+    std::array<Vec3, 4> p;   // corners, counter-clockwise around `normal`
+    std::array<Vec2, 4> uv;  // corner texture coordinates interpolated from the face
+    int nv = 4;              // 3 or 4
+    Vec3 normal;
+    Vec3 centroid;
+    double area = 0;
+    RGB reflectance;
+    RGB emission;            // exitance, W/m^2
+    uint32_t mesh = 0;
+    uint32_t face = 0;       // index into Scene::faces
+    std::array<uint32_t, 4> vertex;  // indices into PatchSet::vertices (welded per mesh)
+
+    // A point on the patch from coordinates in the unit square (quads: bilinear; triangles:
+    // the square folded onto the triangle so stratified squares stay stratified).
+    Vec3 point(double s, double t) const;
+    // The inverse for a point x on the patch (its projection onto the patch's plane, for a
+    // point off it): the (s, t) with point(s, t) = x, clamped to the square. `guess` starts
+    // the Newton iterations of quads.
+    Vec2 coordinates(const Vec3& x, Vec2 guess = {0.5, 0.5}) const;
+};
+
+// (s, t) of p in the bilinear quad q: corner 0 at (0, 0), 1 at (1, 0), 2 at (1, 1), 3 at
+// (0, 1). Newton iterations from the (s, t) given; clamped to [0, 1].
+void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t);
+
+struct PatchSet {
+    std::vector<Patch> patches;
+    std::vector<Vec3> vertices;          // shared corners; a vertex belongs to one mesh
+    std::vector<uint32_t> vertex_mesh;   // mesh of each vertex
+};
+
+// Interpolates corner values at a patch's parametric point (u, v) as Embree reports it:
+// bilinear over quads (u along corner 0-1, v along 0-3), barycentric over triangles.
+inline RGB interpolate_corners(int nv, const std::array<RGB, 4>& c, double u, double v) {
+    if (nv == 3) return c[0] * (1 - u - v) + c[1] * u + c[2] * v;
+    return c[0] * ((1 - u) * (1 - v)) + c[1] * (u * (1 - v)) + c[2] * (u * v) + c[3] * ((1 - u) * v);
+}
+
+PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options);
+
+// A patch set over given patches (the leaves of a hierarchy), their corners welded per mesh
+// where the points are bit-identical.
+PatchSet weld_patches(std::vector<Patch> patches);
+
+}  // namespace hirad

@@ -1,0 +1,199 @@
+#include "pipeline/geometry/visibility.h"
+
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace hirad {
+
+namespace {
+
+// Closest point on triangle abc to p (the Voronoi-region walk), with barycentrics (v, w)
+// such that the point is a + v (b - a) + w (c - a).
+Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, double& v, double& w) {
+    Vec3 ab = b - a, ac = c - a, ap = p - a;
+    double d1 = dot(ab, ap), d2 = dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) { v = 0; w = 0; return a; }
+    Vec3 bp = p - b;
+    double d3 = dot(ab, bp), d4 = dot(ac, bp);
+    if (d3 >= 0 && d4 <= d3) { v = 1; w = 0; return b; }
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) { v = d1 / (d1 - d3); w = 0; return a + ab * v; }
+    Vec3 cp = p - c;
+    double d5 = dot(ab, cp), d6 = dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) { v = 0; w = 1; return c; }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) { w = d2 / (d2 - d6); v = 0; return a + ac * w; }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        v = 1 - t; w = t;
+        return b + (c - b) * t;
+    }
+    double denom = 1 / (va + vb + vc);
+    v = vb * denom; w = vc * denom;
+    return a + ab * v + ac * w;
+}
+
+struct PointQueryState {
+    const std::vector<Patch>* patches;
+    Vec3 point, normal;
+    bool use_normal;
+    RayHit best;
+    double best_distance;
+};
+
+bool point_query(RTCPointQueryFunctionArguments* args) {
+    auto* st = static_cast<PointQueryState*>(args->userPtr);
+    const Patch& patch = (*st->patches)[args->primID];
+    if (st->use_normal && dot(patch.normal, st->normal) < 0.5) return false;
+    // Quads as two triangles (0,1,2) and (0,2,3) for the distance.
+    double v, w, u_quad = 0, v_quad = 0;
+    Vec3 q = closest_on_triangle(st->point, patch.p[0], patch.p[1], patch.p[2], v, w);
+    if (patch.nv == 3) { u_quad = v; v_quad = w; }
+    else { u_quad = v + w; v_quad = w; }
+    if (patch.nv == 4) {
+        double v2, w2;
+        Vec3 q2 = closest_on_triangle(st->point, patch.p[0], patch.p[2], patch.p[3], v2, w2);
+        if (length(q2 - st->point) < length(q - st->point)) { q = q2; u_quad = v2; v_quad = v2 + w2; }
+    }
+    double d = length(q - st->point);
+    if (d < st->best_distance) {
+        st->best_distance = d;
+        // Quads: the closest point's coordinates in the patch's own bilinear map (the two
+        // triangles' coordinates agree with it only on parallelograms).
+        if (patch.nv == 4) {
+            const Vec2 c = patch.coordinates(q, {u_quad, v_quad});
+            u_quad = c.u;
+            v_quad = c.v;
+        }
+        st->best = {static_cast<int32_t>(args->primID), d, u_quad, v_quad};
+        args->query->radius = static_cast<float>(d);
+        return true;
+    }
+    return false;
+}
+
+}  // namespace
+
+Visibility::Visibility(const std::vector<Patch>& patches) : patches_(patches) {
+    device_ = rtcNewDevice(nullptr);
+    if (!device_) throw std::runtime_error("Embree: could not create a device");
+    scene_ = rtcNewScene(device_);
+    // Medium quality: the high-quality builder's spatial splits abort (an assertion on empty
+    // clipped bounds) on the thin halves of triangles stored as quads in large display meshes.
+    rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_MEDIUM);
+    RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_QUAD);
+    const size_t n = patches.size();
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                                 3 * sizeof(float), 4 * n));
+    auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,
+                                                                   4 * sizeof(uint32_t), n));
+    Vec3 lo{1e300, 1e300, 1e300}, hi{-1e300, -1e300, -1e300};
+    for (size_t i = 0; i < n; ++i) {
+        // Triangles are quads whose last corner repeats the third, which Embree accepts.
+        for (int k = 0; k < 4; ++k) {
+            const Vec3& p = patches[i].p[k < patches[i].nv ? k : 2];
+            for (int a = 0; a < 3; ++a) {
+                vertices[3 * (4 * i + k) + a] = static_cast<float>(p[a]);
+                lo[a] = std::min(lo[a], p[a]);
+                hi[a] = std::max(hi[a], p[a]);
+            }
+            indices[4 * i + k] = static_cast<uint32_t>(4 * i + k);
+        }
+    }
+    if (n > 0) scene_size_ = std::max(length(hi - lo), 1e-6);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometry(scene_, geom);
+    rtcReleaseGeometry(geom);
+    rtcCommitScene(scene_);
+    if (rtcGetDeviceError(device_) != RTC_ERROR_NONE) throw std::runtime_error("Embree: scene build failed");
+}
+
+Visibility::~Visibility() {
+    if (scene_) rtcReleaseScene(scene_);
+    if (device_) rtcReleaseDevice(device_);
+}
+
+void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count, uint8_t* visible,
+                                  double end_gap) const {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    alignas(64) RTCRay16 rays;
+    alignas(64) int valid[16];
+    for (size_t base = 0; base < count; base += 16) {
+        const size_t m = std::min<size_t>(16, count - base);
+        for (size_t k = 0; k < 16; ++k) {
+            // Unused lanes still carry a well-formed ray: Embree's packet kernels may read them.
+            const size_t src = base + std::min(k, m - 1);
+            valid[k] = k < m ? -1 : 0;
+            const Vec3& o = from[src];
+            Vec3 d = to[src] - o;
+            if (!isfinite(o) || !isfinite(d)) throw std::runtime_error("visibility: a ray with a non-finite end point");
+            rays.org_x[k] = static_cast<float>(o.x);
+            rays.org_y[k] = static_cast<float>(o.y);
+            rays.org_z[k] = static_cast<float>(o.z);
+            rays.dir_x[k] = static_cast<float>(d.x);
+            rays.dir_y[k] = static_cast<float>(d.y);
+            rays.dir_z[k] = static_cast<float>(d.z);
+            rays.tnear[k] = 0.0f;
+            rays.tfar[k] = static_cast<float>(1.0 - end_gap);
+            rays.time[k] = 0;
+            rays.mask[k] = 0xFFFFFFFF;
+            rays.id[k] = static_cast<unsigned>(k);
+            rays.flags[k] = 0;
+        }
+        rtcOccluded16(valid, scene_, &context, &rays);
+        for (size_t k = 0; k < m; ++k) visible[base + k] = rays.tfar[k] >= 0 ? 1 : 0;
+    }
+    rays_ += count;
+}
+
+RayHit Visibility::intersect(const Vec3& origin, const Vec3& direction, double tnear, double tfar) const {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit rh;
+    rh.ray.org_x = static_cast<float>(origin.x);
+    rh.ray.org_y = static_cast<float>(origin.y);
+    rh.ray.org_z = static_cast<float>(origin.z);
+    rh.ray.dir_x = static_cast<float>(direction.x);
+    rh.ray.dir_y = static_cast<float>(direction.y);
+    rh.ray.dir_z = static_cast<float>(direction.z);
+    rh.ray.tnear = static_cast<float>(tnear);
+    rh.ray.tfar = static_cast<float>(std::min(tfar, 1e30));
+    rh.ray.time = 0;
+    rh.ray.mask = 0xFFFFFFFF;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene_, &context, &rh);
+    ++rays_;
+    RayHit hit;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return hit;
+    hit.patch = static_cast<int32_t>(rh.hit.primID);
+    hit.t = rh.ray.tfar;
+    hit.u = rh.hit.u;
+    hit.v = rh.hit.v;
+    return hit;
+}
+
+RayHit Visibility::closest_point(const Vec3& point, const Vec3& normal, double max_distance) const {
+    PointQueryState state{&patches_, point, normalize(normal), length(normal) > 0, RayHit{}, max_distance};
+    RTCPointQuery query;
+    query.x = static_cast<float>(point.x);
+    query.y = static_cast<float>(point.y);
+    query.z = static_cast<float>(point.z);
+    query.time = 0;
+    query.radius = static_cast<float>(max_distance);
+    RTCPointQueryContext context;
+    rtcInitPointQueryContext(&context);
+    rtcPointQuery(scene_, &query, &context, point_query, &state);
+    return state.best;
+}
+
+}  // namespace hirad

@@ -1,0 +1,172 @@
+#include "pipeline/hierarchy/gather.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "pipeline/geometry/formfactors.h"
+
+namespace hirad {
+
+Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, const std::vector<RGB>& radiosity,
+                   const Visibility& visibility, const GatherOptions& options)
+    : h_(hierarchy), links_(links), radiosity_(radiosity), vis_(visibility), opt_(options) {
+    const size_t n = h_.nodes.size();
+    first_link_.assign(n + 1, 0);
+    for (const Link& l : links_) ++first_link_[l.receiver + 1];
+    for (size_t i = 0; i < n; ++i) first_link_[i + 1] += first_link_[i];
+    for (size_t k = 1; k < links_.size(); ++k)
+        if (links_[k].receiver < links_[k - 1].receiver) throw std::invalid_argument("gather: links must be sorted by receiver");
+}
+
+RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng) const {
+    // F(x -> S) exactly, times the mean of V(x, y) B(y) over stratified points y of S, B(y)
+    // from the leaf below S that holds y: where S is partly hidden from x and its radiosity
+    // uneven (the floor under a block), the mean B_S times the visible fraction would count
+    // the hidden dark part twice.
+    const Node& node = h_.nodes[link.source];
+    if (!node.leaf() && !node.cluster) {
+        // x close to S compared with its size: the kernel is far from uniform over S, and
+        // the radiosity under it may vary (a floor at the foot of a wall). Gather from S's
+        // children, each with its own exact form factor and radiosity.
+        double gap2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = std::max({0.0, node.lo[k] - x[k], x[k] - node.hi[k]});
+            gap2 += d * d;
+        }
+        if (std::sqrt(gap2) < node.diagonal()) {
+            RGB sum;
+            for (uint32_t c = 0; c < node.child_count; ++c) {
+                Link child = link;
+                child.source = node.first_child + c;
+                sum += element_transfer(child, x, n, rng);
+            }
+            return sum;
+        }
+    }
+    const Patch& s = node.shape;
+    const double f = point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
+    if (f <= 0) return {};
+    // A link all of whose estimate rays arrived is taken as unoccluded: refinement already
+    // split the links whose visibility varies and that carry enough power to matter.
+    const bool trace = link.visibility < 1.0f;
+    if (!trace && node.leaf()) return radiosity_[link.source] * f;
+    const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(opt_.rays))))));
+    const int m = g * g;
+    const double lift = 1e-5 * vis_.scene_size();
+    Vec3 from[16], to[16];
+    RGB b[16];
+    uint8_t seen[16];
+    for (int k = 0; k < m; ++k) {
+        const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
+        b[k] = radiosity_[h_.leaf_at(link.source, s0, t0)];
+        from[k] = x + n * lift;
+        to[k] = s.point(s0, t0) + s.normal * lift;
+        seen[k] = 1;
+    }
+    if (trace) vis_.segments_visible(from, to, m, seen);
+    RGB sum;
+    for (int k = 0; k < m; ++k)
+        if (seen[k]) sum += b[k];
+    return sum * (f / m);
+}
+
+RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng) const {
+    // Faces drawn with probability A_f / A_S (stratified), each seen through its exact
+    // form factor, with the radiosity of the leaf at a point y drawn on it and the visibility
+    // of y: sum_f F(x -> f) B_f ~ E[F(x -> f) B(y) V(x, y) A_S / A_f]. The cluster's mean
+    // radiosity would mix in surfaces that face away from x (the undersides of furniture,
+    // say) and bias the gather dark.
+    const Node& c = h_.nodes[link.source];
+    const int m = std::max(1, std::min(16, opt_.cluster_samples));
+    const double lo = h_.area_prefix[c.face_begin], hi = h_.area_prefix[c.face_end];
+    const double lift = 1e-5 * vis_.scene_size();
+    Vec3 from[16], to[16];
+    RGB f[16];
+    int used = 0;
+    RGB sum;
+    for (int k = 0; k < m; ++k) {
+        const double target = lo + (k + rng.uniform()) / m * (hi - lo);
+        auto it = std::upper_bound(h_.area_prefix.begin() + c.face_begin + 1, h_.area_prefix.begin() + c.face_end + 1, target);
+        uint32_t j = static_cast<uint32_t>(it - h_.area_prefix.begin()) - 1;
+        j = std::min(std::max(j, c.face_begin), c.face_end - 1);
+        const uint32_t face_index = h_.face_order[j];
+        const Patch& face = h_.faces[face_index];
+        const double fk = point_polygon_form_factor(x, n, face.p.data(), face.nv, face.normal);
+        const double s0 = rng.uniform(), t0 = rng.uniform();
+        if (fk <= 0 || face.area <= 0) continue;
+        f[used] = radiosity_[h_.leaf_at(h_.face_node[face_index], s0, t0)] * (fk * c.area / face.area);
+        from[used] = x + n * lift;
+        to[used] = face.point(s0, t0) + face.normal * lift;
+        ++used;
+    }
+    if (used == 0) return sum;
+    uint8_t seen[16];
+    vis_.segments_visible(from, to, used, seen);
+    for (int k = 0; k < used; ++k)
+        if (seen[k]) sum += f[k];
+    return sum / m;
+}
+
+RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key) const {
+    const Patch& shape = h_.nodes[leaf].shape;
+    const Vec3 n = shape.normal;
+    // On the leaf's plane, whatever small offset the query point had.
+    const Vec3 x = x_in - n * dot(x_in - shape.p[0], n);
+    Rng rng(hash_pair(leaf, key, opt_.seed ^ 0x6A7Eull));
+    RGB h;
+    for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
+        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
+            const Link& l = links_[k];
+            h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng) : element_transfer(l, x, n, rng);
+        }
+    return h;
+}
+
+void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {
+    for (size_t k = 0; k < count; ++k)
+        if (leaf[k] >= h_.nodes.size() || h_.nodes[leaf[k]].cluster)
+            throw std::invalid_argument("gather: a query point's element is not an element of the hierarchy");
+    tbb::parallel_for(size_t(0), count, [&](size_t k) { out[k] = at(leaf[k], x[k], key[k]); });
+}
+
+void Gatherer::radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {
+    irradiance(leaf, x, key, count, out);
+    for (size_t k = 0; k < count; ++k) {
+        const Patch& s = h_.nodes[leaf[k]].shape;
+        out[k] = (s.emission + mul(s.reflectance, out[k])) / kPi;
+    }
+}
+
+void gather_flat(const std::vector<Patch>& patches, const std::vector<RGB>& radiosity, const Visibility& vis,
+                 const Vec3* x, const Vec3* n, size_t count, int rays, uint64_t seed, RGB* out) {
+    const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(rays))))));
+    const int m = g * g;
+    const double lift = 1e-5 * vis.scene_size();
+    tbb::parallel_for(size_t(0), count, [&](size_t q) {
+        Rng rng(hash_pair(q, 0xF1A7ull, seed));
+        RGB h;
+        Vec3 from[16], to[16];
+        uint8_t seen[16];
+        for (size_t j = 0; j < patches.size(); ++j) {
+            const Patch& s = patches[j];
+            // The point's own patch and its coplanar neighbours send nothing (rounding would
+            // put x a hair in front of them and count their whole hemisphere).
+            if (dot(x[q] - s.p[0], s.normal) <= 1e-9 * vis.scene_size()) continue;
+            const double f = point_polygon_form_factor(x[q], n[q], s.p.data(), s.nv, s.normal);
+            if (f <= 0) continue;
+            for (int k = 0; k < m; ++k) {
+                from[k] = x[q] + n[q] * lift;
+                to[k] = s.point((k % g + rng.uniform()) / g, (k / g + rng.uniform()) / g) + s.normal * lift;
+            }
+            vis.segments_visible(from, to, m, seen);
+            int arrived = 0;
+            for (int k = 0; k < m; ++k) arrived += seen[k];
+            h += radiosity[j] * (f * arrived / m);
+        }
+        out[q] = h;
+    });
+}
+
+}  // namespace hirad

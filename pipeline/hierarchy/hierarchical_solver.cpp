@@ -1,0 +1,390 @@
+#include "pipeline/hierarchy/hierarchical_solver.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <queue>
+#include <stdexcept>
+
+namespace hirad {
+
+void sort_links(std::vector<Link>& links) {
+    std::sort(links.begin(), links.end(), [](const Link& a, const Link& b) {
+        return a.receiver < b.receiver || (a.receiver == b.receiver && a.source < b.source);
+    });
+}
+
+std::vector<RGB> node_emission(const Hierarchy& h) {
+    std::vector<RGB> e(h.nodes.size());
+    // Children have larger indices than their parents: a reverse sweep pulls.
+    for (size_t i = h.nodes.size(); i-- > 0;) {
+        const Node& n = h.nodes[i];
+        if (n.leaf()) {
+            e[i] = n.cluster ? RGB{} : n.shape.emission;
+            continue;
+        }
+        RGB acc;
+        for (uint32_t c = 0; c < n.child_count; ++c) acc += e[n.first_child + c] * h.nodes[n.first_child + c].area;
+        e[i] = acc / n.area;
+    }
+    return e;
+}
+
+namespace {
+
+// Groups of links with the same receiver, for a deterministic parallel gather.
+std::vector<size_t> receiver_groups(const std::vector<Link>& links) {
+    std::vector<size_t> starts;
+    for (size_t k = 0; k < links.size(); ++k)
+        if (k == 0 || links[k].receiver != links[k - 1].receiver) starts.push_back(k);
+    starts.push_back(links.size());
+    return starts;
+}
+
+}  // namespace
+
+// Parents come before children in index order, so one forward sweep pushes and one backward
+// sweep pulls.
+void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
+               std::vector<RGB>& radiosity) {
+    const size_t n = h.nodes.size();
+    for (size_t i = 0; i < n; ++i) {
+        const Node& node = h.nodes[i];
+        irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
+    }
+    for (size_t i = n; i-- > 0;) {
+        const Node& node = h.nodes[i];
+        if (node.leaf()) {
+            radiosity[i] = node.cluster ? RGB{} : node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            continue;
+        }
+        RGB acc;
+        for (uint32_t c = 0; c < node.child_count; ++c)
+            acc += radiosity[node.first_child + c] * h.nodes[node.first_child + c].area;
+        radiosity[i] = acc / node.area;
+    }
+}
+
+namespace {
+
+// Stores b with the irradiance that goes with it, and per node the fraction of its power its
+// own and its ancestors' links carry to some receiver (for the energy balance).
+void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB> b, HierarchicalSolution& sol) {
+    const size_t n = h.nodes.size();
+    std::vector<RGB> gathered(n), irradiance(n), unused(n);
+    for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
+    push_pull(h, gathered, irradiance, unused);
+    std::vector<double> own(n, 0.0);
+    for (const Link& l : links) own[l.source] += double(l.coupling) / h.nodes[l.source].area;
+    sol.outgoing.assign(n, 0.0);
+    for (size_t i = 0; i < n; ++i)
+        sol.outgoing[i] = own[i] + (h.nodes[i].parent == kNoNode ? 0.0 : sol.outgoing[h.nodes[i].parent]);
+    sol.radiosity = std::move(b);
+    sol.irradiance = std::move(irradiance);
+}
+
+}  // namespace
+
+HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& start,
+                                     const SolverOptions& opt) {
+    const size_t n = h.nodes.size();
+    for (size_t i = 1; i < n; ++i)
+        if (h.nodes[i].parent != kNoNode && h.nodes[i].parent >= i)
+            throw std::logic_error("hierarchy: a parent must come before its children");
+    HierarchicalSolution sol;
+    std::vector<RGB> b = start.size() == n ? start : node_emission(h);
+    std::vector<RGB> gathered(n), irradiance(n), next(n);
+    const std::vector<size_t> groups = receiver_groups(links);
+    const std::vector<uint32_t> leaves = h.leaves();
+    double enorm = 0;
+    for (uint32_t i : leaves) enorm += h.nodes[i].area * dot(h.nodes[i].shape.emission, h.nodes[i].shape.emission);
+    enorm = enorm > 0 ? std::sqrt(enorm) : 1.0;
+
+    for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
+        std::fill(gathered.begin(), gathered.end(), RGB{});
+        tbb::parallel_for(size_t(0), groups.size() - 1, [&](size_t g) {
+            RGB acc;
+            const uint32_t r = links[groups[g]].receiver;
+            for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
+            gathered[r] = acc / h.nodes[r].area;
+        });
+        push_pull(h, gathered, irradiance, next);
+        double r2 = 0;
+        for (uint32_t i : leaves) {
+            RGB d = next[i] - b[i];
+            r2 += h.nodes[i].area * dot(d, d);
+        }
+        const double res = std::sqrt(r2) / enorm;
+        sol.residual_history.push_back(res);
+        sol.iterations = it;
+        sol.residual = res;
+        bool go_on = !opt.on_iteration || opt.on_iteration({it, res, UINT32_MAX});
+        if (res <= opt.tolerance || !go_on || it == opt.max_iterations) {
+            sol.converged = res <= opt.tolerance;
+            break;
+        }
+        b.swap(next);
+    }
+    finish(h, links, std::move(b), sol);
+    return sol;
+}
+
+namespace {
+
+// The element trees of the faces: for every element its face root, and per face root its
+// nodes in parent-first order.
+struct FaceTrees {
+    std::vector<uint32_t> root_of;                 // per node (kNoNode for clusters)
+    std::vector<uint32_t> roots;                   // face roots in index order
+    std::vector<uint32_t> slot;                    // per node: index of its face in `roots`
+    std::vector<std::vector<uint32_t>> nodes;      // per face: its tree, parents first
+};
+
+FaceTrees face_trees(const Hierarchy& h) {
+    FaceTrees t;
+    const size_t n = h.nodes.size();
+    t.root_of.assign(n, kNoNode);
+    t.slot.assign(n, kNoNode);
+    for (size_t i = 0; i < n; ++i) {
+        const Node& node = h.nodes[i];
+        if (node.cluster) continue;
+        const bool is_root = node.parent == kNoNode || h.nodes[node.parent].cluster;
+        t.root_of[i] = is_root ? static_cast<uint32_t>(i) : t.root_of[node.parent];
+        if (is_root) {
+            t.slot[i] = static_cast<uint32_t>(t.roots.size());
+            t.roots.push_back(static_cast<uint32_t>(i));
+            t.nodes.emplace_back();
+        }
+        t.slot[i] = t.slot[t.root_of[i]];
+        t.nodes[t.slot[i]].push_back(static_cast<uint32_t>(i));
+    }
+    return t;
+}
+
+// Push `gathered` down one face tree and set B at its leaves, pull B up to the face root.
+void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const std::vector<RGB>& gathered,
+                    std::vector<RGB>& irradiance, std::vector<RGB>& radiosity) {
+    for (uint32_t i : tree) {
+        const Node& node = h.nodes[i];
+        const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
+        irradiance[i] = gathered[i] + (root ? RGB{} : irradiance[node.parent]);
+    }
+    for (size_t k = tree.size(); k-- > 0;) {
+        const uint32_t i = tree[k];
+        const Node& node = h.nodes[i];
+        if (node.leaf()) {
+            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            continue;
+        }
+        RGB acc;
+        for (uint32_t c = 0; c < node.child_count; ++c)
+            acc += radiosity[node.first_child + c] * h.nodes[node.first_child + c].area;
+        radiosity[i] = acc / node.area;
+    }
+}
+
+// Area-weighted means up the clusters above a node.
+void pull_ancestors(const Hierarchy& h, uint32_t i, std::vector<RGB>& radiosity) {
+    for (uint32_t p = h.nodes[i].parent; p != kNoNode; p = h.nodes[p].parent) {
+        const Node& node = h.nodes[p];
+        RGB acc;
+        for (uint32_t c = 0; c < node.child_count; ++c)
+            acc += radiosity[node.first_child + c] * h.nodes[node.first_child + c].area;
+        radiosity[p] = acc / node.area;
+    }
+}
+
+double leaf_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves, const std::vector<RGB>& v) {
+    double s = 0;
+    for (uint32_t i : leaves) s += h.nodes[i].area * dot(v[i], v[i]);
+    return std::sqrt(s);
+}
+
+// One Jacobi evaluation T(b) = E + rho * (gather + push) at the leaves, pulled up.
+std::vector<RGB> apply(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& b) {
+    const size_t n = h.nodes.size();
+    std::vector<RGB> gathered(n), irradiance(n), out(n);
+    for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
+    push_pull(h, gathered, irradiance, out);
+    return out;
+}
+
+}  // namespace
+
+HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                                  const std::vector<RGB>& start, const SolverOptions& opt) {
+    const size_t n = h.nodes.size();
+    const FaceTrees trees = face_trees(h);
+    // Links grouped by the face tree of their receiver (links are sorted by receiver).
+    std::vector<std::vector<uint32_t>> by_face(trees.roots.size());
+    for (uint32_t k = 0; k < links.size(); ++k) {
+        const uint32_t slot = trees.slot[links[k].receiver];
+        if (slot == kNoNode) throw std::invalid_argument("hierarchy: a link's receiver is a cluster");
+        by_face[slot].push_back(k);
+    }
+    const std::vector<uint32_t> leaves = h.leaves();
+    std::vector<RGB> emission(n);
+    for (uint32_t i : leaves) emission[i] = h.nodes[i].shape.emission;
+    double enorm = leaf_norm(h, leaves, emission);
+    enorm = enorm > 0 ? enorm : 1.0;
+
+    HierarchicalSolution sol;
+    std::vector<RGB> b = start.size() == n ? start : node_emission(h);
+    std::vector<RGB> gathered(n), irradiance(n);
+    for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
+        // Residual of the current iterate, then one sweep.
+        std::vector<RGB> tb = apply(h, links, b);
+        std::vector<RGB> diff(n);
+        for (uint32_t i : leaves) diff[i] = tb[i] - b[i];
+        const double res = leaf_norm(h, leaves, diff) / enorm;
+        sol.residual_history.push_back(res);
+        sol.iterations = it;
+        sol.residual = res;
+        bool go_on = !opt.on_iteration || opt.on_iteration({it, res, UINT32_MAX});
+        if (res <= opt.tolerance || !go_on || it == opt.max_iterations) {
+            sol.converged = res <= opt.tolerance;
+            break;
+        }
+        for (size_t f = 0; f < trees.roots.size(); ++f) {
+            for (uint32_t i : trees.nodes[f]) gathered[i] = RGB{};
+            for (uint32_t k : by_face[f])
+                gathered[links[k].receiver] += b[links[k].source] * (double(links[k].coupling) / h.nodes[links[k].receiver].area);
+            push_pull_face(h, trees.nodes[f], gathered, irradiance, b);
+            pull_ancestors(h, trees.roots[f], b);
+        }
+    }
+    finish(h, links, std::move(b), sol);
+    return sol;
+}
+
+HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                               const std::vector<RGB>& start, const SolverOptions& opt) {
+    const size_t n = h.nodes.size();
+    const FaceTrees trees = face_trees(h);
+    const std::vector<uint32_t> leaves = h.leaves();
+    // Links by source.
+    std::vector<uint32_t> source_first(n + 1, 0), by_source(links.size());
+    for (const Link& l : links) ++source_first[l.source + 1];
+    for (size_t i = 0; i < n; ++i) source_first[i + 1] += source_first[i];
+    {
+        std::vector<uint32_t> cursor(source_first.begin(), source_first.end() - 1);
+        for (uint32_t k = 0; k < links.size(); ++k) by_source[cursor[links[k].source]++] = k;
+    }
+    std::vector<RGB> emission(n);
+    for (uint32_t i : leaves) emission[i] = h.nodes[i].shape.emission;
+    double enorm = leaf_norm(h, leaves, emission);
+    enorm = enorm > 0 ? enorm : 1.0;
+
+    // b: radiosity already shot; r = T(b) - b: unshot, kept at the leaves.
+    std::vector<RGB> b = start.size() == n ? start : std::vector<RGB>(n);
+    std::vector<RGB> r(n);
+    {
+        std::vector<RGB> tb = apply(h, links, b);
+        for (uint32_t i : leaves) r[i] = tb[i] - b[i];
+    }
+    auto face_power = [&](size_t f) {
+        double p = 0;
+        for (uint32_t i : trees.nodes[f])
+            if (h.nodes[i].leaf()) p += (std::fabs(r[i].x) + std::fabs(r[i].y) + std::fabs(r[i].z)) * h.nodes[i].area;
+        return p;
+    };
+    std::vector<double> power(trees.roots.size());
+    std::priority_queue<std::pair<double, int64_t>> queue;  // (power, -face): ties to the lower face
+    for (size_t f = 0; f < trees.roots.size(); ++f) {
+        power[f] = face_power(f);
+        queue.push({power[f], -int64_t(f)});
+    }
+    double r2 = 0;
+    for (uint32_t i : leaves) r2 += h.nodes[i].area * dot(r[i], r[i]);
+
+    HierarchicalSolution sol;
+    std::vector<RGB> delta(n), gathered(n), pushed(n);
+    std::vector<uint8_t> touched_face(trees.roots.size(), 0);
+    std::vector<uint32_t> touched;
+    for (uint64_t shot = 1; shot <= opt.max_iterations; ++shot) {
+        // The face with the most unshot power (stale queue entries are skipped).
+        size_t f = 0;
+        while (!queue.empty()) {
+            auto [p, neg] = queue.top();
+            queue.pop();
+            if (p == power[size_t(-neg)]) { f = size_t(-neg); break; }
+        }
+        const std::vector<uint32_t>& tree = trees.nodes[f];
+        // Shoot: the face's unshot radiosity moves into b, pulled up its tree as delta.
+        for (size_t k = tree.size(); k-- > 0;) {
+            const uint32_t i = tree[k];
+            const Node& node = h.nodes[i];
+            if (node.leaf()) {
+                delta[i] = r[i];
+                b[i] += r[i];
+                r2 -= node.area * dot(r[i], r[i]);
+                r[i] = RGB{};
+                continue;
+            }
+            RGB acc;
+            for (uint32_t c = 0; c < node.child_count; ++c) acc += delta[node.first_child + c] * h.nodes[node.first_child + c].area;
+            delta[i] = acc / node.area;
+            b[i] = RGB{};
+            for (uint32_t c = 0; c < node.child_count; ++c) b[i] += b[node.first_child + c] * h.nodes[node.first_child + c].area;
+            b[i] = b[i] / node.area;
+        }
+        pull_ancestors(h, trees.roots[f], b);
+        // Send delta through the links of the tree's nodes and of the clusters above it.
+        auto send = [&](uint32_t source, const RGB& d) {
+            for (uint32_t k = source_first[source]; k < source_first[source + 1]; ++k) {
+                const Link& l = links[by_source[k]];
+                gathered[l.receiver] += d * (double(l.coupling) / h.nodes[l.receiver].area);
+                const uint32_t g = trees.slot[l.receiver];
+                if (!touched_face[g]) { touched_face[g] = 1; touched.push_back(g); }
+            }
+        };
+        for (uint32_t i : tree) send(i, delta[i]);
+        const uint32_t face_root = trees.roots[f];
+        for (uint32_t p = h.nodes[face_root].parent; p != kNoNode; p = h.nodes[p].parent)
+            send(p, delta[face_root] * (h.nodes[face_root].area / h.nodes[p].area));
+        // Receivers: push down their trees, add rho * H to the unshot radiosity of the leaves.
+        std::sort(touched.begin(), touched.end());
+        for (uint32_t g : touched) {
+            for (uint32_t i : trees.nodes[g]) {
+                const Node& node = h.nodes[i];
+                const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
+                pushed[i] = gathered[i] + (root ? RGB{} : pushed[node.parent]);
+                gathered[i] = RGB{};
+                if (node.leaf()) {
+                    r2 -= node.area * dot(r[i], r[i]);
+                    r[i] += mul(node.shape.reflectance, pushed[i]);
+                    r2 += node.area * dot(r[i], r[i]);
+                }
+            }
+            power[g] = face_power(g);
+            queue.push({power[g], -int64_t(g)});
+            touched_face[g] = 0;
+        }
+        touched.clear();
+        if (!touched_face[f]) {
+            power[f] = face_power(f);
+            queue.push({power[f], -int64_t(f)});
+        }
+        // The running sum drifts; recompute it exactly now and then and before stopping.
+        double res = std::sqrt(std::max(r2, 0.0)) / enorm;
+        if (shot % 4096 == 0 || res <= opt.tolerance) {
+            r2 = 0;
+            for (uint32_t i : leaves) r2 += h.nodes[i].area * dot(r[i], r[i]);
+            res = std::sqrt(r2) / enorm;
+        }
+        sol.residual_history.push_back(res);
+        sol.iterations = shot;
+        sol.residual = res;
+        bool go_on = !opt.on_iteration || opt.on_iteration({shot, res, face_root});
+        if (res <= opt.tolerance || !go_on || shot == opt.max_iterations) {
+            sol.converged = res <= opt.tolerance;
+            break;
+        }
+    }
+    // Irradiance of the returned b, and the outgoing fractions, as for Jacobi.
+    finish(h, links, std::move(b), sol);
+    return sol;
+}
+
+}  // namespace hirad

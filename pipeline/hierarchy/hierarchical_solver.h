@@ -1,0 +1,60 @@
+// Solving on the hierarchy: gathering over links, then push-pull.
+//
+// One iteration gathers H_R = sum over links (R <- S) of G / A_R * B_S at every receiver node,
+// pushes the gathered irradiance down to the leaves (irradiance is per unit area, so a child
+// receives its parent's unchanged: power is conserved), sets B = E + rho H at the leaves and
+// pulls B back up as area-weighted means. Iterating this is Jacobi's method on the
+// hierarchical operator.
+#pragma once
+#include <vector>
+
+#include "pipeline/hierarchy/hierarchy.h"
+#include "pipeline/hierarchy/refine.h"
+#include "pipeline/flat/solvers.h"
+
+namespace hirad {
+
+struct HierarchicalSolution {
+    std::vector<RGB> radiosity;   // per node (leaves: B; inner nodes: area-weighted mean)
+    std::vector<RGB> irradiance;  // per node: everything gathered at it and above it
+    std::vector<double> outgoing; // per node: fraction of its power that its links and its
+                                  // ancestors' links carry to some receiver
+    uint64_t iterations = 0;
+    double residual = 0;
+    bool converged = false;
+    std::vector<double> residual_history;
+};
+
+// Sorts links by receiver, then source (the order the gather reads them in).
+void sort_links(std::vector<Link>& links);
+
+// Push-pull: irradiance gathered at every node pushed down to the leaves (a child receives its
+// parent's irradiance unchanged: it is per unit area, so power is conserved), B = E + rho H
+// at the leaves, B pulled up as area-weighted means. `irradiance` receives the pushed values.
+void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
+               std::vector<RGB>& radiosity);
+
+// Area-weighted mean emission per node.
+std::vector<RGB> node_emission(const Hierarchy& h);
+
+// Jacobi iteration with push-pull from `start` (per node radiosity; emission if empty) until
+// the relative residual sqrt(sum A (B' - B)^2) / sqrt(sum A E^2) over the leaves falls below
+// the tolerance. Links must be sorted by sort_links.
+HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                     const std::vector<RGB>& start, const SolverOptions& options);
+
+// Gauss-Seidel on the hierarchy: face by face, gather the links received anywhere in the
+// face's element tree and push-pull that tree at once, so later faces already see the new
+// radiosity. The residual is measured as for Jacobi (one more gather per sweep).
+HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                                  const std::vector<RGB>& start, const SolverOptions& options);
+
+// Southwell on the hierarchy: shoot the face whose element tree holds the most unshot power
+// through every link whose source is in that tree or is a cluster above it (the cluster's
+// links carry the face's share, A_face / A_cluster), push the received irradiance down the
+// receivers' trees and add it to their unshot radiosity. The residual is the unshot
+// radiosity, sqrt(sum A dB^2) / sqrt(sum A E^2) over the leaves.
+HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::vector<Link>& links,
+                                               const std::vector<RGB>& start, const SolverOptions& options);
+
+}  // namespace hirad

@@ -1,0 +1,277 @@
+#include "pipeline/hierarchy/hierarchy.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+#include <unordered_set>
+
+namespace hirad {
+
+namespace {
+
+void finish_shape(Patch& p) {
+    Vec3 n;
+    for (int k = 0; k < p.nv; ++k) n += cross(p.p[k], p.p[(k + 1) % p.nv]);
+    p.area = 0.5 * length(n);
+    p.normal = normalize(n);
+    Vec3 c;
+    for (int k = 0; k < p.nv; ++k) c += p.p[k];
+    p.centroid = c / p.nv;
+    if (p.nv == 3) { p.p[3] = p.p[2]; p.uv[3] = p.uv[2]; }
+}
+
+void bound_shape(Node& node) {
+    node.lo = {1e300, 1e300, 1e300};
+    node.hi = {-1e300, -1e300, -1e300};
+    for (int k = 0; k < node.shape.nv; ++k)
+        for (int a = 0; a < 3; ++a) {
+            node.lo[a] = std::min(node.lo[a], node.shape.p[k][a]);
+            node.hi[a] = std::max(node.hi[a], node.shape.p[k][a]);
+        }
+}
+
+// Midpoints are computed as (a + b) / 2, which is symmetric in a and b: the two faces of a
+// shared edge produce the same bits and their vertices weld.
+Vec3 mid(const Vec3& a, const Vec3& b) { return (a + b) * 0.5; }
+Vec2 mid2(const Vec2& a, const Vec2& b) { return {(a.u + b.u) * 0.5, (a.v + b.v) * 0.5}; }
+
+}  // namespace
+
+Hierarchy::Hierarchy(const Scene& scene) {
+    const uint32_t n = static_cast<uint32_t>(scene.faces.size());
+    faces.resize(n);
+    for (uint32_t f = 0; f < n; ++f) {
+        const Face& face = scene.faces[f];
+        Patch& p = faces[f];
+        p.nv = face.nv;
+        for (int k = 0; k < 4; ++k) { p.p[k] = face.p[std::min(k, face.nv - 1)]; p.uv[k] = face.uv[std::min(k, face.nv - 1)]; }
+        p.reflectance = face.reflectance;
+        p.emission = face.emission;
+        p.mesh = face.mesh;
+        p.face = f;
+        finish_shape(p);
+    }
+    face_order.resize(n);
+    std::iota(face_order.begin(), face_order.end(), 0u);
+    face_node.assign(n, kNoNode);
+    if (n == 0) return;
+
+    // Node 0 is the root; every split reserves both child slots before recursing so that
+    // siblings are adjacent.
+    nodes.emplace_back();
+    struct Task { uint32_t node, begin, end; };
+    std::vector<Task> stack{{0, 0, n}};
+    while (!stack.empty()) {
+        Task t = stack.back();
+        stack.pop_back();
+        Node& node = nodes[t.node];
+        node.face_begin = t.begin;
+        node.face_end = t.end;
+        if (t.end - t.begin == 1) {
+            const uint32_t f = face_order[t.begin];
+            node.shape = faces[f];
+            node.area = faces[f].area;
+            node.cluster = false;
+            bound_shape(node);
+            face_node[f] = t.node;
+            continue;
+        }
+        node.cluster = true;
+        Vec3 clo{1e300, 1e300, 1e300}, chi{-1e300, -1e300, -1e300};
+        for (uint32_t k = t.begin; k < t.end; ++k)
+            for (int a = 0; a < 3; ++a) {
+                clo[a] = std::min(clo[a], faces[face_order[k]].centroid[a]);
+                chi[a] = std::max(chi[a], faces[face_order[k]].centroid[a]);
+            }
+        Vec3 ext = chi - clo;
+        int axis = ext.x >= ext.y && ext.x >= ext.z ? 0 : (ext.y >= ext.z ? 1 : 2);
+        const uint32_t m = t.begin + (t.end - t.begin) / 2;
+        std::nth_element(face_order.begin() + t.begin, face_order.begin() + m, face_order.begin() + t.end,
+                         [&](uint32_t a, uint32_t b) {
+                             double ca = faces[a].centroid[axis], cb = faces[b].centroid[axis];
+                             return ca < cb || (ca == cb && a < b);
+                         });
+        const uint32_t first = static_cast<uint32_t>(nodes.size());
+        nodes[t.node].first_child = first;
+        nodes[t.node].child_count = 2;
+        nodes.emplace_back();
+        nodes.emplace_back();
+        nodes[first].parent = nodes[first + 1].parent = t.node;
+        stack.push_back({first + 1, m, t.end});
+        stack.push_back({first, t.begin, m});
+    }
+    area_prefix.assign(n + 1, 0.0);
+    for (uint32_t k = 0; k < n; ++k) area_prefix[k + 1] = area_prefix[k] + faces[face_order[k]].area;
+    // Cluster bounds and areas, children before parents (they have larger indices).
+    for (uint32_t i = static_cast<uint32_t>(nodes.size()); i-- > 0;) {
+        Node& node = nodes[i];
+        if (!node.cluster) continue;
+        const Node& a = nodes[node.first_child];
+        const Node& b = nodes[node.first_child + 1];
+        node.area = a.area + b.area;
+        for (int k = 0; k < 3; ++k) {
+            node.lo[k] = std::min(a.lo[k], b.lo[k]);
+            node.hi[k] = std::max(a.hi[k], b.hi[k]);
+        }
+    }
+    root = 0;
+}
+
+bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
+    const Node& node = nodes[i];
+    if (node.cluster) return true;
+    return node.child_count > 0 || node.area / 4 >= min_area;
+}
+
+void Hierarchy::subdivide(uint32_t i) {
+    if (nodes[i].child_count > 0 || nodes[i].cluster) return;
+    const Patch s = nodes[i].shape;
+    Patch kids[4];
+    if (s.nv == 4) {
+        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m23 = mid(s.p[2], s.p[3]), m30 = mid(s.p[3], s.p[0]);
+        const Vec3 c = mid(m01, m23);
+        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u23 = mid2(s.uv[2], s.uv[3]),
+                   u30 = mid2(s.uv[3], s.uv[0]), uc = mid2(u01, u23);
+        const Vec3 corners[4][4] = {{s.p[0], m01, c, m30}, {m01, s.p[1], m12, c}, {c, m12, s.p[2], m23}, {m30, c, m23, s.p[3]}};
+        const Vec2 uvs[4][4] = {{s.uv[0], u01, uc, u30}, {u01, s.uv[1], u12, uc}, {uc, u12, s.uv[2], u23}, {u30, uc, u23, s.uv[3]}};
+        for (int k = 0; k < 4; ++k) {
+            kids[k] = s;
+            for (int c2 = 0; c2 < 4; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
+        }
+    } else {
+        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m20 = mid(s.p[2], s.p[0]);
+        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u20 = mid2(s.uv[2], s.uv[0]);
+        const Vec3 corners[4][3] = {{s.p[0], m01, m20}, {m01, s.p[1], m12}, {m20, m12, s.p[2]}, {m12, m20, m01}};
+        const Vec2 uvs[4][3] = {{s.uv[0], u01, u20}, {u01, s.uv[1], u12}, {u20, u12, s.uv[2]}, {u12, u20, u01}};
+        for (int k = 0; k < 4; ++k) {
+            kids[k] = s;
+            for (int c2 = 0; c2 < 3; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
+        }
+    }
+    const uint32_t first = static_cast<uint32_t>(nodes.size());
+    const uint16_t level = nodes[i].level + 1;
+    for (int k = 0; k < 4; ++k) {
+        Node child;
+        child.shape = kids[k];
+        finish_shape(child.shape);
+        child.area = child.shape.area;
+        child.parent = i;
+        child.level = level;
+        bound_shape(child);
+        nodes.push_back(child);
+    }
+    nodes[i].first_child = first;
+    nodes[i].child_count = 4;
+    subdivided.push_back(i);
+}
+
+void Hierarchy::replay(const std::vector<uint32_t>& log) {
+    for (size_t k = 0; k < log.size(); ++k) {
+        const uint32_t i = log[k];
+        if (i >= nodes.size() || nodes[i].cluster || !nodes[i].leaf())
+            throw std::runtime_error("hierarchy log entry " + std::to_string(k) + ": node " + std::to_string(i) +
+                                     " is not a leaf element of the hierarchy");
+        subdivide(i);
+    }
+}
+
+void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point, Vec3& normal) const {
+    const Node& node = nodes[i];
+    if (!node.cluster) {
+        point = node.shape.point(s, t);
+        normal = node.shape.normal;
+        return;
+    }
+    const double lo = area_prefix[node.face_begin], hi = area_prefix[node.face_end];
+    const double target = lo + pick * (hi - lo);
+    auto it = std::upper_bound(area_prefix.begin() + node.face_begin + 1, area_prefix.begin() + node.face_end + 1, target);
+    uint32_t k = static_cast<uint32_t>(it - area_prefix.begin()) - 1;
+    k = std::min(std::max(k, node.face_begin), node.face_end - 1);
+    const Patch& f = faces[face_order[k]];
+    point = f.point(s, t);
+    normal = f.normal;
+}
+
+uint32_t Hierarchy::leaf_at(uint32_t i, double s, double t) const {
+    // Children follow subdivide(): quads by parameter quadrant; triangles by the corner
+    // triangle holding the point, the inverted middle one (3) mapping (s, t) to (1-2s, 1-2t).
+    if (nodes[i].shape.nv == 3 && s + t > 1) { s = 1 - s; t = 1 - t; }
+    while (!nodes[i].leaf()) {
+        const Node& node = nodes[i];
+        int k;
+        if (node.shape.nv == 4) {
+            const bool right = s >= 0.5, top = t >= 0.5;
+            k = right ? (top ? 2 : 1) : (top ? 3 : 0);
+            s = right ? 2 * s - 1 : 2 * s;
+            t = top ? 2 * t - 1 : 2 * t;
+        } else if (s >= 0.5) { k = 1; s = 2 * s - 1; t = 2 * t; }
+        else if (t >= 0.5) { k = 2; s = 2 * s; t = 2 * t - 1; }
+        else if (s + t <= 0.5) { k = 0; s = 2 * s; t = 2 * t; }
+        else { k = 3; s = 1 - 2 * s; t = 1 - 2 * t; }
+        s = std::min(std::max(s, 0.0), 1.0);
+        t = std::min(std::max(t, 0.0), 1.0);
+        i = node.first_child + k;
+    }
+    return i;
+}
+
+std::vector<uint32_t> Hierarchy::leaves() const {
+    std::vector<uint32_t> out;
+    if (nodes.empty()) return out;
+    std::vector<uint32_t> stack{root};
+    while (!stack.empty()) {
+        uint32_t i = stack.back();
+        stack.pop_back();
+        const Node& node = nodes[i];
+        if (node.leaf()) {
+            if (!node.cluster) out.push_back(i);
+            continue;
+        }
+        for (int k = node.child_count; k-- > 0;) stack.push_back(node.first_child + k);
+    }
+    return out;
+}
+
+namespace {
+
+std::string corner_key(uint32_t mesh, const Vec3& p) {
+    std::string key(sizeof(uint32_t) + sizeof(Vec3), '\0');
+    Vec3 q = p + Vec3{0, 0, 0};
+    std::memcpy(&key[0], &mesh, sizeof(uint32_t));
+    std::memcpy(&key[sizeof(uint32_t)], &q, sizeof(Vec3));
+    return key;
+}
+
+}  // namespace
+
+uint64_t Hierarchy::balance() {
+    uint64_t split = 0;
+    for (;;) {
+        const std::vector<uint32_t> leaf = leaves();
+        std::unordered_set<std::string> corners;
+        for (uint32_t i : leaf)
+            for (int k = 0; k < nodes[i].shape.nv; ++k) corners.insert(corner_key(nodes[i].shape.mesh, nodes[i].shape.p[k]));
+        std::vector<uint32_t> marked;
+        for (uint32_t i : leaf) {
+            const Patch& s = nodes[i].shape;
+            for (int k = 0; k < s.nv; ++k) {
+                const Vec3& a = s.p[k];
+                const Vec3& b = s.p[(k + 1) % s.nv];
+                const Vec3 m = mid(a, b);
+                if (!corners.count(corner_key(s.mesh, m))) continue;
+                if (corners.count(corner_key(s.mesh, mid(a, m))) || corners.count(corner_key(s.mesh, mid(m, b)))) {
+                    marked.push_back(i);
+                    break;
+                }
+            }
+        }
+        if (marked.empty()) return split;
+        for (uint32_t i : marked) subdivide(i);
+        split += marked.size();
+    }
+}
+
+}  // namespace hirad

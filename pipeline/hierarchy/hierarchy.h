@@ -1,0 +1,72 @@
+// The element hierarchy of hierarchical radiosity with clustering (Hanrahan, Salzman and
+// Aupperle 1991; Smits, Arvo and Greenberg 1994; Sillion 1995).
+//
+// Above the input faces, a binary tree of clusters (median splits of face centroids along the
+// longest axis) so that linking starts at the root and never enumerates pairs of faces. Every
+// face is the root of a quadtree of elements (quads split at edge midpoints, triangles 4-split),
+// grown on demand down to a minimum area. Nodes live in one array and refer to each other by
+// index, and the children of a node are contiguous.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/scene.h"
+
+namespace hirad {
+
+constexpr uint32_t kNoNode = UINT32_MAX;
+
+struct Node {
+    Patch shape;             // elements: the polygon, its material and face; clusters: unused
+    Vec3 lo, hi;             // bounds of everything below
+    double area = 0;         // surface area of everything below
+    uint32_t parent = kNoNode;
+    uint32_t first_child = kNoNode;
+    uint8_t child_count = 0;
+    bool cluster = false;
+    uint16_t level = 0;      // depth below the element root (elements only)
+    uint32_t face_begin = 0, face_end = 0;  // clusters: their faces in Hierarchy::face_order
+    bool leaf() const { return child_count == 0; }
+    double diagonal() const { return length(hi - lo); }
+};
+
+class Hierarchy {
+public:
+    // Builds the clusters over the scene's faces; element roots are the faces themselves.
+    explicit Hierarchy(const Scene& scene);
+
+    std::vector<Node> nodes;
+    uint32_t root = 0;
+    std::vector<uint32_t> face_order;   // faces in cluster order
+    std::vector<uint32_t> face_node;    // element root of each face
+    std::vector<double> area_prefix;    // prefix sums of face area in face_order (size faces+1)
+    std::vector<Patch> faces;           // the faces as polygons (for Embree and sampling)
+
+    // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
+    // scene rebuilds the same nodes with the same indices (what the link store refers to).
+    std::vector<uint32_t> subdivided;
+
+    // Gives an element its four children (once); false if it would go below min_area.
+    bool can_subdivide(uint32_t node, double min_area) const;
+    void subdivide(uint32_t node);
+    // Subdivides the elements of a log in its order; throws if an entry is not a leaf element.
+    void replay(const std::vector<uint32_t>& log);
+
+    // A point on the surfaces below `node` and the normal there: stratified (s, t) on an
+    // element; on a cluster, a face chosen with probability proportional to its area by `pick`.
+    void sample(uint32_t node, double pick, double s, double t, Vec3& point, Vec3& normal) const;
+
+    // The leaf below element `node` that holds its point (s, t) (Patch::point's coordinates).
+    uint32_t leaf_at(uint32_t node, double s, double t) const;
+
+    // Leaf elements in depth-first order.
+    std::vector<uint32_t> leaves() const;
+
+    // 2:1 balance for display: splits leaves until no leaf edge has more than one vertex of
+    // finer neighbours on it (at its midpoint). New nodes come after all existing ones; the
+    // number of leaves split is returned.
+    uint64_t balance();
+};
+
+}  // namespace hirad

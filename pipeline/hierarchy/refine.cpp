@@ -1,0 +1,317 @@
+#include "pipeline/hierarchy/refine.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "pipeline/geometry/formfactors.h"
+
+namespace hirad {
+
+Refiner::Refiner(Hierarchy& hierarchy, const Visibility& visibility, const RefineOptions& options)
+    : h_(hierarchy), vis_(visibility), opt_(options) {}
+
+bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
+    // Clusters that are close compared with their size cannot be summarised by a few point
+    // pairs (the kernel varies too much across them): such links are always split.
+    const Node& na = h_.nodes[a];
+    const Node& nb = h_.nodes[b];
+    if (!na.cluster && !nb.cluster) return false;
+    double gap2 = 0;
+    for (int k = 0; k < 3; ++k) {
+        double d = std::max({0.0, na.lo[k] - nb.hi[k], nb.lo[k] - na.hi[k]});
+        gap2 += d * d;
+    }
+    const double size = std::max(na.cluster ? na.diagonal() : 0.0, nb.cluster ? nb.diagonal() : 0.0);
+    return std::sqrt(gap2) < 0.5 * size;
+}
+
+bool Refiner::may_face(uint32_t a, uint32_t b) const {
+    // Whether light can pass between two nodes at all: some corner of each in front of the
+    // other's plane. A cluster holds surfaces facing every way: only its box is known, which
+    // must reach in front of an element's plane (tiles of one floor never light each other).
+    const Node& na = h_.nodes[a];
+    const Node& nb = h_.nodes[b];
+    auto in_front = [](const Patch& of, const Patch& plane) {
+        for (int k = 0; k < of.nv; ++k)
+            if (dot(of.p[k] - plane.p[0], plane.normal) > 1e-9) return true;
+        return false;
+    };
+    auto box_in_front = [](const Node& box, const Patch& plane) {
+        for (int k = 0; k < 8; ++k) {
+            const Vec3 c{k & 1 ? box.hi.x : box.lo.x, k & 2 ? box.hi.y : box.lo.y, k & 4 ? box.hi.z : box.lo.z};
+            if (dot(c - plane.p[0], plane.normal) > 1e-9) return true;
+        }
+        return false;
+    };
+    if (na.cluster && nb.cluster) return true;
+    if (na.cluster) return box_in_front(na, nb.shape);
+    if (nb.cluster) return box_in_front(nb, na.shape);
+    return in_front(nb.shape, na.shape) && in_front(na.shape, nb.shape);
+}
+
+Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
+    Link link;
+    link.receiver = r;
+    link.source = s;
+    const Node& nr = h_.nodes[r];
+    const Node& ns = h_.nodes[s];
+    const int g = std::max(1, static_cast<int>(std::lround(std::sqrt(double(opt_.samples)))));
+    const int n = g * g;
+    const double lift = 1e-5 * vis_.scene_size();
+    Rng rng(hash_pair(std::min(r, s), std::max(r, s), opt_.seed ^ 0x11E7ull ^ (stream * 0x9E3779B97F4A7C15ull)));
+    std::vector<Vec3> from, to;
+    std::vector<double> weight;
+    from.reserve(n);
+    to.reserve(n);
+    weight.reserve(n);
+    double unoccluded = 0;
+    // With an element at one end, points on the other end see it through the exact
+    // point-to-polygon form factor (A_x F(dA_x -> polygon)); with clusters at both ends the
+    // point-to-point kernel between stratified points is used.
+    const bool polygon_source = !ns.cluster;
+    const bool polygon_receiver = !polygon_source && !nr.cluster;
+    const uint32_t sampled = polygon_source ? r : (polygon_receiver ? s : r);
+    const Node& target = polygon_source ? ns : nr;
+    const double area = h_.nodes[sampled].area;
+    for (int k = 0; k < n; ++k) {
+        const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
+        Vec3 x, nx;
+        h_.sample(sampled, rng.uniform(), s0, t0, x, nx);
+        const double s1 = rng.uniform(), t1 = rng.uniform();
+        if (polygon_source || polygon_receiver) {
+            double f = point_polygon_form_factor(x, nx, target.shape.p.data(), target.shape.nv, target.shape.normal);
+            if (f <= 0) continue;
+            double w = f * area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            to.push_back(target.shape.point(s1, t1) + target.shape.normal * lift);
+            weight.push_back(w);
+        } else {
+            Vec3 y, ny;
+            h_.sample(s, rng.uniform(), s1, t1, y, ny);
+            Vec3 d = y - x;
+            double r2 = dot(d, d);
+            if (r2 <= 0) continue;
+            double cx = dot(nx, d), cy = -dot(ny, d);
+            if (cx <= 0 || cy <= 0) continue;
+            double w = cx * cy / (kPi * r2 * r2) * nr.area * ns.area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            to.push_back(y + ny * lift);
+            weight.push_back(w);
+        }
+    }
+    std::vector<uint8_t> visible(from.size());
+    vis_.segments_visible(from.data(), to.data(), from.size(), visible.data());
+    double g_sum = 0;
+    size_t arrived = 0;
+    for (size_t k = 0; k < from.size(); ++k)
+        if (visible[k]) { g_sum += weight[k]; ++arrived; }
+    link.coupling = static_cast<float>(g_sum);
+    link.unoccluded = static_cast<float>(unoccluded);
+    link.visibility = from.empty() ? 0.0f : static_cast<float>(double(arrived) / from.size());
+    return link;
+}
+
+double Refiner::link_error(const Link& link, const std::vector<double>& peak) const {
+    // Power the link could carry: the brightest radiosity below the source (luminance) times
+    // G. The link transports the source's mean radiosity, so where the source's surfaces
+    // differ (a cluster whose bright faces look at the receiver while its dark ones look
+    // away) the error is up to (B_max - B_min) G, which B_max G bounds. The unoccluded G
+    // stands for G: where visibility is partial the estimate is uncertain up to it (so such
+    // links refine towards shadow boundaries), and where it is full the two are equal.
+    return peak[link.source] * link.unoccluded;
+}
+
+Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& peak) const {
+    if (link.receiver == link.source) return h_.nodes[link.receiver].cluster ? Action::SplitSelf : Action::Drop;
+    const bool receiver_splits = h_.can_subdivide(link.receiver, opt_.min_area);
+    const bool source_splits = h_.can_subdivide(link.source, opt_.min_area);
+    auto split_larger = [&] {
+        const double ar = h_.nodes[link.receiver].area, as = h_.nodes[link.source].area;
+        if (receiver_splits && (!source_splits || ar >= as)) return Action::SplitReceiver;
+        return Action::SplitSource;
+    };
+    // Receivers are always elements: irradiance gathered at a cluster would have to be shared
+    // out among surfaces that face every which way, which no single number can do. Sources may
+    // stay clusters: the estimate sees each source surface with its own normal.
+    if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
+    if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
+    // No sample pair faced both ways. A few samples miss the part of a large pair that does
+    // face: dropping such links for good biased the transport dark (the kept links' transport
+    // comes from an independent estimate, which would not have been zero). So when the two
+    // can face each other, the link is split if the most it could carry exceeds epsilon (G is
+    // at most min(A_R, A_S), by F <= 1 and reciprocity, and A_R A_S / (pi d^2) at a distance
+    // d apart), and kept otherwise, with its independent transport estimate like any other.
+    if (link.unoccluded <= 0) {
+        if (!may_face(link.receiver, link.source)) return Action::Drop;
+        if (!receiver_splits && !source_splits) return Action::Keep;
+        const Node& nr = h_.nodes[link.receiver];
+        const Node& ns = h_.nodes[link.source];
+        double gap2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = std::max({0.0, nr.lo[k] - ns.hi[k], ns.lo[k] - nr.hi[k]});
+            gap2 += d * d;
+        }
+        double bound = std::min(nr.area, ns.area);
+        if (gap2 > 0) bound = std::min(bound, nr.area * ns.area / (kPi * gap2));
+        return peak[link.source] * bound > opt_.epsilon ? split_larger() : Action::Keep;
+    }
+    // Partly visible links refine towards the shadow boundary, and a link none of whose rays
+    // arrived is only dropped when even its unoccluded transfer is negligible.
+    const double error = link_error(link, peak);
+    // Kept whatever its own rays saw: dropping the links none of whose oracle rays arrived
+    // would bias the transport dark.
+    if (error <= opt_.epsilon || (!receiver_splits && !source_splits)) return Action::Keep;
+    return split_larger();
+}
+
+std::vector<Link> Refiner::initial_links(const std::vector<RGB>& radiosity, RefineStats& stats) {
+    if (h_.nodes.empty()) return {};
+    Link self;
+    self.receiver = self.source = h_.root;
+    set_radiosity(radiosity);
+    return run_group({self}, {1}, stats);
+}
+
+std::vector<Link> Refiner::refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats) {
+    set_radiosity(radiosity);
+    return run_group(links, std::vector<uint8_t>(links.size(), 1), stats);
+}
+
+void Refiner::set_radiosity(const std::vector<RGB>& radiosity) {
+    // Children come after their parents: one backward sweep.
+    if (radiosity.size() != h_.nodes.size()) throw std::invalid_argument("refine: one radiosity per node needed");
+    peak_.assign(h_.nodes.size(), 0.0);
+    for (size_t i = h_.nodes.size(); i-- > 0;) {
+        const Node& node = h_.nodes[i];
+        double b = std::max(0.0, luminance(radiosity[i]));
+        for (uint32_t c = 0; c < node.child_count; ++c) b = std::max(b, peak_[node.first_child + c]);
+        peak_[i] = b;
+    }
+}
+
+std::vector<Link> Refiner::run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats) {
+    std::vector<Link> all;
+    run_group(std::move(frontier), std::move(evaluated), stats, SIZE_MAX, [&](std::vector<Link>& kept) {
+        if (all.empty()) all.swap(kept);
+        else all.insert(all.end(), kept.begin(), kept.end());
+    });
+    return all;
+}
+
+uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_evaluated, RefineStats& stats,
+                            size_t batch, const std::function<void(std::vector<Link>&)>& keep) {
+    batch = std::max<size_t>(1, batch);
+    std::vector<double>& peak = peak_;
+    // Batches waiting, the next one last; with one batch of everything this is breadth first.
+    struct Batch {
+        std::vector<Link> links;
+        std::vector<uint8_t> evaluated;
+    };
+    std::vector<Batch> stack;
+    stack.push_back({std::move(first), std::move(first_evaluated)});
+    uint64_t waiting = stack.back().links.size(), held_peak = waiting;
+    std::vector<Link> kept;
+    auto flush = [&](bool all) {
+        while (kept.size() >= batch || (all && !kept.empty())) {
+            if (kept.size() <= batch) {
+                std::vector<Link> out;
+                out.swap(kept);
+                keep(out);
+                break;
+            }
+            std::vector<Link> out(kept.begin(), kept.begin() + long(batch));
+            kept.erase(kept.begin(), kept.begin() + long(batch));
+            keep(out);
+        }
+    };
+    while (!stack.empty()) {
+        std::vector<Link> frontier = std::move(stack.back().links);
+        std::vector<uint8_t> evaluated = std::move(stack.back().evaluated);
+        stack.pop_back();
+        waiting -= frontier.size();
+        // 1. Estimate the links that are new, in parallel.
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
+            if (evaluated[k] || frontier[k].receiver == frontier[k].source) return;
+            if (h_.nodes[frontier[k].receiver].cluster || must_split_clusters(frontier[k].receiver, frontier[k].source))
+                return;
+            frontier[k] = estimate(frontier[k].receiver, frontier[k].source);
+        });
+        for (size_t k = 0; k < frontier.size(); ++k)
+            if (!evaluated[k] && frontier[k].receiver != frontier[k].source && !h_.nodes[frontier[k].receiver].cluster)
+                ++stats.evaluated;
+        // 2. Decide, in parallel; 4. grow the nodes that split and queue the children's links,
+        // in frontier order so the result does not depend on threads.
+        std::vector<Action> action(frontier.size());
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) { action[k] = decide(frontier[k], peak); });
+        // 3. The links kept from this pass's estimates get their independent transport estimate.
+        tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
+            if (action[k] == Action::Keep && !evaluated[k])
+                frontier[k].coupling = estimate(frontier[k].receiver, frontier[k].source, 1).coupling;
+        });
+        for (size_t k = 0; k < frontier.size(); ++k) stats.evaluated += action[k] == Action::Keep && !evaluated[k];
+        std::vector<Link> next;
+        for (size_t k = 0; k < frontier.size(); ++k) {
+            const Link& l = frontier[k];
+            switch (action[k]) {
+                case Action::Keep:
+                    // A zero transport estimate with light that could pass is kept: later
+                    // rounds may split it, and the final gather evaluates it again at each
+                    // point (dropping it biased the transport dark).
+                    if (!(l.coupling > 0) && !(l.unoccluded > 0)) break;
+                    kept.push_back(l);
+                    kept.back().error = static_cast<float>(link_error(l, peak));
+                    break;
+                case Action::Drop: break;
+                case Action::SplitSelf: {
+                    const Node node = h_.nodes[l.receiver];
+                    for (uint32_t a = 0; a < node.child_count; ++a)
+                        for (uint32_t b = 0; b < node.child_count; ++b) {
+                            Link c;
+                            c.receiver = node.first_child + a;
+                            c.source = node.first_child + b;
+                            next.push_back(c);
+                        }
+                    ++stats.split;
+                    break;
+                }
+                case Action::SplitReceiver:
+                case Action::SplitSource: {
+                    const uint32_t end = action[k] == Action::SplitReceiver ? l.receiver : l.source;
+                    h_.subdivide(end);
+                    const Node node = h_.nodes[end];
+                    for (uint32_t c = 0; c < node.child_count; ++c) {
+                        Link child;
+                        child.receiver = action[k] == Action::SplitReceiver ? node.first_child + c : l.receiver;
+                        child.source = action[k] == Action::SplitSource ? node.first_child + c : l.source;
+                        next.push_back(child);
+                    }
+                    ++stats.split;
+                    break;
+                }
+            }
+        }
+        // New nodes inherit their parent's bound for the oracle.
+        for (size_t i = peak.size(); i < h_.nodes.size(); ++i) peak.push_back(peak[h_.nodes[i].parent]);
+        // The children's links, cut into batches, the first on top: depth first.
+        for (size_t end = next.size(); end > 0;) {
+            const size_t begin = end > batch ? ((end - 1) / batch) * batch : 0;
+            Batch b{std::vector<Link>(next.begin() + long(begin), next.begin() + long(end)), {}};
+            b.evaluated.assign(b.links.size(), 0);
+            waiting += b.links.size();
+            stack.push_back(std::move(b));
+            end = begin;
+        }
+        held_peak = std::max<uint64_t>(held_peak, frontier.size() + waiting + kept.size());
+        flush(false);
+    }
+    flush(true);
+    stats.rays = vis_.rays_cast();
+    return held_peak;
+}
+
+}  // namespace hirad

@@ -1,0 +1,91 @@
+// Links of hierarchical radiosity and the refinement that creates them.
+//
+// A link carries light from a source node to a receiver node: H_receiver += G / A_receiver *
+// B_source, where G = integral over both node surfaces of cos cos V / (pi r^2) is estimated
+// with the surfaces' own normals (so a cluster is treated as the surfaces it holds, not as a
+// flat patch). Links are plain data: no pointers, ready to be written to disk in chunks.
+//
+// Receivers are always elements (a cluster cannot share gathered irradiance fairly among
+// surfaces facing different ways); sources may be clusters. Refinement is brightness weighted:
+// a link whose power bound B_max(S) * G exceeds epsilon (B_max: the brightest surface below
+// the source, so that sources of uneven radiosity are split) is replaced by links to the
+// children of its larger end. For a partly occluded link the
+// unoccluded transfer is used, so links refine towards shadow boundaries. It starts from the
+// root's self-link and runs level by level, the estimates of each level in parallel.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "pipeline/hierarchy/hierarchy.h"
+#include "pipeline/geometry/visibility.h"
+
+namespace hirad {
+
+// The oracle decides on one estimate (unoccluded, visibility) and the link transports another,
+// independent one (coupling): deciding and keeping on the same noisy number would keep the
+// links whose estimate came out low and split those that came out high, a bias towards dark.
+struct Link {
+    uint32_t receiver = 0;
+    uint32_t source = 0;
+    float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver
+    float unoccluded = 0;     // G without visibility (the oracle's estimate)
+    float visibility = 0;     // fraction of the oracle estimate's rays that arrived
+    float error = 0;          // the oracle's bound on the power the link carries when it was
+                              // last checked (B_max(source) x G, unoccluded G if partly visible), W
+};
+
+struct RefineOptions {
+    double epsilon = 1e-3;     // W: the largest power a link may carry before it is split
+    double min_area = 1e-4;    // m^2: elements are not split below this
+    int samples = 16;          // point pairs per link estimate
+    uint64_t seed = 1;
+};
+
+struct RefineStats {
+    uint64_t evaluated = 0;    // link estimates computed
+    uint64_t split = 0;        // links replaced by their children's links
+    uint64_t rays = 0;
+};
+
+class Refiner {
+public:
+    Refiner(Hierarchy& hierarchy, const Visibility& visibility, const RefineOptions& options);
+
+    // Links from scratch, starting at the root's self-link, judged with node radiosity
+    // `radiosity` (per node; emission alone on the first round).
+    std::vector<Link> initial_links(const std::vector<RGB>& radiosity, RefineStats& stats);
+
+    // Checks every link against the current radiosity; splits those that carry too much.
+    // Returns the new link set; `stats.split` counts the links that were split.
+    std::vector<Link> refine(const std::vector<Link>& links, const std::vector<RGB>& radiosity, RefineStats& stats);
+
+    // For refinement in pieces (one source group at a time, see outofcore.h): set the
+    // radiosity the oracle judges by, then refine each piece's links. New nodes inherit
+    // their parent's bound.
+    void set_radiosity(const std::vector<RGB>& radiosity);
+    std::vector<Link> run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats);
+    // The same within bounded memory: the links waiting to be judged are taken `batch` at a
+    // time, depth first, and the kept ones are handed to `keep` as soon as `batch` of them are
+    // there (exactly `batch` each time, the last time fewer), in an order that depends only
+    // on the input. Returns the most links held at once (waiting and kept).
+    uint64_t run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats, size_t batch,
+                       const std::function<void(std::vector<Link>&)>& keep);
+
+    // The estimate for one pair (exposed for tests). Different `stream`s draw independent
+    // samples.
+    Link estimate(uint32_t receiver, uint32_t source, uint64_t stream = 0) const;
+
+private:
+    enum class Action : uint8_t { Keep, Drop, SplitReceiver, SplitSource, SplitSelf };
+    Action decide(const Link& link, const std::vector<double>& peak) const;
+    double link_error(const Link& link, const std::vector<double>& peak) const;
+    bool must_split_clusters(uint32_t a, uint32_t b) const;
+    bool may_face(uint32_t a, uint32_t b) const;
+    Hierarchy& h_;
+    std::vector<double> peak_;   // per node: the brightest luminance below it
+    const Visibility& vis_;
+    RefineOptions opt_;
+};
+
+}  // namespace hirad

@@ -1,0 +1,181 @@
+#include "pipeline/outputs/reconstruct.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <string>
+#include <unordered_map>
+
+namespace hirad {
+
+namespace {
+
+std::string point_key(uint32_t mesh, const Vec3& p) {
+    std::string key(sizeof(uint32_t) + sizeof(Vec3), '\0');
+    Vec3 q = p + Vec3{0, 0, 0};  // -0.0 and +0.0 share a key
+    std::memcpy(&key[0], &mesh, sizeof(uint32_t));
+    std::memcpy(&key[sizeof(uint32_t)], &q, sizeof(Vec3));
+    return key;
+}
+
+}  // namespace
+
+DisplayMesh build_display_mesh(const PatchSet& set, double crease_angle_degrees) {
+    const double cos_crease = std::cos(crease_angle_degrees * kPi / 180.0);
+    const auto& patches = set.patches;
+    DisplayMesh mesh;
+    mesh.corners.resize(patches.size());
+    // Incidences (patch, corner) of every welded vertex, in patch order.
+    std::vector<uint32_t> first(set.vertices.size() + 1, 0);
+    for (const Patch& p : patches)
+        for (int k = 0; k < p.nv; ++k) ++first[p.vertex[k] + 1];
+    for (size_t v = 0; v < set.vertices.size(); ++v) first[v + 1] += first[v];
+    std::vector<std::pair<uint32_t, int>> incidence(first.back());
+    std::vector<uint32_t> cursor(first.begin(), first.end() - 1);
+    for (uint32_t i = 0; i < patches.size(); ++i)
+        for (int k = 0; k < patches[i].nv; ++k) incidence[cursor[patches[i].vertex[k]]++] = {i, k};
+
+    // Split each vertex into one point per group of patches whose normals agree within the
+    // crease angle (greedy, against the first normal of each group).
+    std::vector<std::vector<std::pair<Vec3, uint32_t>>> groups(set.vertices.size());
+    auto new_point = [&](uint32_t v) {
+        mesh.points.push_back(set.vertices[v]);
+        mesh.point_mesh.push_back(set.vertex_mesh[v]);
+        return static_cast<uint32_t>(mesh.points.size() - 1);
+    };
+    auto point_for = [&](uint32_t v, const Vec3& n) {
+        for (const auto& [gn, gp] : groups[v])
+            if (dot(gn, n) >= cos_crease) return gp;
+        uint32_t p = new_point(v);
+        groups[v].emplace_back(n, p);
+        return p;
+    };
+    for (size_t v = 0; v < set.vertices.size(); ++v)
+        for (uint32_t k = first[v]; k < first[v + 1]; ++k) {
+            const auto [pi, corner] = incidence[k];
+            mesh.corners[pi][corner] = point_for(static_cast<uint32_t>(v), patches[pi].normal);
+        }
+    for (uint32_t i = 0; i < patches.size(); ++i)
+        if (patches[i].nv == 3) mesh.corners[i][3] = mesh.corners[i][2];
+    mesh.anchors.resize(mesh.points.size());
+
+    // T-vertices: a welded vertex of the same mesh exactly at the midpoint of a patch edge
+    // (midpoints are computed as (a + b) / 2 everywhere, so they match bit for bit).
+    std::unordered_map<std::string, uint32_t> welded;
+    welded.reserve(set.vertices.size());
+    for (uint32_t v = 0; v < set.vertices.size(); ++v) welded.emplace(point_key(set.vertex_mesh[v], set.vertices[v]), v);
+    for (uint32_t i = 0; i < patches.size(); ++i) {
+        const Patch& p = patches[i];
+        std::array<int64_t, 4> mid_point{-1, -1, -1, -1};
+        bool any = false;
+        for (int k = 0; k < p.nv; ++k) {
+            auto it = welded.find(point_key(p.mesh, (p.p[k] + p.p[(k + 1) % p.nv]) * 0.5));
+            if (it == welded.end()) continue;
+            const uint32_t point = point_for(it->second, p.normal);
+            if (point >= mesh.anchors.size()) mesh.anchors.resize(point + 1);
+            mesh.anchors[point] = {{mesh.corners[i][k], 0.5}, {mesh.corners[i][(k + 1) % p.nv], 0.5}};
+            mid_point[k] = point;
+            any = true;
+        }
+        if (!any) {
+            mesh.faces.push_back(mesh.corners[i]);
+            mesh.face_nv.push_back(static_cast<uint8_t>(p.nv));
+            mesh.face_patch.push_back(i);
+            mesh.face_code.push_back({0, 1, 2, static_cast<uint8_t>(p.nv == 4 ? 3 : 2)});
+            continue;
+        }
+        // Fan around the centre, which takes the mean of the corners.
+        mesh.points.push_back(p.centroid);
+        mesh.point_mesh.push_back(p.mesh);
+        const uint32_t centre = static_cast<uint32_t>(mesh.points.size() - 1);
+        mesh.anchors.resize(mesh.points.size());
+        for (int k = 0; k < p.nv; ++k) mesh.anchors[centre].emplace_back(mesh.corners[i][k], 1.0 / p.nv);
+        for (int k = 0; k < p.nv; ++k) {
+            const uint32_t a = mesh.corners[i][k], b = mesh.corners[i][(k + 1) % p.nv];
+            const uint8_t ca = static_cast<uint8_t>(k), cb = static_cast<uint8_t>((k + 1) % p.nv);
+            auto tri = [&](uint32_t x, uint32_t y, uint8_t cx, uint8_t cy) {
+                mesh.faces.push_back({centre, x, y, y});
+                mesh.face_nv.push_back(3);
+                mesh.face_patch.push_back(i);
+                mesh.face_code.push_back({kCentre, cx, cy, cy});
+            };
+            if (mid_point[k] >= 0) {
+                const uint32_t m = static_cast<uint32_t>(mid_point[k]);
+                const uint8_t cm = static_cast<uint8_t>(kEdgeMid0 + k);
+                tri(a, m, ca, cm);
+                tri(m, b, cm, cb);
+            } else {
+                tri(a, b, ca, cb);
+            }
+        }
+    }
+    mesh.anchors.resize(mesh.points.size());
+
+    // Boundary points: ends of display edges used by exactly one face.
+    std::unordered_map<uint64_t, uint32_t> edge_use;
+    for (size_t f = 0; f < mesh.faces.size(); ++f)
+        for (int k = 0; k < mesh.face_nv[f]; ++k) {
+            uint64_t a = mesh.faces[f][k], b = mesh.faces[f][(k + 1) % mesh.face_nv[f]];
+            if (a > b) std::swap(a, b);
+            ++edge_use[(a << 32) | b];
+        }
+    mesh.boundary.assign(mesh.points.size(), 0);
+    for (const auto& [edge, uses] : edge_use)
+        if (uses == 1) {
+            mesh.boundary[edge >> 32] = 1;
+            mesh.boundary[edge & 0xFFFFFFFFu] = 1;
+        }
+    return mesh;
+}
+
+std::vector<RGB> vertex_values(const PatchSet& set, const DisplayMesh& mesh, const std::vector<RGB>& patch_values) {
+    const auto& patches = set.patches;
+    const size_t np = mesh.points.size();
+    std::vector<RGB> mean(np);
+    std::vector<uint32_t> count(np, 0);
+    for (uint32_t i = 0; i < patches.size(); ++i)
+        for (int k = 0; k < patches[i].nv; ++k) {
+            mean[mesh.corners[i][k]] += patch_values[i];
+            ++count[mesh.corners[i][k]];
+        }
+    for (size_t v = 0; v < np; ++v)
+        if (count[v]) mean[v] = mean[v] / count[v];
+
+    // Nearest interior neighbour of each boundary point along patch edges. T-vertices are not
+    // boundary: they sit inside a coarser patch's edge.
+    auto is_boundary = [&](uint32_t v) { return mesh.boundary[v] && mesh.anchors[v].empty(); };
+    std::vector<uint32_t> nearest(np, UINT32_MAX);
+    std::vector<double> nearest_d(np, 1e300);
+    auto consider = [&](uint32_t b, uint32_t i) {
+        if (!is_boundary(b) || mesh.boundary[i] || !mesh.anchors[i].empty()) return;
+        double d = length(mesh.points[b] - mesh.points[i]);
+        if (d < nearest_d[b] || (d == nearest_d[b] && i < nearest[b])) { nearest_d[b] = d; nearest[b] = i; }
+    };
+    for (uint32_t i = 0; i < patches.size(); ++i)
+        for (int k = 0; k < patches[i].nv; ++k)
+            for (int l = 0; l < patches[i].nv; ++l)
+                if (l != k) consider(mesh.corners[i][k], mesh.corners[i][l]);
+
+    std::vector<RGB> out = mean;
+    for (size_t v = 0; v < np; ++v) {
+        if (!is_boundary(static_cast<uint32_t>(v)) || nearest[v] == UINT32_MAX) continue;
+        RGB e = mean[v] * 2.0 - mean[nearest[v]];
+        out[v] = {std::max(e.x, 0.0), std::max(e.y, 0.0), std::max(e.z, 0.0)};
+    }
+    // Anchored points follow the points they hang on. An anchor may hang on another anchored
+    // point (a corner that is itself a T-vertex of a coarser patch), so resolve repeatedly;
+    // the chain is as deep as the hierarchy, a few passes settle it.
+    for (int pass = 0; pass < 32; ++pass) {
+        bool changed = false;
+        for (size_t v = 0; v < np; ++v) {
+            if (mesh.anchors[v].empty()) continue;
+            RGB value;
+            for (const auto& [p, w] : mesh.anchors[v]) value += out[p] * w;
+            if (value.x != out[v].x || value.y != out[v].y || value.z != out[v].z) { out[v] = value; changed = true; }
+        }
+        if (!changed) break;
+    }
+    return out;
+}
+
+}  // namespace hirad

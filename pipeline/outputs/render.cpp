@@ -1,0 +1,44 @@
+#include "pipeline/outputs/render.h"
+
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+
+namespace hirad {
+
+std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
+                                   const std::vector<std::array<RGB, 4>>& corner_radiance, const Camera& cam,
+                                   int samples) {
+    const int w = cam.width, h = cam.height;
+    std::vector<float> image(size_t(w) * h * 3, 0.0f);
+    const Vec3 forward = normalize(cam.forward);
+    const Vec3 right = normalize(cross(forward, cam.up));
+    const Vec3 up = cross(right, forward);
+    const double half_h = std::tan(cam.vertical_fov_degrees * kPi / 360.0);
+    const double half_w = half_h * double(w) / h;
+    const int g = std::max(1, static_cast<int>(std::sqrt(double(std::max(samples, 1)))));
+    tbb::parallel_for(0, h, [&](int y) {
+        for (int x = 0; x < w; ++x) {
+            RGB sum;
+            for (int sy = 0; sy < g; ++sy)
+                for (int sx = 0; sx < g; ++sx) {
+                    double px = (x + (sx + 0.5) / g) / w * 2 - 1;
+                    double py = 1 - (y + (sy + 0.5) / g) / h * 2;
+                    Vec3 dir = forward + right * (px * half_w) + up * (py * half_h);
+                    RayHit hit = visibility.intersect(cam.position, normalize(dir));
+                    if (hit.patch < 0) continue;
+                    const Patch& p = patches[hit.patch];
+                    if (dot(p.normal, dir) >= 0) continue;  // back faces emit nothing
+                    sum += interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v);
+                }
+            sum = sum / double(g * g);
+            float* px = &image[(size_t(y) * w + x) * 3];
+            px[0] = static_cast<float>(sum.x);
+            px[1] = static_cast<float>(sum.y);
+            px[2] = static_cast<float>(sum.z);
+        }
+    });
+    return image;
+}
+
+}  // namespace hirad

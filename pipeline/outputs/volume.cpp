@@ -1,0 +1,99 @@
+#include "pipeline/outputs/volume.h"
+
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+
+namespace hirad {
+
+namespace {
+
+// An orthonormal tangent pair for n.
+void tangents(const Vec3& n, Vec3& t1, Vec3& t2) {
+    const Vec3 a = std::fabs(n.x) < 0.9 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+    t1 = normalize(cross(n, a));
+    t2 = cross(n, t1);
+}
+
+}  // namespace
+
+std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const Visibility& visibility,
+                                        const std::vector<std::array<RGB, 4>>& corner_radiance,
+                                        const std::vector<Vec3>& points, int rays, uint64_t seed) {
+    const int k = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(std::max(rays, 1))))));
+    const int n = k * k;
+    const double weight = 4 * kPi / n;  // equal-area strata
+    std::vector<ProbeMoments> out(points.size());
+    tbb::parallel_for(size_t(0), points.size(), [&](size_t q) {
+        Rng rng(hash_pair(q, 0x5eed, seed));
+        ProbeMoments m;
+        int back = 0, hits = 0;
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) {
+                // z uniform in [-1, 1] and phi uniform: equal area on the sphere (Archimedes).
+                const double z = 1 - 2 * (i + rng.uniform()) / k;
+                const double phi = 2 * kPi * (j + rng.uniform()) / k;
+                const double r = std::sqrt(std::max(0.0, 1 - z * z));
+                const Vec3 d{r * std::cos(phi), r * std::sin(phi), z};
+                const RayHit hit = visibility.intersect(points[q], d);
+                if (hit.patch < 0) continue;
+                ++hits;
+                if (m.nearest < 0 || hit.t < m.nearest) m.nearest = hit.t;
+                const Patch& p = patches[hit.patch];
+                if (dot(p.normal, d) >= 0) {  // the back of a one-sided surface
+                    ++back;
+                    continue;
+                }
+                const RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) * weight;
+                m.s0 += l;
+                m.s1[0] += l * d.x;
+                m.s1[1] += l * d.y;
+                m.s1[2] += l * d.z;
+            }
+        m.back_fraction = static_cast<double>(back) / n;
+        m.hit_fraction = static_cast<double>(hits) / n;
+        out[q] = m;
+    });
+    return out;
+}
+
+void lift_samples(const std::vector<Patch>& patches, const Visibility& visibility, std::vector<Vec3>& points,
+                  const std::vector<Vec3>& normals, double epsilon, double reach, std::vector<uint8_t>& moved,
+                  const std::vector<Vec3>* anchors) {
+    moved.assign(points.size(), 0);
+    tbb::parallel_for(size_t(0), points.size(), [&](size_t q) {
+        const Vec3 n = normalize(normals[q]);
+        Vec3 x = points[q] + n * epsilon;
+        if (length(n) == 0) return;
+        Vec3 t1, t2;
+        tangents(n, t1, t2);
+        const double c = std::sqrt(0.5);
+        const Vec3 dirs[9] = {n, t1, -t1, t2, -t2, (t1 + t2) * c, (t1 - t2) * c, (t2 - t1) * c, -(t1 + t2) * c};
+        Vec3 towards;
+        if (anchors) towards = normalize((*anchors)[q] - x);
+        const bool steer = length(towards) > 0;
+        double best = reach, best_score = -1e30;
+        Vec3 best_dir;
+        bool inside = false;
+        for (const Vec3& d : dirs) {
+            const RayHit hit = visibility.intersect(x, d, 0, reach);
+            if (hit.patch < 0 || dot(patches[hit.patch].normal, d) <= 0) continue;
+            // nearest exit, or (steered) the exit most towards the anchor, nearest on ties
+            const double score = steer ? dot(d, towards) - 1e-6 * hit.t : -hit.t;
+            if (score > best_score) {
+                best_score = score;
+                best = hit.t;
+                best_dir = d;
+                inside = true;
+            }
+        }
+        if (!inside) {
+            points[q] = x;
+            return;
+        }
+        points[q] = x + best_dir * (best + epsilon) + n * epsilon;
+        moved[q] = 1;
+    });
+}
+
+}  // namespace hirad

@@ -1,0 +1,30 @@
+// A Monte Carlo reference for the radiosity solution, independent of form factors and
+// meshing (in the spirit of Ward, Rubinstein and Clear 1988): exitant radiance at surface
+// points by path tracing diffuse interreflection with Embree, with next-event estimation
+// towards the emitting patches and Russian roulette, each estimate with its standard error.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
+
+namespace hirad {
+
+struct ReferenceOptions {
+    int paths = 1024;       // paths per point
+    int min_bounces = 3;    // Russian roulette starts after this many bounces
+    uint64_t seed = 1;
+};
+
+struct ReferenceEstimate {
+    RGB radiance;        // exitant radiance, W/(m^2 sr)
+    RGB standard_error;  // of `radiance`
+};
+
+// Exitant radiance at the point (s, t) of each given patch (Patch::point coordinates).
+std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
+                                                  const std::vector<uint32_t>& patch, const std::vector<Vec2>& st,
+                                                  const ReferenceOptions& options);
+
+}  // namespace hirad
