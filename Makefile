@@ -5,7 +5,7 @@ PYTHON  ?= python3
 VENV    := .venv
 PY      := $(VENV)/bin/python
 HIRAD   := $(VENV)/bin/hirad
-CPP_SRC := $(wildcard pipeline/*.h pipeline/*.cpp formats/*.h formats/*.cpp) CMakeLists.txt
+CPP_SRC := $(shell find pipeline formats -name '*.h' -o -name '*.cpp') CMakeLists.txt
 CPP_TESTS := $(wildcard tests/cpp/*.cpp)
 DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
                 libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time \
@@ -39,7 +39,9 @@ engine: .stamp-engine
 	@touch $@
 
 # The C++ engine as the Python extension hirad._engine (editable: Python files are used in place).
-.stamp-engine: .stamp-venv $(CPP_SRC)
+# The editable install maps each Python file when it is made: a new or moved module needs it again.
+PY_SRC := $(shell find tools/hirad -name '*.py')
+.stamp-engine: .stamp-venv $(CPP_SRC) $(PY_SRC)
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
 	@touch $@
 
@@ -72,7 +74,7 @@ FUZZ_FLAGS := -std=c++17 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitiz
 
 build/fuzz/linkstore_fuzz: .stamp-apt-fuzz tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp formats/linkstore.h
 	@mkdir -p build/fuzz
-	clang++ $(FUZZ_FLAGS) -Iformats tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o $@
+	clang++ $(FUZZ_FLAGS) -I. tests/fuzz/linkstore_fuzz.cpp formats/linkstore.cpp -lzstd -llz4 -lxxhash -o $@
 
 fuzz: build/fuzz/linkstore_fuzz
 	rm -rf build/fuzz/scratch && mkdir -p build/fuzz/scratch

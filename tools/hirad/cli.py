@@ -75,13 +75,14 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
                                           help="Show the baked lightmaps (albedo x lightmap + emission, as a game "
                                                "engine does) instead of the solution's own surface values")):
     """Render a stored solution from any view, without solving again."""
-    from . import _engine, images
+    from . import _engine
+    from .outputs import images
     from .bake import load_solution
 
     def go():
         sol = load_solution(solution)
         if lightmaps:
-            from . import lightmap_render
+            from .outputs import lightmap_render
             from .bake import BakeError
             try:
                 img = lightmap_render.render(solution, sol.view(camera), width, height)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _engine
+from .. import _engine
 
 
 @dataclass

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _engine, usd
+from .. import _engine, usd
 from .images import View
 
 

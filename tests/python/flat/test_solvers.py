@@ -247,7 +247,7 @@ def cornell(tmp_path_factory):
     from hirad.bake import bake
     from hirad.config import load_config
 
-    cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / "cornell.yaml")
+    cfg = load_config(Path(__file__).resolve().parents[3] / "configs" / "cornell.yaml")
     cfg.meshing.max_patch_area = 0.002
     cfg.meshing.max_edge_length = 0.05
     cfg.formfactors.samples = 4

@@ -8,7 +8,8 @@ import numpy as np
 
 from hirad_e2e_helpers import CORNELL, run_cli, write_config
 
-from hirad import _engine, lightmap_render
+from hirad import _engine
+from hirad.outputs import lightmap_render
 from hirad.bake import bake, load_solution
 
 

@@ -13,7 +13,7 @@ import hirad
 from hirad import usd
 from hirad.config import config_from_dict
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 
 from hirad.config import Config, ConfigError, config_from_dict, load_config
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 CONFIGS = REPO / "configs"
 
 

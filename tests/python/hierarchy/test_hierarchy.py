@@ -14,7 +14,7 @@ from conftest import box_faces, make_model, quad
 
 from hirad import _engine
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 CORNELL = REPO / "configs" / "scenes" / "cornell_box.usda"
 
 # min_area just below 1/16: a unit face splits twice (1 -> 1/4 -> 1/16) and no further, so the

@@ -13,7 +13,7 @@ import pytest
 pxr = pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 if str(REPO / "tools") not in sys.path:
     sys.path.insert(0, str(REPO / "tools"))
 
@@ -780,7 +780,9 @@ def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     patches = _fake_solution(scene)
     out = tmp_path / "solution.usda"
     calls = {"n": 0}
-    real = hu._author_patch_mesh
+    from hirad.usd import solution as hus
+
+    real = hus._author_patch_mesh
 
     def flaky(*args, **kwargs):
         calls["n"] += 1
@@ -788,15 +790,15 @@ def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
             raise RuntimeError("disk on fire")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(hu, "_author_patch_mesh", flaky)
+    monkeypatch.setattr(hus, "_author_patch_mesh", flaky)
     with pytest.raises(RuntimeError, match="disk on fire"):
         hu.write_solution_layer(src, out, scene, patches, {})
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cornell.usda"]
 
     # a failure at export time (after the temp file exists) also leaves nothing behind
-    monkeypatch.setattr(hu, "_author_patch_mesh", real)
-    monkeypatch.setattr(hu.os, "replace", lambda *a: (_ for _ in ()).throw(OSError("no space")))
+    monkeypatch.setattr(hus, "_author_patch_mesh", real)
+    monkeypatch.setattr(hus.os, "replace", lambda *a: (_ for _ in ()).throw(OSError("no space")))
     with pytest.raises(OSError, match="no space"):
         hu.write_solution_layer(src, out, scene, patches, {})
     assert not out.exists()

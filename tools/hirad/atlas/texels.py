@@ -1,0 +1,396 @@
+"""Texels: conservative rasterisation of the charts into texel samples, their surface points, resolving sample values into texels, dilation and seam stitching."""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+from .base import Atlas, Mesh, TexelSamples, _COVER_EPS, _areas2
+
+
+# ----------------------------------------------------------------------------------------
+# Rasterisation
+
+
+def _edge_setup(uv: np.ndarray):
+    """Edge functions of (F, 3, 2) triangles, oriented so the inside is positive: e_k(p) =
+    g_k . p + c_k for the edge opposite corner k, with e_k(corner k) = 2 |area|, so the
+    barycentric weight of corner k is e_k(p) / (2 |area|)."""
+    r = uv[:, [1, 2, 0]]
+    q = uv[:, [2, 0, 1]]
+    d = q - r
+    area2 = 2 * _areas2(uv)
+    sign = np.where(area2 < 0, -1.0, 1.0)[:, None]
+    g = np.stack([-d[..., 1], d[..., 0]], axis=-1) * sign[..., None]
+    c = -(g * r).sum(-1)
+    return g, c, np.abs(area2)
+
+
+def _candidates(uv: np.ndarray, width: int, height: int, tri_ids: np.ndarray):
+    """Every (triangle, texel) whose squares meet the triangle's bounding box."""
+    lo = np.floor(uv[tri_ids].min(axis=1)).astype(np.int64)
+    hi = np.ceil(uv[tri_ids].max(axis=1)).astype(np.int64) - 1
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [width - 1, height - 1])
+    n = np.maximum(hi - lo + 1, 0)
+    count = n[:, 0] * n[:, 1]
+    tri = np.repeat(tri_ids, count)
+    first = np.repeat(np.cumsum(count) - count, count)
+    k = np.arange(len(tri)) - first
+    nx = np.repeat(n[:, 0], count)
+    ix = np.repeat(lo[:, 0], count) + k % np.maximum(nx, 1)
+    iy = np.repeat(lo[:, 1], count) + k // np.maximum(nx, 1)
+    return tri, ix, iy
+
+
+def _touch(g, c, tri, ix, iy):
+    """Edge values at the texel centres and whether the texel square and the triangle
+    overlap in positive area (separating axes: the bounding box already overlaps)."""
+    gt = g[tri]
+    centre = np.stack([ix + 0.5, iy + 0.5], axis=-1)
+    e = (gt * centre[:, None, :]).sum(-1) + c[tri]
+    reach = 0.5 * np.abs(gt).sum(-1)
+    return e, (e + reach > _COVER_EPS * np.abs(gt).sum(-1)).all(axis=1)
+
+
+def _chunks(weights: np.ndarray, budget: int):
+    """Splits triangle indices into runs whose candidate counts stay within a budget."""
+    if len(weights) == 0:
+        return
+    cum = np.cumsum(weights)
+    start = 0
+    while start < len(weights):
+        base = cum[start - 1] if start else 0
+        stop = int(np.searchsorted(cum, base + budget, side="right"))
+        stop = max(stop, start + 1)
+        yield np.arange(start, stop)
+        start = stop
+
+
+def _bbox_counts(uv, width, height):
+    lo = np.maximum(np.floor(uv.min(axis=1)), 0)
+    hi = np.minimum(np.ceil(uv.max(axis=1)) - 1, [width - 1, height - 1])
+    n = np.maximum(hi - lo + 1, 0)
+    return (n[:, 0] * n[:, 1]).astype(np.int64)
+
+
+def _covered_texels(uv: np.ndarray, width: int, height: int):
+    """(triangle, linear texel id v-up row-major) for every covering pair."""
+    g, c, area = _edge_setup(uv)
+    live = np.nonzero(area > 1e-12)[0]
+    counts = _bbox_counts(uv[live], width, height)
+    tris, lins = [], []
+    for part in _chunks(counts, 2_000_000):
+        tri, ix, iy = _candidates(uv, width, height, live[part])
+        _, hit = _touch(g, c, tri, ix, iy)
+        tris.append(tri[hit])
+        lins.append(iy[hit] * width + ix[hit])
+    if not tris:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(tris), np.concatenate(lins)
+
+
+def rasterize(atlas: Atlas, page: int, supersample: int = 2) -> TexelSamples:
+    """Sample points of every texel a triangle of `page` covers.
+
+    Each texel is split into supersample x supersample strata and a sub-sample is taken at
+    every stratum centre that lies inside a triangle (a point on an edge two triangles
+    share counts once). A covered texel with no such point (a sliver, a chart's corner)
+    gets one sample at the closest point of the nearest covering triangle to its centre,
+    so thin triangles are never lost and every covered texel has a value.
+    """
+    s = int(supersample)
+    if s < 1:
+        raise ValueError("supersample must be >= 1")
+    width, height = atlas.page_sizes[page]
+    uv, mesh_of, tri_of = atlas.page_texel_uvs(page)
+    g, c, area = _edge_setup(uv)
+    live = np.nonzero(area > 1e-12)[0]
+    grid = np.stack(np.meshgrid(np.arange(s), np.arange(s), indexing="xy"), -1).reshape(-1, 2)
+    offs = (grid + 0.5) / s - 0.5  # stratum centres relative to the texel centre
+
+    keys, s_tri, s_bary = [], [], []
+    cand_tri, cand_lin, cand_e = [], [], []
+    counts = _bbox_counts(uv[live], width, height)
+    for part in _chunks(counts, max(10_000, 1_500_000 // (s * s))):
+        tri, ix, iy = _candidates(uv, width, height, live[part])
+        e, hit = _touch(g, c, tri, ix, iy)
+        tri, ix, iy, e = tri[hit], ix[hit], iy[hit], e[hit]
+        lin = iy * width + ix
+        cand_tri.append(tri)
+        cand_lin.append(lin)
+        cand_e.append(e)
+        es = e[:, None, :] + np.einsum("jd,nkd->njk", offs, g[tri])  # (n, s*s, 3)
+        # closed test with a hair of slack: a point on an edge two triangles share must not
+        # be lost to rounding on both sides (duplicates are removed below)
+        slack = -1e-7 * np.abs(g[tri]).sum(-1)[:, None, :]
+        inside = (es >= slack).all(axis=2)
+        n_idx, j_idx = np.nonzero(inside)
+        keys.append(lin[n_idx] * (s * s) + j_idx)
+        s_tri.append(tri[n_idx])
+        s_bary.append(es[n_idx, j_idx] / area[tri[n_idx], None])
+
+    if cand_tri:
+        cand_tri, cand_lin, cand_e = map(np.concatenate, (cand_tri, cand_lin, cand_e))
+        keys, s_tri, s_bary = map(np.concatenate, (keys, s_tri, s_bary))
+    else:
+        cand_tri = cand_lin = keys = s_tri = np.zeros(0, np.int64)
+        cand_e = np.zeros((0, 3))
+        s_bary = np.zeros((0, 3))
+    keys, first = np.unique(keys, return_index=True)
+    s_tri, s_bary = s_tri[first], s_bary[first]
+    s_lin = keys // (s * s)
+
+    # Covered texels without a sub-sample: the closest point of a covering triangle.
+    lonely = ~np.isin(cand_lin, s_lin)
+    f_tri, f_lin, f_bary = _closest_samples(uv, g, area, cand_tri[lonely], cand_lin[lonely], width)
+
+    all_lin = np.concatenate([s_lin, f_lin])
+    all_tri = np.concatenate([s_tri, f_tri])
+    all_bary = np.concatenate([s_bary, f_bary])
+    texels, texel_of = np.unique(all_lin, return_inverse=True)
+    order = np.argsort(texel_of, kind="stable")
+    texel_of, all_tri, all_bary = texel_of[order], all_tri[order], all_bary[order]
+    conservative = np.isin(texels, f_lin)
+    all_bary = np.clip(all_bary, 0.0, None)
+    all_bary /= all_bary.sum(axis=1, keepdims=True)
+    return TexelSamples(
+        page=page, width=width, height=height, supersample=s,
+        x=(texels % width).astype(np.int32),
+        y=(height - 1 - texels // width).astype(np.int32),
+        conservative=conservative,
+        texel=texel_of.astype(np.int32),
+        mesh=mesh_of[all_tri].astype(np.int32),
+        triangle=tri_of[all_tri].astype(np.int32),
+        bary=all_bary)
+
+
+def _closest_samples(uv, g, area, tri, lin, width):
+    """For each texel in `lin`, the closest point to its centre over the candidate
+    triangles touching it: (triangle, texel, barycentrics), one per texel."""
+    if len(tri) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    centre = np.stack([lin % width + 0.5, lin // width + 0.5], axis=-1).astype(np.float64)
+    v = uv[tri]  # (n, 3, 2)
+    best = np.broadcast_to(centre, (len(tri), 2)).copy()
+    best_d = np.full(len(tri), np.inf)
+    e = (g[tri] * centre[:, None, :]).sum(-1) + (-(g[tri] * v[:, [1, 2, 0]]).sum(-1))
+    inside = (e >= 0).all(axis=1)
+    best_d[inside] = 0.0
+    for k in range(3):
+        a, b = v[:, k], v[:, (k + 1) % 3]
+        d = b - a
+        t = np.clip(((centre - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
+        pt = a + t[:, None] * d
+        dist = np.linalg.norm(pt - centre, axis=1)
+        better = (dist < best_d) & ~inside
+        best[better], best_d[better] = pt[better], dist[better]
+    order = np.lexsort((best_d, lin))
+    lin_s = lin[order]
+    keep = order[np.r_[True, lin_s[1:] != lin_s[:-1]]]
+    pts = best[keep]
+    tk = tri[keep]
+    c = -(g[tk] * v[keep][:, [1, 2, 0]]).sum(-1)
+    bary = ((g[tk] * pts[:, None, :]).sum(-1) + c) / area[tk, None]
+    return tk, lin[keep], bary
+
+
+def sample_points(samples: TexelSamples, meshes: Sequence[Mesh]) -> tuple[np.ndarray, np.ndarray]:
+    """3D points (K, 3) and unit geometric normals (K, 3) of the samples (the normal follows
+    the triangle's winding: (b - a) x (c - a))."""
+    points = np.zeros((len(samples), 3))
+    normals = np.zeros((len(samples), 3))
+    for m in np.unique(samples.mesh):
+        sel = samples.mesh == m
+        p, t = meshes[int(m)]
+        p = np.asarray(p, dtype=np.float64)
+        corners = p[np.asarray(t)[samples.triangle[sel]]]  # (k, 3, 3)
+        points[sel] = np.einsum("kc,kcd->kd", samples.bary[sel], corners)
+        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals[sel] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return points, normals
+
+
+def resolve(samples: TexelSamples, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The page image: each covered texel is the mean of its samples' values.
+    Returns (image (H, W, C) float32, mask (H, W) bool of covered texels)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    if len(values) != len(samples):
+        raise ValueError(f"{len(values)} values for {len(samples)} samples")
+    t = len(samples.x)
+    count = np.bincount(samples.texel, minlength=t).astype(np.float64)
+    image = np.zeros((samples.height, samples.width, values.shape[1]), np.float32)
+    mask = np.zeros((samples.height, samples.width), bool)
+    for ch in range(values.shape[1]):
+        image[samples.y, samples.x, ch] = np.bincount(samples.texel, values[:, ch], minlength=t) / count
+    mask[samples.y, samples.x] = True
+    return image, mask
+
+
+def dilate(image: np.ndarray, mask: np.ndarray, texels: int) -> np.ndarray:
+    """Fills empty texels from their covered 8-neighbours, one ring per pass, `texels`
+    rings: the padding then holds the charts' border values, so bilinear filtering and
+    mipmaps do not pull black into the charts. Covered texels are not changed."""
+    out = np.array(image, dtype=np.float32, copy=True)
+    filled = np.array(mask, dtype=bool, copy=True)
+    h, w = filled.shape
+    vals = out if out.ndim == 3 else out[..., None]
+    for _ in range(int(texels)):
+        total = np.zeros(vals.shape, np.float64)
+        count = np.zeros((h, w), np.float64)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx == 0 and dy == 0:
+                    continue
+                dst = (slice(max(0, dy), h + min(0, dy)), slice(max(0, dx), w + min(0, dx)))
+                src = (slice(max(0, -dy), h + min(0, -dy)), slice(max(0, -dx), w + min(0, -dx)))
+                m = filled[src]
+                total[dst] += vals[src] * m[..., None]
+                count[dst] += m
+        grow = ~filled & (count > 0)
+        if not grow.any():
+            break
+        vals[grow] = (total[grow] / count[grow][:, None]).astype(np.float32)
+        filled |= grow
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Seams
+
+
+def seam_pairs(atlas: Atlas, page: int) -> np.ndarray:
+    """Texel pairs across UV seams of `page`: (P, 4) int32 rows (x_a, y_a, x_b, y_b), image
+    coordinates (column, row from the top).
+
+    For every 3D edge two triangles share (vertices welded by position) whose corner UVs
+    differ on the two sides, the edge is walked from texel border to texel border (the
+    borders of both sides' grids): each piece between two crossings lies in one texel on
+    side a and one on side b, which show the same 3D points and should hold the same value.
+    Where the two grids line up (same density, same texel phase, as xatlas's charts of a
+    box) this pairs texels one to one; elsewhere a texel pairs with the two it overlaps.
+    """
+    w, h = atlas.page_sizes[page]
+    scale = np.array([w, h], float)
+    out = []
+    for mi in atlas.page_meshes(page):
+        p, t = atlas.geometry[mi]
+        layout = atlas.meshes[mi]
+        uv = layout.uvs * scale
+        usable = (layout.charts >= 0) & (np.abs(_areas2(uv)) > 1e-12)
+        _, weld = np.unique(p, axis=0, return_inverse=True)
+        tv = weld.reshape(-1)[t]
+        f_idx = np.nonzero(usable)[0]
+        if len(f_idx) == 0:
+            continue
+        k0 = np.tile(np.arange(3), len(f_idx))
+        faces = np.repeat(f_idx, 3)
+        k1 = (k0 + 1) % 3
+        va, vb = tv[faces, k0], tv[faces, k1]
+        key = np.minimum(va, vb) * (int(weld.max()) + 1) + np.maximum(va, vb)
+        order = np.argsort(key, kind="stable")
+        key_s = key[order]
+        starts = np.r_[True, key_s[1:] != key_s[:-1]]
+        group = np.cumsum(starts) - 1
+        size = np.bincount(group)
+        two = size[group] == 2  # manifold edges only
+        first = order[starts & two]
+        second = order[np.r_[starts[1:], True] & ~starts & two]
+        if len(first) == 0:
+            continue
+        fa, ka = faces[first], k0[first]
+        fb, kb = faces[second], k0[second]
+        # Side a runs corner ka -> ka+1; find the same 3D endpoints on side b.
+        a0, a1 = uv[fa, ka], uv[fa, (ka + 1) % 3]
+        same_dir = tv[fb, kb] == tv[fa, ka]
+        b0 = np.where(same_dir[:, None], uv[fb, kb], uv[fb, (kb + 1) % 3])
+        b1 = np.where(same_dir[:, None], uv[fb, (kb + 1) % 3], uv[fb, kb])
+        seam = (np.abs(a0 - b0).max(axis=1) > 1e-3) | (np.abs(a1 - b1).max(axis=1) > 1e-3)
+        if not seam.any():
+            continue
+        fa, fb, a0, a1, b0, b1 = fa[seam], fb[seam], a0[seam], a1[seam], b0[seam], b1[seam]
+        # Split each edge where it crosses a texel border on either side: every piece then
+        # lies in one texel of side a and one of side b, and that texel pair shares it.
+        # Pieces shorter than 1/100 texel are float noise between grids that line up.
+        length = np.maximum(np.linalg.norm(a1 - a0, axis=1), np.linalg.norm(b1 - b0, axis=1))
+        cuts = [np.zeros(len(fa)), np.ones(len(fa))]
+        owners = [np.arange(len(fa)), np.arange(len(fa))]
+        for q0, q1 in ((a0, a1), (b0, b1)):
+            for d in range(2):
+                lo, hi = np.minimum(q0[:, d], q1[:, d]), np.maximum(q0[:, d], q1[:, d])
+                k0 = np.floor(lo).astype(np.int64) + 1
+                n = np.maximum(np.ceil(hi).astype(np.int64) - k0, 0)
+                e = np.repeat(np.arange(len(fa)), n)
+                k = k0[e] + np.arange(len(e)) - np.repeat(np.cumsum(n) - n, n)
+                cuts.append((k - q0[e, d]) / (q1[e, d] - q0[e, d]))
+                owners.append(e)
+        cut, own = np.concatenate(cuts), np.concatenate(owners)
+        order = np.lexsort((cut, own))
+        cut, own = cut[order], own[order]
+        same = own[1:] == own[:-1]
+        piece = (cut[1:] - cut[:-1]) * length[own[:-1]]
+        keep = same & (piece > 1e-2)
+        e_id = own[:-1][keep]
+        tt = 0.5 * (cut[1:] + cut[:-1])[keep]
+        ca, cb = uv[fa].mean(axis=1), uv[fb].mean(axis=1)
+
+        def texel(q0, q1, cen):
+            # The piece's midpoint, moved a hair into its triangle: an edge lying on a texel
+            # border then picks the texel the triangle covers.
+            pt = q0[e_id] + tt[:, None] * (q1 - q0)[e_id]
+            towards = cen[e_id] - pt
+            pt = pt + 1e-3 * towards / np.maximum(np.linalg.norm(towards, axis=1, keepdims=True), 1e-300)
+            ij = np.floor(pt).astype(np.int64)
+            return np.clip(ij, 0, [w - 1, h - 1])
+
+        ta, tb = texel(a0, a1, ca), texel(b0, b1, cb)
+        rows = np.stack([ta[:, 0], h - 1 - ta[:, 1], tb[:, 0], h - 1 - tb[:, 1]], axis=1)
+        out.append(rows[(rows[:, :2] != rows[:, 2:]).any(axis=1)])
+    if not out:
+        return np.zeros((0, 4), np.int32)
+    return np.unique(np.concatenate(out), axis=0).astype(np.int32)
+
+
+def stitch(image: np.ndarray, pairs: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """Moves each seam pair towards its average: every texel in a pair takes the mean of
+    the averages of its pairs, `iterations` times (a texel can pair with two texels on the
+    other side when the texel grids are offset, so one pass is not enough)."""
+    out = np.array(image, dtype=np.float32, copy=True)
+    if len(pairs) == 0:
+        return out
+    h, w = out.shape[:2]
+    vals = out.reshape(h * w, -1)
+    a = pairs[:, 1].astype(np.int64) * w + pairs[:, 0]
+    b = pairs[:, 3].astype(np.int64) * w + pairs[:, 2]
+    both = np.concatenate([a, b])
+    count = np.bincount(both, minlength=h * w)
+    touched = count > 0
+    for _ in range(int(iterations)):
+        mean = 0.5 * (vals[a].astype(np.float64) + vals[b])
+        acc = np.zeros(vals.shape, np.float64)
+        np.add.at(acc, both, np.concatenate([mean, mean]))
+        vals[touched] = (acc[touched] / count[touched, None]).astype(np.float32)
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# One call for the bake
+
+
+def bake_page(atlas: Atlas, page: int,
+              evaluate: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+              supersample: int = 2, dilate_texels: int | None = None,
+              stitch_iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """rasterize -> evaluate(points, normals, mesh, triangle) -> (K, C) values -> resolve
+    -> stitch seams -> dilate (by the atlas padding unless told). The callback is where the
+    engine answers (irradiance at points, say); this module never calls the engine."""
+    samples = rasterize(atlas, page, supersample)
+    points, normals = sample_points(samples, atlas.geometry)
+    values = np.asarray(evaluate(points, normals, samples.mesh, samples.triangle))
+    image, mask = resolve(samples, values)
+    if stitch_iterations > 0:
+        image = stitch(image, seam_pairs(atlas, page), stitch_iterations)
+    ring = atlas.padding if dilate_texels is None else dilate_texels
+    return dilate(image, mask, max(int(ring), 1)), mask

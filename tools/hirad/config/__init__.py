@@ -1,0 +1,45 @@
+"""hirad's configuration: the YAML schema, its loader and its error reports.
+
+A config file is one YAML mapping.  Only ``scene`` is required; every other
+key has a default (see the field descriptions below, or ``configs/cornell.yaml``
+for an annotated example).
+
+    cfg = load_config("configs/cornell.yaml")      # raises ConfigError
+    cfg.meshing.max_patch_area                     # 0.0006
+    cfg.fingerprint()                              # sha256 hex of the settings
+
+Every problem is reported as a :class:`ConfigError` whose text reads
+``file:line: key: problem``, with the line of the offending key in the YAML
+file.  Validation is strict about types: a quoted ``"16"`` where a number is
+expected is an error rather than silently converted, and unknown keys (typos)
+are errors too.  Numbers may be written as ``1e-4`` (YAML 1.2 style) even
+though PyYAML's YAML 1.1 rules would read that as a string.
+
+Relative paths in a config resolve against the directory holding the config
+file and are stored as absolute paths.
+
+Modules: `errors` (ConfigError), `schema` (the pydantic models), `loader` (YAML with
+located errors).
+"""
+
+from .errors import DICT_SOURCE, ConfigError
+from .loader import config_from_dict, load_config
+from .schema import (Config, FormFactorConfig, HierarchyConfig, LightmapOutputConfig, LinksConfig, MaterialsConfig,
+                     MeshingConfig, OutputsConfig, PreviewOutputConfig, ReconstructionConfig, SolverConfig,
+                     VolumeOutputConfig, parse_bytes)
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "FormFactorConfig",
+    "LightmapOutputConfig",
+    "MaterialsConfig",
+    "MeshingConfig",
+    "OutputsConfig",
+    "PreviewOutputConfig",
+    "ReconstructionConfig",
+    "SolverConfig",
+    "VolumeOutputConfig",
+    "config_from_dict",
+    "load_config",
+]

@@ -1,0 +1,566 @@
+"""The config schema: one pydantic model per section, strict types, units and defaults in each field's description."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationInfo,
+    field_validator,
+)
+
+
+# --------------------------------------------------------------------------
+# Schema
+# --------------------------------------------------------------------------
+
+# Scalars are strict (no str -> number, no number -> bool); a strict float
+# still accepts an integer, so `crease_angle: 30` is fine.  Containers are
+# lax so that a YAML list can fill a tuple and a Python tuple a list.
+StrictInt = Annotated[int, Strict()]
+StrictFloat = Annotated[float, Strict()]
+StrictBool = Annotated[bool, Strict()]
+StrictStr = Annotated[str, Strict()]
+Reflectance = Annotated[float, Strict(), Field(ge=0.0, lt=1.0)]
+
+_MODEL_CONFIG = ConfigDict(
+    extra="forbid",
+    allow_inf_nan=False,
+    validate_assignment=True,
+    validate_default=False,
+)
+
+
+class MaterialsConfig(BaseModel):
+    """How surface materials are read from the scene."""
+
+    model_config = _MODEL_CONFIG
+
+    default_reflectance: tuple[Reflectance, Reflectance, Reflectance] = Field(
+        default=(0.5, 0.5, 0.5),
+        description=(
+            "Diffuse reflectance [r, g, b] for surfaces without a readable material;"
+            " each channel in [0, 1) (1 would never converge)."
+        ),
+    )
+    uv_primvars: list[StrictStr] = Field(
+        default_factory=lambda: ["st", "uv", "UVMap", "st0", "map1"],
+        description=(
+            "Names of mesh primvars holding texture coordinates, tried in order;"
+            " the first one present on a mesh is used for its texture lookups."
+        ),
+    )
+
+
+class MeshingConfig(BaseModel):
+    """How scene surfaces are subdivided into radiosity patches."""
+
+    model_config = _MODEL_CONFIG
+
+    max_patch_area: StrictFloat = Field(
+        default=0.01,
+        gt=0.0,
+        description="Largest patch area, in square metres; smaller means more patches.",
+    )
+    max_edge_length: StrictFloat = Field(
+        default=0.1,
+        gt=0.0,
+        description="Longest patch edge, in metres; bounds sliver patches.",
+    )
+
+
+class FormFactorConfig(BaseModel):
+    """How patch-to-patch form factors are computed."""
+
+    model_config = _MODEL_CONFIG
+
+    method: Literal["raycast", "hemicube"] = Field(
+        default="raycast",
+        description="'raycast' (stratified area sampling) or 'hemicube' (rasterised hemicubes).",
+    )
+    samples: StrictInt = Field(
+        default=16,
+        ge=1,
+        le=4096,
+        description="Stratified sample points per patch for the raycast method.",
+    )
+    hemicube_resolution: StrictInt = Field(
+        default=128,
+        ge=8,
+        le=2048,
+        description="Pixels along the top face of each hemicube (hemicube method).",
+    )
+    hemicube_points: StrictInt = Field(
+        default=4,
+        ge=1,
+        le=64,
+        description="Hemicubes placed per patch, averaged (hemicube method).",
+    )
+
+    @field_validator("hemicube_resolution")
+    @classmethod
+    def _even_resolution(cls, value: int) -> int:
+        # The side faces are resolution x resolution/2 cells.
+        if value % 2:
+            raise ValueError(f"must be even, got {value}")
+        return value
+
+
+class HierarchyConfig(BaseModel):
+    """Hierarchical radiosity with clustering (used when method is 'hierarchical')."""
+
+    model_config = _MODEL_CONFIG
+
+    epsilon: StrictFloat = Field(
+        default=1e-5,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "Refinement threshold: a link is split while the power it carries exceeds this"
+            " fraction of the scene's emitted power (0 refines every link to min_area)."
+        ),
+    )
+    min_area: StrictFloat = Field(
+        default=1e-3, gt=0.0, description="Smallest element area, in m^2; elements are not split below it."
+    )
+    samples: StrictInt = Field(
+        default=16, ge=1, le=4096, description="Point pairs per link estimate (rounded to a square)."
+    )
+    max_rounds: StrictInt = Field(
+        default=6,
+        ge=1,
+        le=100,
+        description="Most refine-solve rounds; rounds stop earlier once no link wants to split.",
+    )
+
+
+class SolverConfig(BaseModel):
+    """How the radiosity system (I - R F) B = E is solved."""
+
+    model_config = _MODEL_CONFIG
+
+    method: Literal["southwell", "progressive", "jacobi", "gauss_seidel", "direct", "block_southwell"] = Field(
+        default="southwell",
+        description=(
+            "Solver: 'southwell' (shoot the largest unshot energy), 'progressive'"
+            " (shooting with preview snapshots), 'jacobi', 'gauss_seidel' or 'direct'"
+            " (dense factorisation; small scenes only); for method: hierarchical also"
+            " 'block_southwell': links in the on-disk store of `links`, streamed through a"
+            " memory budget (out of core)."
+        ),
+    )
+    tolerance: StrictFloat = Field(
+        default=1e-4,
+        gt=0.0,
+        lt=1.0,
+        description="Stop when the relative residual ||E - M B|| / ||E|| falls below this.",
+    )
+    max_iterations: StrictInt = Field(
+        default=100_000_000,
+        ge=1,
+        description="Upper bound on iterations (shots for shooting methods, sweeps otherwise).",
+    )
+    snapshots: StrictInt = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Progressive solver only: write a preview image every this many shots;"
+            " 0 writes none."
+        ),
+    )
+
+    @field_validator("snapshots")
+    @classmethod
+    def _snapshots_need_progressive(cls, value: int, info: ValidationInfo) -> int:
+        method = info.data.get("method")
+        if value > 0 and method is not None and method != "progressive":
+            raise ValueError(
+                f"snapshots are only written by the progressive solver, not {method!r};"
+                " set solver.method: progressive or snapshots: 0"
+            )
+        return value
+
+
+class LinksConfig(BaseModel):
+    """The on-disk link store of out-of-core hierarchical bakes (solver.method: block_southwell)."""
+
+    model_config = _MODEL_CONFIG
+
+    store: Optional[Path] = Field(
+        default=None,
+        description=(
+            "Directory of the link store (chunk files, manifest, checkpoints); relative to the"
+            " config; default: the output directory's name with '.links' beside it. Kept"
+            " between bakes, for --resume and --reuse-links."
+        ),
+    )
+    memory_budget: Union[StrictInt, str] = Field(
+        default=1 << 30,
+        description=(
+            "Memory for the solver's state and the link chunks it keeps decoded, e.g. '512MB',"
+            " '2GB' (or bytes; default 1GB); 0 = unlimited. The result does not depend on it."
+        ),
+    )
+    group_faces: StrictInt = Field(
+        default=1024,
+        ge=1,
+        description=(
+            "Input faces per source group: the links of one group form one chunk, refined and"
+            " shot together. Part of the refinement settings (changing it changes the links)."
+        ),
+    )
+    checkpoint_seconds: StrictFloat = Field(
+        default=60.0,
+        ge=0.0,
+        description="Write the solver's state this often (0: never); `hirad bake --resume` continues from it.",
+    )
+
+    @field_validator("memory_budget")
+    @classmethod
+    def _budget(cls, value):
+        return parse_bytes(value)
+
+    @field_validator("store", mode="after")
+    @classmethod
+    def _absolute_store(cls, value: Optional[Path], info: ValidationInfo) -> Optional[Path]:
+        return None if value is None else _absolute(value, info)
+
+
+def parse_bytes(value) -> int:
+    """'512MB', '2 GiB', '1.5GB', 1048576 -> bytes (powers of 1024: GB means GiB)."""
+    if isinstance(value, int):
+        if value < 0:
+            raise ValueError("a memory size cannot be negative")
+        return value
+    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", str(value))
+    if not m:
+        raise ValueError(f"{value!r} is not a memory size (e.g. 512MB, 2GB, or a number of bytes)")
+    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    return int(float(m.group(1)) * scale)
+
+
+class ReconstructionConfig(BaseModel):
+    """How per-patch radiosity is turned into smooth per-vertex values."""
+
+    model_config = _MODEL_CONFIG
+
+    crease_angle: StrictFloat = Field(
+        default=30.0,
+        ge=0.0,
+        le=180.0,
+        description=(
+            "Degrees; neighbouring patches whose normals differ by more than this"
+            " are not blended across their shared edge."
+        ),
+    )
+
+
+class LightmapOutputConfig(BaseModel):
+    """Baked lightmap textures: incident radiance H/pi on a UV atlas of pages.
+
+    A mesh keeps its own lightmap UV set when it has one (``materials.uv_primvars``), else
+    xatlas charts it; every mesh is packed onto pages of at most ``max_size`` texels a side
+    at ``texels_per_metre`` with ``padding`` empty texels between charts.
+    """
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=True, description="Write lightmap textures.")
+    texels_per_metre: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        le=1.0e5,
+        description=(
+            "Texel density on the surfaces; null derives it from texels_per_patch"
+            " (texels_per_patch / sqrt(median patch area))."
+        ),
+    )
+    texels_per_patch: StrictInt = Field(
+        default=4,
+        ge=1,
+        le=64,
+        description=(
+            "Texels along the side of a median patch; only used when texels_per_metre is null."
+        ),
+    )
+    padding: StrictInt = Field(
+        default=2,
+        ge=0,
+        le=64,
+        description="Empty texels between charts (and between meshes), filled by dilation.",
+    )
+    max_size: StrictInt = Field(
+        default=4096,
+        ge=64,
+        le=16384,
+        description="Largest lightmap atlas page side, in texels.",
+    )
+    supersample: StrictInt = Field(
+        default=2,
+        ge=1,
+        le=8,
+        description="Samples per texel along each axis (supersample^2 per texel).",
+    )
+    mode: Literal["interpolate", "final_gather"] = Field(
+        default="interpolate",
+        description=(
+            "'interpolate': from the solution's vertices (fast); 'final_gather': a one-bounce"
+            " gather per sample from the solved hierarchy with Embree visibility"
+            " (method: hierarchical only)."
+        ),
+    )
+    gather_rays: StrictInt = Field(
+        default=4, ge=1, le=256, description="Visibility rays per link in final_gather mode."
+    )
+    sample_offset: StrictFloat = Field(
+        default=1.0e-4,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Metres: texel samples are lifted this far along their normal, and moved out of"
+            " geometry they are found inside (see hirad.bake._lift)."
+        ),
+    )
+    existing_layout: Literal["keep", "repack"] = Field(
+        default="keep",
+        description=(
+            "Meshes with their own lightmap UVs: 'keep' the author's layout (scaled to the"
+            " density; lightmapScaleOffset maps it to the page) or 'repack' its islands."
+        ),
+    )
+    mesh_files: StrictBool = Field(
+        default=True,
+        description=(
+            "Also write lightmaps/<mesh>.exr: each mesh's block cut out of its page."
+        ),
+    )
+    rgbm: StrictBool = Field(
+        default=False, description="Also write each page as an 8-bit RGBM PNG."
+    )
+    rgbm_range: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        description="RGBM range (value = rgb * a * range); null uses each page's maximum.",
+    )
+
+
+class VolumeOutputConfig(BaseModel):
+    """An irradiance volume (OpenVDB) for lighting dynamic objects."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=False, description="Write volume.vdb.")
+    spacing: StrictFloat = Field(
+        default=0.25, gt=0.0, description="Metres between probes (the lattice's voxel size)."
+    )
+    max_distance: Optional[StrictFloat] = Field(
+        default=None,
+        gt=0.0,
+        description=(
+            "Metres: only lattice points this close to a surface get a probe; null means"
+            " 3 x spacing."
+        ),
+    )
+    rays: StrictInt = Field(
+        default=1024, ge=16, le=65536, description="Stratified directions per probe."
+    )
+    max_probes: StrictInt = Field(
+        default=2_000_000,
+        ge=1,
+        description="Refuse lattices with more candidate points than this (raise the spacing).",
+    )
+
+
+class PreviewOutputConfig(BaseModel):
+    """A rendered preview image of the solved scene."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: StrictBool = Field(default=True, description="Render a preview image.")
+    camera: Optional[StrictStr] = Field(
+        default=None,
+        description=(
+            "USD prim path of the camera to render from, e.g. '/World/Camera';"
+            " null uses the first camera in the scene, or a default view if it has none."
+        ),
+    )
+    width: StrictInt = Field(default=512, ge=16, le=8192, description="Image width, in pixels.")
+    height: StrictInt = Field(default=512, ge=16, le=8192, description="Image height, in pixels.")
+    samples: StrictInt = Field(
+        default=4, ge=1, le=256, description="Anti-aliasing samples per pixel."
+    )
+
+    @field_validator("camera")
+    @classmethod
+    def _camera_is_prim_path(cls, value: Optional[str]) -> Optional[str]:
+        if value is not None and not value.startswith("/"):
+            raise ValueError(f"must be an absolute USD prim path starting with '/', got {value!r}")
+        return value
+
+
+class OutputsConfig(BaseModel):
+    """What a bake writes into the output directory."""
+
+    model_config = _MODEL_CONFIG
+
+    usd: StrictBool = Field(
+        default=True, description="Write a USD layer with radiosity as vertex primvars."
+    )
+    lightmaps: LightmapOutputConfig = Field(
+        default_factory=LightmapOutputConfig, description="Lightmap texture settings."
+    )
+    volume: VolumeOutputConfig = Field(
+        default_factory=VolumeOutputConfig, description="Irradiance volume settings."
+    )
+    preview: PreviewOutputConfig = Field(
+        default_factory=PreviewOutputConfig, description="Preview image settings."
+    )
+    report: StrictBool = Field(
+        default=True, description="Write a report of timings, statistics and settings."
+    )
+
+
+class Config(BaseModel):
+    """A complete hirad configuration.
+
+    Build one with :func:`load_config` or :func:`config_from_dict`.  Fields may
+    be assigned afterwards (``cfg.threads = 4``) and are validated again, but a
+    relative path assigned that way resolves against the current directory.
+    """
+
+    model_config = _MODEL_CONFIG
+
+    scene: Path = Field(
+        description="USD scene to light (relative to the config file's directory); must exist.",
+    )
+    output: Path = Field(
+        default=None,
+        validate_default=True,
+        description=(
+            "Output directory (relative to the config file's directory);"
+            " omitted or null means <config dir>/out/<config file stem>."
+        ),
+    )
+    threads: StrictInt = Field(
+        default=0, ge=0, description="Worker threads; 0 uses all cores."
+    )
+    seed: StrictInt = Field(
+        default=1, ge=0, description="Random seed for all sampling; equal seeds give equal results."
+    )
+    materials: MaterialsConfig = Field(
+        default_factory=MaterialsConfig, description="Material settings."
+    )
+    meshing: MeshingConfig = Field(default_factory=MeshingConfig, description="Patch subdivision.")
+    formfactors: FormFactorConfig = Field(
+        default_factory=FormFactorConfig, description="Form factor computation."
+    )
+    method: Literal["flat", "hierarchical"] = Field(
+        default="flat",
+        description=(
+            "'flat': patches from `meshing`, every pair linked (the classic method, the"
+            " reference); 'hierarchical': adaptive elements and cluster links from `hierarchy`."
+        ),
+    )
+    hierarchy: HierarchyConfig = Field(
+        default_factory=HierarchyConfig, description="Hierarchical radiosity settings."
+    )
+    solver: SolverConfig = Field(default_factory=SolverConfig, description="Radiosity solver.")
+    links: LinksConfig = Field(default_factory=LinksConfig, description="Out-of-core link store.")
+    reconstruction: ReconstructionConfig = Field(
+        default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
+    )
+    outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="What to write.")
+
+    @field_validator("scene", mode="after")
+    @classmethod
+    def _scene_exists(cls, value: Path, info: ValidationInfo) -> Path:
+        path = _absolute(value, info)
+        if not path.exists():
+            raise ValueError(f"scene file not found: {path}")
+        if not path.is_file():
+            raise ValueError(f"scene is not a file: {path}")
+        return path
+
+    @field_validator("solver", mode="after")
+    @classmethod
+    def _hierarchical_solver(cls, value: SolverConfig, info: ValidationInfo) -> SolverConfig:
+        # On the hierarchy: gathering (Jacobi, Gauss-Seidel) or shooting (Southwell), with push-pull.
+        hierarchical = ("jacobi", "gauss_seidel", "southwell", "block_southwell")
+        if info.data.get("method") == "hierarchical" and value.method not in hierarchical:
+            raise ValueError(
+                "method: hierarchical solves with solver.method jacobi, gauss_seidel, southwell"
+                f" (with push-pull) or block_southwell (out of core), not {value.method!r}"
+            )
+        if info.data.get("method") == "flat" and value.method == "block_southwell":
+            raise ValueError("solver.method block_southwell streams hierarchical links: set method: hierarchical")
+        return value
+
+    @field_validator("outputs", mode="after")
+    @classmethod
+    def _gather_needs_hierarchy(cls, value, info: ValidationInfo):
+        if value.lightmaps.enabled and value.lightmaps.mode == "final_gather" and info.data.get("method") != "hierarchical":
+            raise ValueError("outputs.lightmaps.mode: final_gather needs method: hierarchical (the gather re-evaluates"
+                             " the hierarchy's links); use mode: interpolate for flat bakes")
+        return value
+
+    def link_store(self) -> Path:
+        """Where an out-of-core bake keeps its links."""
+        return self.links.store or self.output.parent / (self.output.name + ".links")
+
+    @field_validator("output", mode="before")
+    @classmethod
+    def _default_output(cls, value: Any, info: ValidationInfo) -> Any:
+        if value is not None:
+            return value
+        context = info.context or {}
+        name = context.get("name")
+        if not name:
+            scene = info.data.get("scene")
+            name = Path(scene).stem if isinstance(scene, Path) else "hirad"
+        return _base_dir(info) / "out" / name
+
+    @field_validator("output", mode="after")
+    @classmethod
+    def _absolute_output(cls, value: Path, info: ValidationInfo) -> Path:
+        return _absolute(value, info)
+
+    def fingerprint(self) -> str:
+        """SHA-256 (hex) of the canonical JSON form of every setting.
+
+        Independent of key order and formatting in the YAML file; paths enter
+        as the absolute paths stored in the model.
+        """
+        canonical = json.dumps(
+            self.model_dump(mode="json"),
+            sort_keys=True,
+            separators=(",", ":"),
+            ensure_ascii=False,
+            allow_nan=False,
+        )
+        return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+
+    def thread_count(self) -> int:
+        """The number of worker threads to use: ``threads``, or all cores if 0."""
+        return self.threads or (os.cpu_count() or 1)
+
+
+def _base_dir(info: ValidationInfo) -> Path:
+    context = info.context or {}
+    base = context.get("base_dir")
+    return Path(base) if base is not None else Path.cwd()
+
+
+def _absolute(value: Path, info: ValidationInfo) -> Path:
+    path = value.expanduser()
+    if not path.is_absolute():
+        path = _base_dir(info) / path
+    return Path(os.path.normpath(path.absolute()))

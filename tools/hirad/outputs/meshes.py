@@ -1,0 +1,60 @@
+"""The solution meshes: the display mesh's faces and vertex values per scene mesh, as written to the USD layer."""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from .. import usd
+
+
+def patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h):
+    """One PatchMeshData per input mesh from the display faces (patches, or fans of triangles
+    where a patch has T-vertices), its points re-indexed; with each, its display faces."""
+    faces, face_nv, face_patch = display["faces"], display["face_nv"], display["face_patch"]
+    face_mesh = patches["mesh"][face_patch]
+    out, faces_of = [], []
+    order = np.argsort(face_mesh, kind="stable")
+    bounds = np.searchsorted(face_mesh[order], np.arange(len(scene.meshes) + 1))
+    for m in range(len(scene.meshes)):
+        fids = order[bounds[m]:bounds[m + 1]]
+        if fids.size == 0:
+            continue
+        counts = face_nv[fids].astype(np.int32)
+        flat = np.concatenate([faces[f, :face_nv[f]] for f in fids])
+        used, local = np.unique(flat, return_inverse=True)
+        pids = face_patch[fids]
+        out.append(usd.PatchMeshData(
+            mesh_index=m, points=display["points"][used], face_vertex_counts=counts,
+            face_vertex_indices=local.astype(np.int32), vertex_radiance=vertex_radiance[used],
+            vertex_irradiance=vertex_irradiance[used], face_radiance=b[pids] / np.pi, face_irradiance=h[pids]))
+        faces_of.append(fids)
+    return out, faces_of
+
+
+def corner_uv(uv: np.ndarray, nv: int, code: int) -> np.ndarray:
+    """UV of a display face corner from its patch's corner UVs (see DisplayMesh::face_code)."""
+    if code < 4:
+        return uv[code]
+    if code < 8:
+        k = code - 4
+        return 0.5 * (uv[k] + uv[(k + 1) % nv])
+    return uv[:nv].mean(axis=0)
+
+
+LIGHTMAP_UNITS = "incident radiance H/pi, W/(m^2 sr); final colour = albedo x lightmap"
+
+
+def triangulate(counts: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Display faces (triangles and planar quads) as triangles: (tris (M,3) of local vertex
+    ids, face (M,), corners (M,3) of face corner slots). A quad (a,b,c,d) -> (a,b,c), (a,c,d)."""
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    tris, face, slots = [], [], []
+    for f, (s0, c) in enumerate(zip(starts, counts)):
+        for k in range(1, c - 1):
+            slot = (s0, s0 + k, s0 + k + 1)
+            slots.append(slot)
+            tris.append([indices[j] for j in slot])
+            face.append(f)
+    return (np.asarray(tris, np.int64).reshape(-1, 3), np.asarray(face, np.int64),
+            np.asarray(slots, np.int64).reshape(-1, 3))

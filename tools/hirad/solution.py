@@ -1,0 +1,122 @@
+"""A baked solution as Python sees it: values at points, renders, the final gather; from a bake or from a stored solution.usda."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _engine, usd
+from .outputs import images
+from .errors import BakeError
+
+
+# --------------------------------------------------------------------------------------
+# results
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class SurfaceSolution:
+    """Radiance and irradiance over the solved surfaces, queryable at any point."""
+
+    corners: np.ndarray          # (P,4,3) patch corners, metres
+    nv: np.ndarray               # (P,) 3 or 4
+    corner_radiance: np.ndarray  # (P,4,3) exitant radiance W/(m^2 sr)
+    corner_irradiance: np.ndarray  # (P,4,3) W/m^2
+    cameras: list = field(default_factory=list)
+    up_axis: str = "Y"
+    _field: object = None
+
+    @property
+    def field(self) -> "_engine.SurfaceField":
+        if self._field is None:
+            self._field = _engine.SurfaceField(self.corners, self.nv.astype(np.int32),
+                                               self.corner_radiance, self.corner_irradiance)
+        return self._field
+
+    def query(self, points, normals=None, max_distance: float = 1e30) -> dict:
+        """Closest-surface lookup: dict of patch (-1 if none), distance, irradiance, radiance."""
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        nrm = np.zeros_like(pts) if normals is None else np.ascontiguousarray(
+            np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+        return self.field.probe(pts, nrm, float(max_distance))
+
+    def irradiance_at(self, points, normals=None) -> np.ndarray:
+        """Irradiance (W/m^2, RGB) at the surface points nearest to `points` (facing along
+        `normals` when given)."""
+        return self.query(points, normals)["irradiance"]
+
+    def radiance_at(self, points, normals=None) -> np.ndarray:
+        """Exitant radiance (W/(m^2 sr), RGB) at the surface points nearest to `points`."""
+        return self.query(points, normals)["radiance"]
+
+    def render(self, camera: str | None = None, width: int = 512, height: int = 512,
+               samples: int = 4) -> np.ndarray:
+        """Renders exitant radiance from a scene camera (by prim path) or a default view."""
+        return images.render(self.field, self.view(camera), width, height, samples)
+
+    def view(self, camera: str | None) -> images.View:
+        if camera:
+            for cam in self.cameras:
+                if cam.path == camera:
+                    return images.view_from_camera(cam)
+            known = ", ".join(c.path for c in self.cameras) or "none"
+            raise BakeError(f"camera {camera} not found (cameras in the scene: {known})")
+        if self.cameras:
+            return images.view_from_camera(self.cameras[0])
+        return images.default_view(self.corners.reshape(-1, 3), self.up_axis)
+
+
+@dataclass
+class Result(SurfaceSolution):
+    """What `bake` returns: the solution in memory plus where its outputs were written."""
+
+    output_dir: Path | None = None
+    report: dict = field(default_factory=dict)
+    patch_radiosity: np.ndarray | None = None   # (P,3) B, W/m^2
+    patch_irradiance: np.ndarray | None = None  # (P,3) H, W/m^2
+    patches: dict = field(default_factory=dict)
+    _model: object = None   # the engine model, kept for the final gather
+    hierarchical: bool = False
+
+    def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8,
+               seed: int = 1) -> dict:
+        """Final gather at surface points: hierarchical bakes re-evaluate every link that
+        reaches a point's element at the point itself (exact point-to-polygon form factors,
+        Embree visibility); flat bakes gather from every patch, O(patches) a point. Returns
+        dict of patch (-1 if no surface faces along the normal), irradiance (W/m^2) and
+        radiance (W/(m^2 sr))."""
+        if self._model is None:
+            raise BakeError("gather needs the bake's engine model (a Result of hirad.bake)")
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+        if self.hierarchical:
+            return self._model.gather(pts, nrm, rays, cluster_samples, seed)
+        return self._model.gather_flat(pts, nrm, np.ascontiguousarray(self.patch_radiosity), rays, seed)
+
+
+def load_solution(path: str | os.PathLike) -> SurfaceSolution:
+    """Opens a solution layer written by a bake, for rendering or probing without solving."""
+    data = usd.read_solution_layer(path)
+    corners, nv, rad, irr = [], [], [], []
+    for m in data.meshes:
+        counts = np.asarray(m.face_vertex_counts)
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        idx = np.asarray(m.face_vertex_indices)
+        for f, c in enumerate(counts):
+            if c not in (3, 4):
+                raise BakeError(f"{path}: {m.name}: face {f} has {c} corners; hirad writes triangles and quads")
+            ids = idx[offsets[f]:offsets[f + 1]]
+            ids4 = np.append(ids, ids[-1]) if c == 3 else ids
+            corners.append(m.points[ids4])
+            rad.append(m.vertex_radiance[ids4])
+            irr.append(m.vertex_irradiance[ids4])
+            nv.append(c)
+    if not corners:
+        raise BakeError(f"{path}: the solution has no faces")
+    return SurfaceSolution(np.ascontiguousarray(corners, dtype=np.float64), np.asarray(nv, dtype=np.int32),
+                           np.ascontiguousarray(rad, dtype=np.float64), np.ascontiguousarray(irr, dtype=np.float64),
+                           cameras=data.cameras, up_axis=data.up_axis)
