@@ -4,14 +4,46 @@
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfIO.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfStringAttribute.h>
 
-#include <cstdio>
 #include <stdexcept>
 
+#include "pipeline/core/atomic_file.h"
+
 namespace hirad {
+
+namespace {
+
+// OpenEXR's output stream over the atomic temporary's descriptor. A write error is kept as
+// well as thrown: OutputFile's destructor writes the line offsets and swallows exceptions,
+// so the writer asks failed() before committing.
+class FdStream : public Imf::OStream {
+public:
+    FdStream(int fd, const std::string& name) : Imf::OStream(name.c_str()), fd_(fd), name_(name) {}
+    void write(const char c[], int n) override {
+        try {
+            pwrite_all(fd_, c, size_t(n), at_, name_);
+        } catch (const std::exception& e) {
+            if (error_.empty()) error_ = e.what();
+            throw;
+        }
+        at_ += uint64_t(n);
+    }
+    uint64_t tellp() override { return at_; }
+    void seekp(uint64_t pos) override { at_ = pos; }
+    const std::string& error() const { return error_; }
+
+private:
+    int fd_;
+    std::string name_;
+    uint64_t at_ = 0;
+    std::string error_;
+};
+
+}  // namespace
 
 void write_exr_rgb(const std::string& path, int width, int height, const float* rgb,
                    const std::vector<std::pair<std::string, std::string>>& metadata) {
@@ -30,18 +62,19 @@ void write_exr_rgb(const std::string& path, int width, int height, const float* 
         fb.insert(names[c], Imf::Slice(Imf::HALF, reinterpret_cast<char*>(channels[c].data()), sizeof(Imath::half),
                                        sizeof(Imath::half) * width));
     }
-    const std::string tmp = path + ".partial";
+    AtomicFile out(path);  // throws naming the temporary when it cannot be created
     try {
-        Imf::OutputFile file(tmp.c_str(), header);
-        file.setFrameBuffer(fb);
-        file.writePixels(height);
+        FdStream stream(out.fd(), out.temporary());
+        {
+            Imf::OutputFile file(stream, header);
+            file.setFrameBuffer(fb);
+            file.writePixels(height);
+        }  // the destructor writes the line offset table
+        if (!stream.error().empty()) throw std::runtime_error(stream.error());
+        out.commit();
     } catch (const std::exception& e) {
-        std::remove(tmp.c_str());
+        out.discard();
         throw std::runtime_error(path + ": could not write EXR: " + e.what());
-    }
-    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(path + ": could not rename the finished EXR into place");
     }
 }
 

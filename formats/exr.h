@@ -1,5 +1,5 @@
-// EXR output: half-float RGB, written to a temporary name and renamed, so a reader never
-// sees a partial file.
+// EXR output: half-float RGB, written to an AtomicFile's exclusive temporary and renamed
+// (pipeline/core/atomic_file.h), so a reader never sees a partial file.
 #pragma once
 #include <string>
 #include <utility>

@@ -9,6 +9,8 @@
 #include <xxhash.h>
 #include <zstd.h>
 
+#include "pipeline/core/atomic_file.h"
+
 #include <algorithm>
 #include <array>
 #include <cctype>
@@ -67,9 +69,7 @@ float from_bits(uint32_t u) {
     return f;
 }
 
-[[noreturn]] void throw_os(const std::string& path, const std::string& what) {
-    throw std::runtime_error(path + ": " + what + ": " + std::strerror(errno));
-}
+[[noreturn]] void throw_os(const std::string& path, const std::string& what) { throw_os_error(path, what); }
 [[noreturn]] void chunk_fail(const std::string& path, size_t k, const std::string& what) {
     throw std::runtime_error(path + ": chunk " + std::to_string(k) + ": " + what);
 }
@@ -94,29 +94,6 @@ struct Fd {
         if (::close(f) != 0) throw_os(path, "close failed");
     }
 };
-
-void write_all(int fd, const uint8_t* p, size_t n, const std::string& path) {
-    while (n > 0) {
-        const ssize_t w = ::write(fd, p, n);
-        if (w < 0) {
-            if (errno == EINTR) continue;
-            throw_os(path, "write failed");
-        }
-        p += w;
-        n -= size_t(w);
-    }
-}
-
-void fsync_dir(const std::string& dir) {
-    Fd fd(::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-    if (fd.fd < 0) throw_os(dir, "cannot open the directory to fsync it");
-    if (::fsync(fd.fd) != 0) throw_os(dir, "fsync of the directory failed");
-    fd.close(dir);
-}
-
-void rename_file(const std::string& from, const std::string& to) {
-    if (::rename(from.c_str(), to.c_str()) != 0) throw_os(from, "cannot rename to " + to);
-}
 
 void remove_file(const std::string& path) {
     if (::unlink(path.c_str()) != 0 && errno != ENOENT) throw_os(path, "cannot remove");
@@ -156,10 +133,14 @@ bool is_chunk_name(const std::string& s) {
 }
 
 // Files a writer may leave in a store directory: the only ones it will clear.
+// (The temporaries of files being written, see pipeline/core/atomic_file.h, are left by a
+// writer killed mid-write; "<name>.tmp" by writers before them.)
 bool is_store_file(const std::string& name) {
     const std::string tmp = ".tmp";
-    const bool is_tmp = name.size() > tmp.size() && name.compare(name.size() - tmp.size(), tmp.size(), tmp) == 0;
-    const std::string base = is_tmp ? name.substr(0, name.size() - tmp.size()) : name;
+    std::string base = name;
+    if (!is_atomic_temporary(name, &base) && name.size() > tmp.size() &&
+        name.compare(name.size() - tmp.size(), tmp.size(), tmp) == 0)
+        base = name.substr(0, name.size() - tmp.size());
     return base == kManifestName || is_chunk_name(base);
 }
 
@@ -697,22 +678,6 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
     }
 }
 
-void write_file_synced(const std::string& path, const uint8_t* data, size_t size) {
-    Fd fd(::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644));
-    if (fd.fd < 0) throw_os(path, "cannot create");
-    write_all(fd.fd, data, size, path);
-    if (::fsync(fd.fd) != 0) throw_os(path, "fsync failed");
-    fd.close(path);
-}
-
-void commit_file(const std::string& path, const uint8_t* data, size_t size) {
-    const std::string tmp = path + ".tmp";
-    write_file_synced(tmp, data, size);
-    rename_file(tmp, path);
-    const size_t slash = path.find_last_of('/');
-    fsync_dir(slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash)));
-}
-
 // ---------------------------------------------------------------------------------------------
 // Writer
 
@@ -741,10 +706,10 @@ LinkStoreWriter::LinkStoreWriter(const std::string& dir, const LinkStoreInfo& in
     // beside chunks of the new store.
     if (has_manifest) {
         remove_file(dir_ + "/" + kManifestName);
-        fsync_dir(dir_);
+        fsync_directory(dir_);
     }
     for (const std::string& name : old) remove_file(dir_ + "/" + name);
-    if (!old.empty()) fsync_dir(dir_);
+    if (!old.empty()) fsync_directory(dir_);
 }
 
 void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, const LinkRecord* links, size_t count) {
@@ -776,19 +741,19 @@ void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, co
         slots_[source_begin].entry.source_end = source_end;
     }
     const std::string path = dir_ + "/" + chunk_file_name(source_begin, source_end);
-    const std::string tmp = path + ".tmp";
     try {
         ChunkEntry entry;
         const std::vector<uint8_t> bytes =
             encode_chunk(kUnassignedIndex, source_begin, source_end, sorted.data(), count, entry);
-        write_file_synced(tmp, bytes.data(), bytes.size());
-        rename_file(tmp, path);
+        // The directory is fsynced once, by commit(), before the manifest names the chunks.
+        AtomicFile::Options options;
+        options.sync_directory = false;
+        write_file_atomic(path, bytes.data(), bytes.size(), options);
         std::lock_guard<std::mutex> lock(mutex_);
         slots_[source_begin] = {entry, true};
     } catch (...) {
         std::lock_guard<std::mutex> lock(mutex_);
         failed_ = true;
-        ::unlink(tmp.c_str());  // best effort: the error being thrown is the one that matters
         throw;
     }
 }
@@ -814,7 +779,7 @@ void LinkStoreWriter::commit() {
         const uint32_t index = uint32_t(manifest.chunks.size());
         const auto header = chunk_header(slot.entry, index);
         const std::string path = dir_ + "/" + chunk_file_name(begin, slot.entry.source_end);
-        Fd fd(::open(path.c_str(), O_WRONLY | O_CLOEXEC));
+        Fd fd(::open(path.c_str(), O_WRONLY | O_NOFOLLOW | O_CLOEXEC));
         if (fd.fd < 0) throw_os(path, "cannot open to number the chunk");
         const ssize_t w = ::pwrite(fd.fd, header.data(), header.size(), 0);
         if (w < 0) throw_os(path, "header write failed");
@@ -823,12 +788,9 @@ void LinkStoreWriter::commit() {
         fd.close(path);
         manifest.chunks.push_back(slot.entry);
     }
-    fsync_dir(dir_);  // the chunks' renames are durable before the manifest names them
+    fsync_directory(dir_);  // the chunks' renames are durable before the manifest names them
     const std::vector<uint8_t> bytes = encode_manifest(manifest);
-    const std::string path = dir_ + "/" + kManifestName;
-    write_file_synced(path + ".tmp", bytes.data(), bytes.size());
-    rename_file(path + ".tmp", path);
-    fsync_dir(dir_);
+    write_file_atomic(dir_ + "/" + kManifestName, bytes.data(), bytes.size());
     committed_ = true;
 }
 

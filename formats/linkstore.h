@@ -169,7 +169,7 @@ public:
     LinkStoreWriter(const std::string& dir, const LinkStoreInfo& info);
 
     // Stores the links of the source groups [source_begin, source_end) (in any order; they
-    // are sorted here) as one chunk, written to a temporary name, fsynced and renamed. Ranges
+    // are sorted here) as one chunk, written to an exclusive temporary, fsynced and renamed. Ranges
     // must not overlap earlier calls'. Throws std::invalid_argument for an invalid link
     // (index out of range, duplicate pair, bad value).
     void write_chunk(uint32_t source_begin, uint32_t source_end, const LinkRecord* links, size_t count);
@@ -253,10 +253,6 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
 // decoded. The detail section's checksum is checked when it is there (available == file_size).
 void decode_transport(const uint8_t* data, size_t available, uint64_t file_size, const LinkStoreManifest& manifest,
                       size_t k, const std::string& path, TransportLinks& out);
-// Writes a buffer to `path` (created or truncated) and fsyncs it; throws naming the path
-// and the OS error. The writer writes every file through it.
-void write_file_synced(const std::string& path, const uint8_t* data, size_t size);
-// Replaces `path` atomically: writes path.tmp, fsyncs it, renames it and fsyncs the directory.
-void commit_file(const std::string& path, const uint8_t* data, size_t size);
+// Every file of a store is written through write_file_atomic (pipeline/core/atomic_file.h).
 
 }  // namespace hirad

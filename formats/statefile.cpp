@@ -7,7 +7,7 @@
 #include <iterator>
 #include <stdexcept>
 
-#include "formats/linkstore.h"
+#include "pipeline/core/atomic_file.h"
 
 namespace hirad {
 
@@ -81,7 +81,7 @@ std::vector<uint8_t> StateFile::encode() const {
 
 void StateFile::write(const std::string& path) const {
     const std::vector<uint8_t> bytes = encode();
-    commit_file(path, bytes.data(), bytes.size());
+    write_file_atomic(path, bytes.data(), bytes.size());
 }
 
 StateFile StateFile::decode(const uint8_t* data, size_t size, const std::string& path) {

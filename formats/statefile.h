@@ -28,7 +28,7 @@ public:
     bool has(const std::string& name) const { return u32_.count(name) || u64_.count(name) || f64_.count(name); }
 
     std::vector<uint8_t> encode() const;
-    void write(const std::string& path) const;   // atomically (temporary file, fsync, rename)
+    void write(const std::string& path) const;   // atomically (write_file_atomic)
 
     // Validates everything (magic, version, sizes, checksum); errors name `path`.
     static StateFile decode(const uint8_t* data, size_t size, const std::string& path);

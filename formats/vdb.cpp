@@ -4,9 +4,13 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/io/File.h>
 
-#include <cstdio>
+#include <ext/stdio_filebuf.h>
+
 #include <mutex>
+#include <ostream>
 #include <stdexcept>
+
+#include "pipeline/core/atomic_file.h"
 
 namespace hirad {
 
@@ -22,6 +26,16 @@ openvdb::math::Transform::Ptr lattice_transform(double voxel_size, const std::ar
     xform->postTranslate(openvdb::Vec3d(origin[0], origin[1], origin[2]));
     return xform;
 }
+
+// What io::File::write does (Archive::write to a seekable stream, so the grid offsets are
+// stored and io::File reads the result), but to a stream of our choosing: the atomic
+// temporary's descriptor, not a path opened again.
+class StreamArchive : public openvdb::io::Archive {
+public:
+    void write_seekable(std::ostream& os, const openvdb::GridPtrVec& grids, const openvdb::MetaMap& meta) const {
+        openvdb::io::Archive::write(os, grids, /*seekable=*/true, meta);
+    }
+};
 
 }  // namespace
 
@@ -48,16 +62,24 @@ void write_vdb(const std::string& path, const std::vector<VdbGrid>& grids, const
     }
     openvdb::MetaMap meta;
     for (const auto& [key, value] : file_metadata) meta.insertMeta(key, openvdb::StringMetadata(value));
-    const std::string tmp = path + ".partial";
-    {
-        openvdb::io::File file(tmp);
-        file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
-        file.write(out, meta);
-        file.close();
-    }
-    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error("cannot rename " + tmp + " to " + path);
+    AtomicFile file(path);  // throws naming the temporary when it cannot be created
+    try {
+        const int fd = ::dup(file.fd());  // the stream buffer closes its own descriptor
+        if (fd < 0) throw_os_error(file.temporary(), "cannot duplicate the descriptor");
+        {
+            __gnu_cxx::stdio_filebuf<char> buffer(fd, std::ios::out | std::ios::binary);
+            std::ostream os(&buffer);
+            StreamArchive archive;
+            archive.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+            archive.write_seekable(os, out, meta);
+            os.flush();
+            if (!os) throw std::runtime_error(file.temporary() + ": write failed");
+            if (buffer.close() == nullptr) throw std::runtime_error(file.temporary() + ": write failed on close");
+        }
+        file.commit();
+    } catch (const std::exception& e) {
+        file.discard();
+        throw std::runtime_error(path + ": could not write the VDB file: " + e.what());
     }
 }
 

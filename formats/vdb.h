@@ -23,7 +23,7 @@ struct VdbGrid {
     std::array<double, 3> origin{0, 0, 0};
 };
 
-// Writes the grids to `path` (via a temporary name, renamed into place).
+// Writes the grids to `path` (through an AtomicFile: an exclusive temporary renamed into place).
 void write_vdb(const std::string& path, const std::vector<VdbGrid>& grids, const Metadata& file_metadata);
 
 // Reads every Vec3s grid of a .vdb file (other grid types are skipped); `file_metadata`

@@ -10,6 +10,8 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -93,8 +95,7 @@ TEST_F(ExrTest, PartialFileIsGoneAfterSuccess) {
     const fs::path path = dir_ / "done.exr";
     write_exr_rgb(path.string(), 4, 4, rgb.data(), {});
     EXPECT_TRUE(fs::exists(path));
-    EXPECT_FALSE(fs::exists(path.string() + ".partial"));
-    // Only the finished file is left in the directory.
+    // Only the finished file is left in the directory (no temporary).
     int entries = 0;
     for (const auto& e : fs::directory_iterator(dir_)) {
         ++entries;
@@ -112,6 +113,19 @@ TEST_F(ExrTest, OverwritesAnExistingFile) {
     EXPECT_EQ(read_exr_rgb(path.string(), w, h), b);
 }
 
+TEST_F(ExrTest, APlantedSymlinkIsReplacedNotWrittenThrough) {
+    const fs::path victim = dir_ / "victim.txt", path = dir_ / "page0.exr";
+    { std::ofstream(victim) << "precious"; }
+    fs::create_symlink(victim, path);
+    std::vector<float> a(2 * 2 * 3, 1.0f);
+    write_exr_rgb(path.string(), 2, 2, a.data(), {});
+    std::ifstream in(victim);
+    EXPECT_EQ(std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), "precious");
+    EXPECT_FALSE(fs::is_symlink(path));
+    int w = 0, h = 0;
+    EXPECT_EQ(read_exr_rgb(path.string(), w, h), a);
+}
+
 TEST_F(ExrTest, MissingDirectoryThrowsWithThePathAndLeavesNothing) {
     const std::vector<float> rgb = test_image(4, 4);
     const fs::path missing = dir_ / "no" / "such" / "dir";
@@ -123,8 +137,7 @@ TEST_F(ExrTest, MissingDirectoryThrowsWithThePathAndLeavesNothing) {
         EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
     }
     EXPECT_FALSE(fs::exists(path));
-    EXPECT_FALSE(fs::exists(path + ".partial"));
-    EXPECT_FALSE(fs::exists(dir_ / "no"));  // nor were directories created
+    EXPECT_FALSE(fs::exists(dir_ / "no"));  // nor were directories created (nor temporaries)
 }
 
 TEST_F(ExrTest, ReadingAMissingFileThrowsWithThePath) {

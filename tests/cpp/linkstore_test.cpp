@@ -2,8 +2,11 @@
 // message naming the file, the store's life cycle (commit, re-creation) and write errors.
 #include "formats/linkstore.h"
 
+#include <fcntl.h>
+#include <grp.h>
 #include <gtest/gtest.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 #define XXH_INLINE_ALL  // header-only: the tests forge checksums to reach deeper checks
 #include <xxhash.h>
@@ -25,6 +28,8 @@
 #include <string>
 #include <thread>
 #include <vector>
+
+#include "pipeline/core/atomic_file.h"
 
 namespace hirad {
 namespace {
@@ -490,9 +495,9 @@ TEST_F(LinkStoreCorruption, InvalidRecordsInAWellFormedChunk) {
         // The same through the files.
         const fs::path dir = dir_ / "bad";
         fs::create_directories(dir);
-        write_file_synced((dir / chunk_file_name(4, 6)).string(), bytes.data(), bytes.size());
+        write_file_atomic((dir / chunk_file_name(4, 6)).string(), bytes.data(), bytes.size());
         const std::vector<uint8_t> mb = encode_manifest(m);
-        write_file_synced((dir / "manifest").string(), mb.data(), mb.size());
+        write_file_atomic((dir / "manifest").string(), mb.data(), mb.size());
         const std::string from_file = error_of([&] { LinkStoreReader(dir.string()).read_chunk(0, out); });
         EXPECT_TRUE(Contains(from_file, (dir / chunk_file_name(4, 6)).string() + ": chunk 0: link "));
         EXPECT_TRUE(Contains(from_file, c.message));
@@ -637,14 +642,54 @@ TEST_F(LinkStoreLifecycle, DirectoryWithOtherFilesIsRefusedAndLeftAlone) {
 }
 
 TEST_F(LinkStoreWriteErrors, DiskFullNamesTheFileAndTheError) {
-    if (!fs::exists("/dev/full")) GTEST_SKIP() << "no /dev/full";
+    // The writer's write loop on a device that is always full (never write_file_atomic on
+    // /dev/full: as root, its rename would replace the device node).
+    const int fd = ::open("/dev/full", O_WRONLY | O_CLOEXEC);
+    if (fd < 0) GTEST_SKIP() << "no /dev/full";
     const std::vector<uint8_t> data(1 << 16, 7);
-    EXPECT_TRUE(Contains(error_of([&] { write_file_synced("/dev/full", data.data(), data.size()); }),
+    EXPECT_TRUE(Contains(error_of([&] { write_all(fd, data.data(), data.size(), "/dev/full"); }),
                          std::string("/dev/full: write failed: ") + std::strerror(ENOSPC)));
+    ::close(fd);
+}
+
+// Runs `f` in a forked child with the privileges of `nobody` when this process is root (CI
+// is), so that permissions bind; returns what `f` returned, or a description of what went
+// wrong in the child.
+std::string unprivileged(const std::function<std::string()>& f) {
+    if (::geteuid() != 0) return f();
+    int pipe_fd[2];
+    if (::pipe(pipe_fd) != 0) return "pipe failed";
+    const pid_t pid = ::fork();
+    if (pid < 0) return "fork failed";
+    if (pid == 0) {
+        ::close(pipe_fd[0]);
+        std::string out;
+        const uid_t nobody = 65534;
+        if (::setgroups(0, nullptr) != 0 || ::setresgid(nobody, nobody, nobody) != 0 ||
+            ::setresuid(nobody, nobody, nobody) != 0 || ::geteuid() != nobody)
+            out = "could not drop root privileges";
+        else
+            out = f();
+        (void)!::write(pipe_fd[1], out.data(), out.size());
+        ::_exit(0);
+    }
+    ::close(pipe_fd[1]);
+    std::string out;
+    char buf[4096];
+    for (ssize_t r; (r = ::read(pipe_fd[0], buf, sizeof buf)) != 0;) {
+        if (r < 0 && errno == EINTR) continue;
+        if (r < 0) break;
+        out.append(buf, size_t(r));
+    }
+    ::close(pipe_fd[0]);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) return "the unprivileged child failed";
+    return out;
 }
 
 TEST_F(LinkStoreWriteErrors, UnwritableLocationsNameThePath) {
-    // A store whose parent is a regular file (chmod would not stop root).
+    // A store whose parent is a regular file.
     spit(dir_ / "plain", {'x'});
     const std::string under_file = (dir_ / "plain" / "store").string();
     EXPECT_TRUE(Contains(error_of([&] { LinkStoreWriter w(under_file, kInfo); }),
@@ -656,33 +701,59 @@ TEST_F(LinkStoreWriteErrors, UnwritableLocationsNameThePath) {
         LinkStoreWriter w(store().string(), kInfo);
         fs::remove_all(store());
         spit(store(), {'x'});
-        const std::string tmp = (store() / chunk_file_name(chunks[0].begin, chunks[0].end)).string() + ".tmp";
-        EXPECT_TRUE(Contains(error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); }),
-                             tmp + ": cannot create: " + std::strerror(ENOTDIR)));
+        const std::string chunk = (store() / chunk_file_name(chunks[0].begin, chunks[0].end)).string();
+        const std::string msg = error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); });
+        EXPECT_TRUE(Contains(msg, chunk + ".")) << msg;  // its temporary
+        EXPECT_TRUE(Contains(msg, ".tmp: cannot create: " + std::string(std::strerror(ENOTDIR)))) << msg;
         EXPECT_TRUE(Contains(error_of([&] { w.commit(); }), "cannot commit: a write_chunk failed"));
     }
     fs::remove(store());
 
-    if (::geteuid() != 0) {  // permissions bind only other users
+    // A store directory the process may not write to: permissions bind only other users, so
+    // as root the writes run in a child that has become `nobody`.
+    {
         LinkStoreWriter w(store().string(), kInfo);
-        fs::permissions(store(), fs::perms::owner_read | fs::perms::owner_exec);
-        EXPECT_TRUE(Contains(error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); }),
-                             store().string() + "/chunk-"));
+        fs::permissions(store(), fs::perms::owner_read | fs::perms::owner_exec | fs::perms::group_read |
+                                     fs::perms::group_exec | fs::perms::others_read | fs::perms::others_exec);
+        const std::string msg = unprivileged([&] {
+            return error_of([&] { w.write_chunk(chunks[0].begin, chunks[0].end, chunks[0].links); });
+        });
+        EXPECT_TRUE(Contains(msg, store().string() + "/chunk-")) << msg;
+        EXPECT_TRUE(Contains(msg, ": cannot create: " + std::string(std::strerror(EACCES)))) << msg;
         fs::permissions(store(), fs::perms::owner_all);
     }
+    EXPECT_TRUE(fs::is_empty(store()));  // nothing was written, not even a temporary
 }
 
 TEST_F(LinkStoreWriteErrors, FailedCommitNamesTheManifestAndCanBeRetried) {
     const std::vector<Chunk> chunks = make_chunks(2, 8);
     LinkStoreWriter w(store().string(), kInfo);
     for (const Chunk& c : chunks) w.write_chunk(c.begin, c.end, c.links);
-    fs::create_directories(store() / "manifest.tmp");  // the temporary name taken by a directory
-    EXPECT_TRUE(Contains(error_of([&] { w.commit(); }),
-                         (store() / "manifest.tmp").string() + ": cannot create: " + std::strerror(EISDIR)));
+    fs::create_directories(store() / "manifest");  // the manifest's name taken by a directory
+    const std::string msg = error_of([&] { w.commit(); });
+    EXPECT_TRUE(Contains(msg, (store() / "manifest").string() + ": cannot rename ")) << msg;
+    EXPECT_TRUE(Contains(msg, std::strerror(EISDIR))) << msg;
+    fs::remove(store() / "manifest");
     EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader r(store().string()); }), "was never committed"));
-    fs::remove(store() / "manifest.tmp");
+    for (const auto& e : fs::directory_iterator(store()))  // the failed manifest's temporary is gone
+        EXPECT_FALSE(is_atomic_temporary(e.path().filename().string())) << e.path();
     w.commit();
     EXPECT_EQ(LinkStoreReader(store().string()).total_links(), chunks[0].links.size() + chunks[1].links.size());
+}
+
+TEST_F(LinkStoreLifecycle, LeftoverTemporariesAreClearedWithTheOldStore) {
+    small_store();
+    // What writers killed mid-write leave: this format's temporaries and older ".tmp" ones.
+    spit(store() / (chunk_file_name(0, 1) + ".4242-7.tmp"), {'x'});
+    spit(store() / "manifest.99-0.tmp", {'x'});
+    spit(store() / "manifest.tmp", {'x'});
+    LinkStoreWriter w(store().string(), kInfo);
+    EXPECT_TRUE(fs::is_empty(store()));
+    // A name that only looks like one is not the store's: refused, left alone.
+    w.commit();
+    spit(store() / "manifest.x-1.tmp", {'x'});
+    EXPECT_TRUE(Contains(error_of([&] { LinkStoreWriter w2(store().string(), kInfo); }), "not a link store"));
+    EXPECT_TRUE(fs::exists(store() / "manifest.x-1.tmp"));
 }
 
 }  // namespace

@@ -2,6 +2,8 @@
 // detected with the file named.
 #include "formats/statefile.h"
 
+#include "pipeline/core/atomic_file.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -24,7 +26,10 @@ StateFile sample() {
 TEST(StateFile, RoundTripsThroughAFile) {
     const std::string path = (std::filesystem::temp_directory_path() / "hirad_statefile_test").string();
     sample().write(path);
-    EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
+    for (const auto& e : std::filesystem::directory_iterator(std::filesystem::temp_directory_path())) {
+        std::string target;  // no temporary of this file is left beside it
+        if (is_atomic_temporary(e.path().string(), &target)) EXPECT_NE(target, path) << e.path();
+    }
     StateFile g = StateFile::read(path);
     EXPECT_EQ(g.fingerprint, 0x1234ABCDull);
     EXPECT_EQ(g.u32("log"), (std::vector<uint32_t>{3, 1, 4, 1, 5}));

@@ -1,7 +1,13 @@
 // OpenVDB round trip of the irradiance volume writer/reader (formats/vdb.h).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <stdexcept>
 #include <string>
 
 #include "formats/vdb.h"
@@ -50,4 +56,42 @@ TEST(Vdb, WritesAndReadsNamedVec3GridsWithMetadata) {
 TEST(Vdb, MissingFileThrows) {
     Metadata m;
     EXPECT_THROW(read_vdb("/nonexistent/hirad.vdb", m), std::exception);
+}
+
+// The file goes through the one atomic write: a symlink planted at the output is replaced,
+// its target untouched; an unwritable place is an error naming the path, leaving nothing.
+TEST(Vdb, ReplacesAPlantedSymlinkWithoutWritingThroughIt) {
+    namespace fs = std::filesystem;
+    const fs::path dir = fs::path(::testing::TempDir()) / ("hirad_vdb_link_" + std::to_string(::getpid()));
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    const fs::path victim = dir / "victim.txt", out = dir / "volume.vdb";
+    { std::ofstream(victim) << "precious"; }
+    fs::create_symlink(victim, out);
+    VdbGrid g;
+    g.name = "irradiance";
+    g.coords = {{1, 2, 3}};
+    g.values = {{0.5f, 1.5f, 2.5f}};
+    write_vdb(out.string(), {g}, {});
+    std::ifstream in(victim);
+    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(text, "precious");
+    EXPECT_FALSE(fs::is_symlink(out));
+    Metadata m;
+    const std::vector<VdbGrid> back = read_vdb(out.string(), m);
+    ASSERT_EQ(back.size(), 1u);
+    ASSERT_EQ(back[0].values.size(), 1u);
+    EXPECT_EQ(back[0].values[0][2], 2.5f);
+    size_t entries = 0;
+    for (auto it = fs::directory_iterator(dir); it != fs::directory_iterator(); ++it) ++entries;
+    EXPECT_EQ(entries, 2u);  // victim and volume: no temporary
+
+    const std::string missing = (dir / "no" / "volume.vdb").string();
+    try {
+        write_vdb(missing, {g}, {});
+        ADD_FAILURE() << "no exception";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find(missing), std::string::npos) << e.what();
+    }
+    fs::remove_all(dir);
 }
