@@ -1,0 +1,103 @@
+"""hirad info's estimate of what a config costs, before anything runs (tools/hirad/estimate.py)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hirad.config import config_from_dict
+from hirad.estimate import describe, estimate
+
+
+def _quads(rects):
+    """Axis-aligned rectangles in the z = 0 plane, (w, h) each, as flat scene arrays."""
+    pts, counts, idx = [], [], []
+    for k, (w, h) in enumerate(rects):
+        base = len(pts)
+        x0 = 10.0 * k
+        pts += [[x0, 0, 0], [x0 + w, 0, 0], [x0 + w, h, 0], [x0, h, 0]]
+        counts.append(4)
+        idx += [base, base + 1, base + 2, base + 3]
+    return SimpleNamespace(points=np.array(pts, float), face_vertex_counts=np.array(counts),
+                           face_vertex_indices=np.array(idx))
+
+
+def _cfg(tmp_path, **sections):
+    (tmp_path / "s.usda").write_text("#usda 1.0\n")
+    return config_from_dict({"scene": "s.usda", **sections}, base_dir=tmp_path)
+
+
+def test_flat_patch_count_of_a_square_is_its_grid(tmp_path):
+    # 1 m x 1 m with cells of at most 0.01 m^2 and edges of at most 0.1 m: exactly 10 x 10
+    cfg = _cfg(tmp_path, method="flat", meshing={"max_patch_area": 0.01, "max_edge_length": 0.1})
+    est = estimate(_quads([(1.0, 1.0)]), cfg)
+    assert est["patches"] == 100
+    assert est["links_at_most"] == 100 * 99 / 2
+
+
+def test_flat_patch_count_bound_by_area_when_edges_allow_more(tmp_path):
+    # 2 m x 0.5 m, edge limit 10 m (no effect), area limit 0.1 m^2: at least 10 cells
+    cfg = _cfg(tmp_path, method="flat", meshing={"max_patch_area": 0.1, "max_edge_length": 10.0})
+    est = estimate(_quads([(2.0, 0.5)]), cfg)
+    assert 10 <= est["patches"] <= 12
+
+
+def test_flat_on_a_large_scene_warns_and_says_why(tmp_path):
+    # 200 m^2 of surface at 1e-3 m^2 patches: 200,000 patches, 2e10 links
+    cfg = _cfg(tmp_path, method="flat", meshing={"max_patch_area": 1e-3, "max_edge_length": 1.0})
+    est = estimate(_quads([(10.0, 10.0), (10.0, 10.0)]), cfg)
+    assert est["patches"] >= 200_000
+    text = "\n".join(describe(est))
+    assert "use method: hierarchical" in text
+    assert "warning:" in text
+
+
+def test_hierarchical_element_bound_is_area_over_min_area(tmp_path):
+    cfg = _cfg(tmp_path, method="hierarchical", hierarchy={"min_area": 0.01})
+    est = estimate(_quads([(1.0, 1.0)]), cfg)
+    assert est["elements_at_most"] == pytest.approx(100 * 4 / 3)
+    lo, hi = est["links_range"]
+    assert lo <= est["links_typical"] <= hi
+
+
+def test_hirad_info_with_a_config_estimates_the_bundled_box_near_its_real_patch_count():
+    """The estimate against the engine's own meshing of the same scene and limits."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from hirad import _engine, usd
+    from hirad.config import load_config
+
+    repo = Path(__file__).resolve().parents[2]
+    proc = subprocess.run([sys.executable, "-m", "hirad.cli", "info", str(repo / "configs" / "cornell.yaml")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    m = re.search(r"patches: about ([\d,]+)", proc.stdout)
+    assert m, proc.stdout
+    estimated = int(m.group(1).replace(",", ""))
+    cfg = load_config(repo / "configs" / "cornell.yaml")
+    actual = _meshed_patch_count(_engine, usd.read_scene(cfg.scene), cfg)
+    assert abs(estimated - actual) <= 0.25 * actual, (estimated, actual)
+
+
+def _meshed_patch_count(_engine, scene, cfg) -> int:
+    # the engine's meshing of the same faces with the same limits
+    model = _engine_model(_engine, scene)
+    model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
+    return int(model.num_patches())
+
+
+def _engine_model(_engine, scene):
+    import numpy as np
+
+    return _engine.Model(np.ascontiguousarray(scene.points, dtype=np.float64),
+                         np.ascontiguousarray(scene.face_vertex_counts, dtype=np.int32),
+                         np.ascontiguousarray(scene.face_vertex_indices, dtype=np.int32),
+                         np.ascontiguousarray(scene.face_mesh, dtype=np.int32),
+                         np.arange(len(scene.face_vertex_counts), dtype=np.int32),
+                         np.ascontiguousarray(scene.face_reflectance, dtype=np.float64),
+                         np.ascontiguousarray(scene.face_emission, dtype=np.float64), None)

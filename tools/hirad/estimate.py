@@ -1,0 +1,181 @@
+"""What a config will cost on a scene, before anything runs (`hirad info SCENE CONFIG`).
+
+Nothing here meshes or solves: the figures come from the scene's faces and the config's
+settings, by the rules the engine applies, and from throughputs measured on this project's
+reference machine (2 cores; bench/README.md). They are estimates, said as such:
+
+- Flat method. A face becomes a grid of patches within `max_patch_area` and
+  `max_edge_length` (pipeline/geometry/patches.cpp), so a face of area A whose longest
+  edges are l_u and l_v makes about max(A / max_patch_area, ceil(l_u / e) * ceil(l_v / e))
+  patches (exact for rectangles within a few percent). Every pair of patches is a link at
+  most, n (n - 1) / 2 of them, 8 bytes each in memory (column and coupling), and form
+  factors cast `samples` rays per pair: the form factor stage is quadratic in the patches.
+- Hierarchical method. Elements are bounded by the surface area over `min_area` (the
+  quadtree's leaves, 4/3 of them counting inner nodes) and are far fewer in practice;
+  links per element were 50 to 160 on the measured scenes. Link generation estimates about
+  2.4 links for every link it keeps.
+- Out of core: the link store takes about 10.75 bytes per link on disk.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+# Throughputs measured on the reference machine (2 cores), from bench/README.md.
+FLAT_RAYS_PER_S = 5.5e6          # form factor rays per second (cornell, cornell_10k: 5.3-5.7 M)
+LINK_ESTIMATES_PER_S = 0.4e6     # hierarchical link estimates per second (0.37-0.83 M)
+ESTIMATES_PER_KEPT_LINK = 2.4    # cornell_hierarchical: 943,192 estimates for 399,739 links
+LINKS_PER_ELEMENT = (50.0, 160.0)
+STORE_BYTES_PER_LINK = 10.75
+FLAT_LINK_BYTES = 8.0
+
+# Beyond these a setting is called out in a warning.
+SLOW_SECONDS = 3600.0
+MANY_FLAT_PATCHES = 20_000
+
+
+def _face_geometry(scene):
+    """Per face: area (m^2) and the two longest edge lengths (m)."""
+    counts = np.asarray(scene.face_vertex_counts, dtype=np.int64)
+    idx = np.asarray(scene.face_vertex_indices, dtype=np.int64)
+    pts = np.asarray(scene.points, dtype=np.float64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    area = np.zeros(len(counts))
+    lu = np.zeros(len(counts))
+    lv = np.zeros(len(counts))
+    for n in np.unique(counts):
+        if n < 3:
+            continue
+        sel = np.nonzero(counts == n)[0]
+        corners = pts[idx[starts[sel][:, None] + np.arange(n)[None, :]]]          # (F, n, 3)
+        nxt = np.roll(corners, -1, axis=1)
+        area[sel] = 0.5 * np.linalg.norm(np.cross(corners, nxt).sum(axis=1), axis=1)
+        edges = np.sort(np.linalg.norm(nxt - corners, axis=2), axis=1)
+        lu[sel] = edges[:, -1]
+        lv[sel] = edges[:, -2] if n > 3 else 0.5 * edges[:, -2]
+    ok = np.isfinite(area) & np.isfinite(lu) & np.isfinite(lv)
+    return np.where(ok, area, 0.0), np.where(ok, lu, 0.0), np.where(ok, lv, 0.0)
+
+
+def _patches_per_face(area, lu, lv, max_area, max_edge):
+    """The engine's grid rule: nu x nv cells from the edge limit, then the coarser direction
+    refined until a cell is within max_area (cells of a face taken as equal)."""
+    nu = np.maximum(1.0, np.ceil(np.minimum(lu / max_edge, 1e9)))
+    nv = np.maximum(1.0, np.ceil(np.minimum(lv / max_edge, 1e9)))
+    full = lu * lv  # the face's extent; area / full is its fill (1 for a rectangle, 1/2 a triangle)
+    fill = np.where(full > 0, np.clip(area / np.where(full > 0, full, 1), 0, 1), 1)
+    for _ in range(64):
+        big = (area / (nu * nv) > max_area) & (nu * nv < 1e12)
+        if not big.any():
+            break
+        u_coarser = lu / nu >= lv / nv
+        # jump close to the answer, then step as the engine does
+        need = np.ceil(area / max_area)
+        scale = np.sqrt(np.maximum(need / (nu * nv), 1.0))
+        nu = np.where(big & u_coarser, np.maximum(nu + 1, np.floor(nu * scale)), nu)
+        nv = np.where(big & ~u_coarser, np.maximum(nv + 1, np.floor(nv * scale)), nv)
+    cells = nu * nv
+    return np.maximum(1.0, np.where(fill < 0.75, cells * 4.0 / 3.0, cells))
+
+
+def estimate(scene, cfg) -> dict:
+    """Counts, memory, disk and time a bake of `scene` with `cfg` is expected to take."""
+    area, lu, lv = _face_geometry(scene)
+    total_area = float(area.sum())
+    out: dict = {"input_faces": int(len(area)), "surface_area_m2": total_area, "method": cfg.method,
+                 "warnings": []}
+    if cfg.method == "flat":
+        m = cfg.meshing
+        e = m.max_edge_length
+        n = float(_patches_per_face(area, lu, lv, m.max_patch_area, e)[area > 0].sum())
+        links = n * (n - 1) / 2
+        rays = links * cfg.formfactors.samples if cfg.formfactors.method == "raycast" else n * 5 * 6 * 128 ** 2 / 2
+        out.update(patches=n, links_at_most=links, memory_bytes=links * FLAT_LINK_BYTES * 2,
+                   seconds=rays / FLAT_RAYS_PER_S, disk_bytes=0.0)
+        if n > MANY_FLAT_PATCHES:
+            out["warnings"].append(
+                f"method flat makes about {n:,.0f} patches: up to {links:.3g} links "
+                f"({_bytes(links * FLAT_LINK_BYTES * 2)} in memory) and form factors quadratic in the patches; "
+                "use method: hierarchical for a scene this size")
+    else:
+        h = cfg.hierarchy
+        bound = max(float(len(area)), total_area / h.min_area * 4.0 / 3.0)
+        lo, hi = len(area) * LINKS_PER_ELEMENT[0], bound * LINKS_PER_ELEMENT[1]
+        # the typical case: the measured scenes had 4 % (a box-filled room) to 40 % (the Cornell
+        # box) of the bound; the geometric middle of that range
+        typical_elements = max(float(len(area)), bound * 0.13)
+        typical_links = typical_elements * math.sqrt(LINKS_PER_ELEMENT[0] * LINKS_PER_ELEMENT[1])
+        secs = typical_links * ESTIMATES_PER_KEPT_LINK / LINK_ESTIMATES_PER_S
+        out.update(elements_at_most=bound, elements_typical=typical_elements, links_range=(lo, hi),
+                   links_typical=typical_links, seconds=secs,
+                   memory_bytes=typical_links * 24.0, disk_bytes=0.0)
+        if cfg.solver.method == "block_southwell":
+            out["disk_bytes"] = typical_links * STORE_BYTES_PER_LINK
+            out["memory_bytes"] = float(cfg.links.memory_budget) if cfg.links.memory_budget else typical_links * 6.4
+            store = cfg.link_store() if hasattr(cfg, "link_store") else None
+            if store is not None:
+                probe = Path(store)
+                while not probe.exists() and probe != probe.parent:
+                    probe = probe.parent
+                free = shutil.disk_usage(probe).free
+                out["disk_free_bytes"] = float(free)
+                if out["disk_bytes"] > free:
+                    out["warnings"].append(
+                        f"the link store is expected to take {_bytes(out['disk_bytes'])} on disk, "
+                        f"{_bytes(free)} are free at {probe}")
+        if total_area / h.min_area > 5e7:
+            out["warnings"].append(
+                f"hierarchy.min_area {h.min_area:g} m^2 on {total_area:,.1f} m^2 of surface allows "
+                f"{bound:.3g} elements; raise min_area unless the lighting needs that detail")
+    if out["seconds"] > SLOW_SECONDS:
+        out["warnings"].append(f"expected to take about {_duration(out['seconds'])} on 2 cores")
+    try:
+        import os
+
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        if out["memory_bytes"] > ram:
+            out["warnings"].append(f"expected to need {_bytes(out['memory_bytes'])} of memory, "
+                                   f"this machine has {_bytes(ram)}")
+    except (ValueError, OSError, AttributeError):
+        pass
+    return out
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:,.1f} {unit}" if unit != "B" else f"{n:,.0f} B"
+        n /= 1024
+    return f"{n:g}"
+
+
+def _duration(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 7200:
+        return f"{s / 60:.0f} min"
+    if s < 2 * 86400:
+        return f"{s / 3600:.1f} h"
+    return f"{s / 86400:.1f} days"
+
+
+def describe(est: dict) -> list[str]:
+    """The estimate as lines for `hirad info`."""
+    lines = [f"estimate for method {est['method']} (before anything runs; see hirad/estimate.py for how):"]
+    if est["method"] == "flat":
+        lines.append(f"  patches: about {est['patches']:,.0f}; links: at most {est['links_at_most']:,.0f} "
+                     f"({_bytes(est['memory_bytes'])} in memory)")
+    else:
+        lo, hi = est["links_range"]
+        lines.append(f"  elements: at most {est['elements_at_most']:,.0f}, typically about {est['elements_typical']:,.0f}")
+        lines.append(f"  links: about {est['links_typical']:,.0f} (range {lo:,.0f} to {hi:,.0f}); "
+                     f"memory about {_bytes(est['memory_bytes'])}")
+        if est["disk_bytes"]:
+            lines.append(f"  link store on disk: about {_bytes(est['disk_bytes'])}")
+    lines.append(f"  time on 2 cores: about {_duration(est['seconds'])}")
+    lines += [f"warning: {w}" for w in est["warnings"]]
+    return lines
