@@ -164,7 +164,7 @@ std::array<uint8_t, kChunkHeaderSize> chunk_header(const ChunkEntry& e, uint32_t
 
 // Empty if `r` may follow `prev` (null for a chunk's first record), else what is wrong.
 // Which group a source belongs to is the engine's to check: the store does not know it.
-std::string record_problem(const LinkRecord& r, const LinkRecord* prev, uint32_t node_count) {
+std::string record_problem(const Link& r, const Link* prev, uint32_t node_count) {
     auto finite_nonnegative = [](float v) { return std::isfinite(v) && v >= 0; };
     if (r.receiver >= node_count)
         return "receiver index " + std::to_string(r.receiver) + " >= node count " + std::to_string(node_count);
@@ -183,7 +183,7 @@ std::string record_problem(const LinkRecord& r, const LinkRecord* prev, uint32_t
     return {};
 }
 
-std::string record_name(size_t i, const LinkRecord& r) {
+std::string record_name(size_t i, const Link& r) {
     return "link " + std::to_string(i) + " (receiver " + std::to_string(r.receiver) + ", source " +
            std::to_string(r.source) + ")";
 }
@@ -551,7 +551,7 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
     return m;
 }
 
-void TransportLinks::assign(const LinkRecord* links, size_t count) {
+void TransportLinks::assign(const Link* links, size_t count) {
     sources.clear();
     run_end.clear();
     coupling.resize(count);
@@ -591,7 +591,7 @@ std::vector<uint32_t> TransportLinks::receivers() const {
 }
 
 std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_t source_end,
-                                  const LinkRecord* links, size_t count, ChunkEntry& entry) {
+                                  const Link* links, size_t count, ChunkEntry& entry) {
     if (count > kMaxLinksPerChunk)
         throw std::invalid_argument("a chunk holds at most " + std::to_string(kMaxLinksPerChunk) + " links, not " +
                                     std::to_string(count));
@@ -648,7 +648,7 @@ void decode_transport(const uint8_t* data, size_t available, uint64_t file_size,
 }
 
 void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
-                  const std::string& path, LinkRecord* out) {
+                  const std::string& path, Link* out) {
     thread_local TransportLinks t;
     decode_transport(data, size, size, manifest, k, path, t);
     const ChunkEntry& e = manifest.chunks[k];
@@ -663,7 +663,7 @@ void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& man
     for (size_t r = 0, i = 0, j = 0; r < t.runs(); ++r) {
         uint32_t receiver = 0;
         for (; i < t.run_end[r]; ++i) {
-            LinkRecord& o = out[i];
+            Link& o = out[i];
             o.receiver = receiver += dl[i] ? dl[i] : t.escape(j++);
             o.source = t.sources[r];
             o.coupling = t.coupling[i];
@@ -712,15 +712,15 @@ LinkStoreWriter::LinkStoreWriter(const std::string& dir, const LinkStoreInfo& in
     if (!old.empty()) fsync_directory(dir_);
 }
 
-void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, const LinkRecord* links, size_t count) {
+void LinkStoreWriter::write_chunk(uint32_t source_begin, uint32_t source_end, const Link* links, size_t count) {
     const std::string what = dir_ + ": write_chunk [" + std::to_string(source_begin) + ", " +
                              std::to_string(source_end) + "): ";
     if (source_begin >= source_end) throw std::invalid_argument(what + "the group range is empty");
     if (count > kMaxLinksPerChunk)
         throw std::invalid_argument(what + std::to_string(count) + " links, more than the maximum " +
                                     std::to_string(kMaxLinksPerChunk));
-    std::vector<LinkRecord> sorted(links, links + count);
-    std::sort(sorted.begin(), sorted.end(), [](const LinkRecord& a, const LinkRecord& b) {
+    std::vector<Link> sorted(links, links + count);
+    std::sort(sorted.begin(), sorted.end(), [](const Link& a, const Link& b) {
         return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
     });
     for (size_t i = 0; i < count; ++i) {
@@ -886,12 +886,12 @@ const uint8_t* read_chunk_file(const std::string& path, size_t k, const ChunkEnt
 
 }  // namespace
 
-void LinkStoreReader::read_chunk(size_t k, std::vector<LinkRecord>& out) const {
+void LinkStoreReader::read_chunk(size_t k, std::vector<Link>& out) const {
     out.resize(k < chunk_count() ? size_t(chunk(k).link_count) : 0);  // a bad k throws below
     read_chunk(k, out.data(), out.size());
 }
 
-size_t LinkStoreReader::read_chunk(size_t k, LinkRecord* out, size_t capacity) const {
+size_t LinkStoreReader::read_chunk(size_t k, Link* out, size_t capacity) const {
     if (k >= chunk_count())
         throw std::out_of_range(dir_ + ": chunk " + std::to_string(k) + " of " + std::to_string(chunk_count()));
     const ChunkEntry& e = chunk(k);

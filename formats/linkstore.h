@@ -84,20 +84,14 @@
 #include <type_traits>
 #include <vector>
 
+#include "pipeline/core/link.h"
+
 namespace hirad {
 
-// One link as stored; the same fields in the same order as hirad::Link (pipeline/refine.h),
-// so the engine can memcpy between the two.
-struct LinkRecord {
-    uint32_t receiver;
-    uint32_t source;
-    float coupling;     // G, m^2: finite, >= 0
-    float unoccluded;   // G without visibility: finite, >= 0
-    float visibility;   // in [0, 1]
-    float error;        // the refinement oracle's power estimate: finite
-};
-static_assert(sizeof(LinkRecord) == 24, "LinkRecord must be 24 bytes without padding");
-static_assert(std::is_trivially_copyable_v<LinkRecord>, "LinkRecord must be memcpy-able");
+// A link as stored is the engine's Link (pipeline/core/link.h), the one record: the store
+// takes and gives the links the refinement makes, with no copy field by field.
+// LinkRecord is its former name here, kept for callers not yet renamed.
+using LinkRecord = Link;
 
 constexpr uint32_t kLinkStoreVersion = 3;
 constexpr size_t kChunkHeaderSize = 80;
@@ -128,7 +122,7 @@ struct TransportLinks {
     static uint64_t bytes_for(uint64_t n, uint64_t m, uint64_t e) { return 6 * n + 16 * m + 4 * e; }
     uint64_t bytes() const { return bytes_for(size(), runs(), escape_count); }
     // From links sorted by source, then receiver.
-    void assign(const LinkRecord* sorted_links, size_t count);
+    void assign(const Link* sorted_links, size_t count);
 };
 
 // What the engine compares to decide whether a store can be reused.
@@ -172,8 +166,8 @@ public:
     // are sorted here) as one chunk, written to an exclusive temporary, fsynced and renamed. Ranges
     // must not overlap earlier calls'. Throws std::invalid_argument for an invalid link
     // (index out of range, duplicate pair, bad value).
-    void write_chunk(uint32_t source_begin, uint32_t source_end, const LinkRecord* links, size_t count);
-    void write_chunk(uint32_t source_begin, uint32_t source_end, const std::vector<LinkRecord>& links) {
+    void write_chunk(uint32_t source_begin, uint32_t source_end, const Link* links, size_t count);
+    void write_chunk(uint32_t source_begin, uint32_t source_end, const std::vector<Link>& links) {
         write_chunk(source_begin, source_end, links.data(), links.size());
     }
 
@@ -217,10 +211,10 @@ public:
 
     // The links of chunk k, sorted by source then receiver. `out` is resized; its capacity is
     // reused, so a buffer kept across calls is not reallocated once it is large enough.
-    void read_chunk(size_t k, std::vector<LinkRecord>& out) const;
+    void read_chunk(size_t k, std::vector<Link>& out) const;
     // Into a caller's buffer of `capacity` records (at least chunk(k).link_count); returns
     // the number of links.
-    size_t read_chunk(size_t k, LinkRecord* out, size_t capacity) const;
+    size_t read_chunk(size_t k, Link* out, size_t capacity) const;
     // What a solve needs of chunk k: its transport section, decoded and validated. The first
     // read of a chunk by this reader checks the whole file (sizes, header, both checksums);
     // later ones read only the header and the transport section, which are checked every time.
@@ -242,12 +236,12 @@ LinkStoreManifest decode_manifest(const uint8_t* data, size_t size, const std::s
 // A chunk file's bytes for `count` links. Does not validate the links (the writer does), so
 // that tests can make invalid stores; `entry` receives the chunk's manifest entry.
 std::vector<uint8_t> encode_chunk(uint32_t index, uint32_t source_begin, uint32_t source_end,
-                                  const LinkRecord* sorted_links, size_t count, ChunkEntry& entry);
+                                  const Link* sorted_links, size_t count, ChunkEntry& entry);
 // Validates a chunk file's bytes against entry k of a manifest that decode_manifest()
 // accepted (header against the entry field by field, checksums, sizes, every record) and
 // decodes the links into out[0, link_count).
 void decode_chunk(const uint8_t* data, size_t size, const LinkStoreManifest& manifest, size_t k,
-                  const std::string& path, LinkRecord* out);
+                  const std::string& path, Link* out);
 // The same for what a solve needs: `data` holds the first `available` bytes of a chunk file
 // of `file_size` bytes, at least its header and transport section, which are validated and
 // decoded. The detail section's checksum is checked when it is there (available == file_size).

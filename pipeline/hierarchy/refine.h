@@ -3,7 +3,8 @@
 // A link carries light from a source node to a receiver node: H_receiver += G / A_receiver *
 // B_source, where G = integral over both node surfaces of cos cos V / (pi r^2) is estimated
 // with the surfaces' own normals (so a cluster is treated as the surfaces it holds, not as a
-// flat patch). Links are plain data: no pointers, ready to be written to disk in chunks.
+// flat patch). Links (pipeline/core/link.h) are plain data: no pointers, written to disk in
+// chunks as they are.
 //
 // Receivers are always elements (a cluster cannot share gathered irradiance fairly among
 // surfaces facing different ways); sources may be clusters. Refinement is brightness weighted:
@@ -17,23 +18,11 @@
 #include <functional>
 #include <vector>
 
+#include "pipeline/core/link.h"
 #include "pipeline/hierarchy/hierarchy.h"
 #include "pipeline/geometry/visibility.h"
 
 namespace hirad {
-
-// The oracle decides on one estimate (unoccluded, visibility) and the link transports another,
-// independent one (coupling): deciding and keeping on the same noisy number would keep the
-// links whose estimate came out low and split those that came out high, a bias towards dark.
-struct Link {
-    uint32_t receiver = 0;
-    uint32_t source = 0;
-    float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver
-    float unoccluded = 0;     // G without visibility (the oracle's estimate)
-    float visibility = 0;     // fraction of the oracle estimate's rays that arrived
-    float error = 0;          // the oracle's bound on the power the link carries when it was
-                              // last checked (B_max(source) x G, unoccluded G if partly visible), W
-};
 
 struct RefineOptions {
     double epsilon = 1e-3;     // W: the largest power a link may carry before it is split

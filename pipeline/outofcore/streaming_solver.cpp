@@ -47,7 +47,7 @@ uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
     return end <= first_face[g + 1] ? g : kNoGroup;
 }
 
-MemoryChunks::MemoryChunks(std::vector<std::vector<LinkRecord>> by_group)
+MemoryChunks::MemoryChunks(std::vector<std::vector<Link>> by_group)
     : chunks_(std::move(by_group)), transport_bytes_(chunks_.size()) {
     TransportLinks t;
     for (size_t g = 0; g < chunks_.size(); ++g)
@@ -63,10 +63,10 @@ uint64_t LinkChunks::links(size_t g) const {
     return n;
 }
 
-void LinkChunks::read(size_t g, std::vector<LinkRecord>& out) const {
+void LinkChunks::read(size_t g, std::vector<Link>& out) const {
     out.clear();
     out.reserve(links(g));
-    std::vector<LinkRecord> part;
+    std::vector<Link> part;
     for (size_t p = 0; p < parts(g); ++p) {
         read(g, p, part);
         out.insert(out.end(), part.begin(), part.end());
@@ -92,13 +92,13 @@ StoreChunks::StoreChunks(const std::string& dir, size_t groups) : reader_(dir), 
     }
 }
 
-void sort_part(std::vector<LinkRecord>& links) {
-    std::sort(links.begin(), links.end(), [](const LinkRecord& a, const LinkRecord& b) {
+void sort_part(std::vector<Link>& links) {
+    std::sort(links.begin(), links.end(), [](const Link& a, const Link& b) {
         return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
     });
 }
 
-void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<LinkRecord>& links) {
+void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<Link>& links) {
     if (uint64_t(group + 1) * kPartsPerGroup > UINT32_MAX)
         throw std::runtime_error("source group " + std::to_string(group) + ": too many source groups for the store's"
                                  " chunk keys; use a larger links.group_faces");

@@ -60,16 +60,16 @@ public:
     virtual size_t parts(size_t group) const = 0;
     virtual uint64_t links(size_t group, size_t part) const = 0;
     virtual uint64_t transport_bytes(size_t group, size_t part) const = 0;  // decoded, in memory
-    virtual void read(size_t group, size_t part, std::vector<LinkRecord>& out) const = 0;
+    virtual void read(size_t group, size_t part, std::vector<Link>& out) const = 0;
     virtual void read_transport(size_t group, size_t part, TransportLinks& out) const = 0;
     uint64_t links(size_t group) const;
-    void read(size_t group, std::vector<LinkRecord>& out) const;   // all parts, in order
+    void read(size_t group, std::vector<Link>& out) const;   // all parts, in order
     uint64_t total_links() const;
 };
 
 class MemoryChunks : public LinkChunks {
 public:
-    explicit MemoryChunks(std::vector<std::vector<LinkRecord>> by_group);
+    explicit MemoryChunks(std::vector<std::vector<Link>> by_group);
     using LinkChunks::links;
     using LinkChunks::read;
     size_t groups() const override { return chunks_.size(); }
@@ -78,7 +78,7 @@ public:
         return std::min<uint64_t>(kChunkLinks, chunks_[g].size() - p * kChunkLinks);
     }
     uint64_t transport_bytes(size_t g, size_t p) const override { return transport_bytes_[g][p]; }
-    void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override {
+    void read(size_t g, size_t p, std::vector<Link>& out) const override {
         const auto begin = chunks_[g].begin() + p * kChunkLinks;
         out.assign(begin, begin + links(g, p));
     }
@@ -87,7 +87,7 @@ public:
     }
 
 private:
-    std::vector<std::vector<LinkRecord>> chunks_;
+    std::vector<std::vector<Link>> chunks_;
     std::vector<std::vector<uint64_t>> transport_bytes_;  // per group and part
 };
 
@@ -103,7 +103,7 @@ public:
         const ChunkEntry& e = reader_.chunk(parts_[g][p]);
         return TransportLinks::bytes_for(e.link_count, e.run_count, e.escape_count);
     }
-    void read(size_t g, size_t p, std::vector<LinkRecord>& out) const override { reader_.read_chunk(parts_[g][p], out); }
+    void read(size_t g, size_t p, std::vector<Link>& out) const override { reader_.read_chunk(parts_[g][p], out); }
     void read_transport(size_t g, size_t p, TransportLinks& out) const override {
         reader_.read_transport(parts_[g][p], out);
     }
@@ -116,10 +116,10 @@ private:
 
 // The order of the links in a part wherever they are kept: by source, then receiver (the
 // store's order; in memory too, so that both give the same bits).
-void sort_part(std::vector<LinkRecord>& links);
+void sort_part(std::vector<Link>& links);
 
 // Writes part `part` of a group's links (at most kChunkLinks, sorted by sort_part) as a chunk.
-void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<LinkRecord>& links);
+void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<Link>& links);
 
 // RGB per node as a flat array of doubles (for state files), and back; `what` names the
 // file in the error when the size does not match n nodes.

@@ -72,24 +72,24 @@ std::string error_of(const std::function<void()>& f) {
 
 struct Chunk {
     uint32_t begin, end;
-    std::vector<LinkRecord> links;  // sorted by source, then receiver
+    std::vector<Link> links;  // sorted by source, then receiver
 };
 
-bool by_source_receiver(const LinkRecord& a, const LinkRecord& b) {
+bool by_source_receiver(const Link& a, const Link& b) {
     return a.source != b.source ? a.source < b.source : a.receiver < b.receiver;
 }
 
 // Distinct random pairs with sources in [begin, end), values spanning many magnitudes and
 // the edge cases (zero, negative zero, subnormal, visibility exactly 0 and 1).
-std::vector<LinkRecord> random_links(std::mt19937_64& rng, uint32_t node_count, uint32_t begin, uint32_t end,
+std::vector<Link> random_links(std::mt19937_64& rng, uint32_t node_count, uint32_t begin, uint32_t end,
                                      size_t count) {
     std::uniform_int_distribution<uint32_t> src(begin, end - 1), rcv(0, node_count - 1);
     std::uniform_real_distribution<float> u(0, 1);
     std::set<std::pair<uint32_t, uint32_t>> pairs;
     while (pairs.size() < count) pairs.insert({src(rng), rcv(rng)});
-    std::vector<LinkRecord> links;
+    std::vector<Link> links;
     for (const auto& [s, r] : pairs) {
-        LinkRecord l{r, s, 0, 0, 0, 0};
+        Link l{r, s, 0, 0, 0, 0};
         l.unoccluded = std::ldexp(u(rng), -int(rng() % 30));
         const int kind = int(rng() % 4);
         l.visibility = kind == 0 ? 1.0f : kind == 1 ? 0.0f : u(rng);
@@ -112,7 +112,7 @@ std::vector<Chunk> make_chunks(size_t n, uint64_t seed) {
     uint32_t begin = 3;
     for (size_t i = 0; i < n; ++i) {
         const uint32_t end = begin + 1 + uint32_t(rng() % 40);
-        chunks.push_back({begin, end, i == 2 ? std::vector<LinkRecord>{} :
+        chunks.push_back({begin, end, i == 2 ? std::vector<Link>{} :
                                                 random_links(rng, kInfo.node_count, begin, end, 1 + rng() % 600)});
         begin = end + uint32_t(rng() % 3);  // sometimes a gap: sources without links
     }
@@ -131,7 +131,7 @@ void write_store(const fs::path& dir, const std::vector<Chunk>& chunks, std::vec
             try {
                 for (size_t i; (i = next++) < order.size();) {
                     const Chunk& c = chunks[order[i]];
-                    std::vector<LinkRecord> shuffled = c.links;  // the writer must sort
+                    std::vector<Link> shuffled = c.links;  // the writer must sort
                     std::reverse(shuffled.begin(), shuffled.end());
                     w.write_chunk(c.begin, c.end, shuffled);
                 }
@@ -151,8 +151,8 @@ std::vector<size_t> iota(size_t n) {
     return v;
 }
 
-bool same_bits(const std::vector<LinkRecord>& a, const std::vector<LinkRecord>& b) {
-    return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(LinkRecord)) == 0);
+bool same_bits(const std::vector<Link>& a, const std::vector<Link>& b) {
+    return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(Link)) == 0);
 }
 
 class LinkStoreTest : public ::testing::Test {
@@ -213,7 +213,7 @@ TEST_F(LinkStore, RoundTripOfManyChunksWrittenFromSeveralThreads) {
     std::vector<std::thread> pool;
     for (int t = 0; t < 4; ++t)
         pool.emplace_back([&, t] {
-            std::vector<LinkRecord> out;
+            std::vector<Link> out;
             for (size_t i = 0; i < chunks.size(); ++i) {
                 const size_t k = (i * 7 + size_t(t) * 11) % chunks.size();
                 r.read_chunk(k, out);
@@ -230,7 +230,7 @@ TEST_F(LinkStore, ReceiverDeltasBeyondSixteenBitsAndReceiverZeroRoundTrip) {
     // exactly 65535 and 65536 (the last inline one, the first escaped one).
     constexpr LinkStoreInfo info{1, 2, 1u << 22, 1u << 21};
     std::mt19937_64 rng(3);
-    std::vector<LinkRecord> links = random_links(rng, info.node_count, 0, 40, 3000);
+    std::vector<Link> links = random_links(rng, info.node_count, 0, 40, 3000);
     for (uint32_t s = 0; s < 40; s += 3) {
         links.push_back({0, s, 0.5f, 0.5f, 1, 0});
         links.push_back({1u << 21, s, 0.25f, 0.5f, 0.5f, 0});
@@ -239,7 +239,7 @@ TEST_F(LinkStore, ReceiverDeltasBeyondSixteenBitsAndReceiverZeroRoundTrip) {
     }
     std::sort(links.begin(), links.end(), by_source_receiver);
     links.erase(std::unique(links.begin(), links.end(),
-                            [](const LinkRecord& a, const LinkRecord& b) {
+                            [](const Link& a, const Link& b) {
                                 return a.source == b.source && a.receiver == b.receiver;
                             }),
                 links.end());
@@ -248,7 +248,7 @@ TEST_F(LinkStore, ReceiverDeltasBeyondSixteenBitsAndReceiverZeroRoundTrip) {
     w.commit();
     LinkStoreReader r(store().string());
     EXPECT_GT(r.chunk(0).escape_count, links.size() / 4);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     r.read_chunk(0, out);
     EXPECT_TRUE(same_bits(out, links));
     TransportLinks t;
@@ -262,9 +262,9 @@ TEST_F(LinkStore, ReceiverDeltasBeyondSixteenBitsAndReceiverZeroRoundTrip) {
 TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
     const std::vector<Chunk> chunks = small_store();
     LinkStoreReader r(store().string());
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     out.reserve(1000);
-    const LinkRecord* data = out.data();
+    const Link* data = out.data();
     for (size_t k = 0; k < chunks.size(); ++k) {
         r.read_chunk(k, out);
         EXPECT_TRUE(same_bits(out, chunks[k].links));
@@ -280,12 +280,12 @@ TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
                   TransportLinks::bytes_for(r.chunk(k).link_count, r.chunk(k).run_count, r.chunk(k).escape_count));
         const std::vector<uint32_t> receivers = t.receivers();
         uint32_t receiver_end = 0;
-        for (const LinkRecord& l : chunks[k].links) receiver_end = std::max(receiver_end, l.receiver + 1);
+        for (const Link& l : chunks[k].links) receiver_end = std::max(receiver_end, l.receiver + 1);
         EXPECT_EQ(t.receiver_end, receiver_end);
         for (size_t run = 0, i = 0; run < t.runs(); ++run) {
             ASSERT_GT(t.run_end[run], i);
             for (; i < t.run_end[run]; ++i) {
-                const LinkRecord& l = chunks[k].links[i];
+                const Link& l = chunks[k].links[i];
                 EXPECT_EQ(t.sources[run], l.source);
                 EXPECT_EQ(receivers[i], l.receiver);
                 EXPECT_EQ(std::memcmp(&t.coupling[i], &l.coupling, 4), 0);
@@ -294,7 +294,7 @@ TEST_F(LinkStore, ReadsIntoTheCallersBuffers) {
         }
         EXPECT_EQ(t.run_end.empty() ? 0u : t.run_end.back(), t.size());
     }
-    std::vector<LinkRecord> raw(chunks[0].links.size() + 5);
+    std::vector<Link> raw(chunks[0].links.size() + 5);
     EXPECT_EQ(r.read_chunk(0, raw.data(), raw.size()), chunks[0].links.size());
     raw.resize(chunks[0].links.size());
     EXPECT_TRUE(same_bits(raw, chunks[0].links));
@@ -330,7 +330,7 @@ TEST_F(LinkStoreCorruption, EveryFlippedChunkByteIsDetected) {
     const size_t detail_begin = kChunkHeaderSize + r.chunk(k).transport_size;
     ASSERT_GT(r.chunk(k).transport_size, 100u);
     ASSERT_GT(r.chunk(k).detail_size, 100u);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     TransportLinks t;
     for (size_t i = 0; i < good.size(); ++i) {
         std::vector<uint8_t> bad = good;
@@ -376,7 +376,7 @@ TEST_F(LinkStoreCorruption, LaterTransportReadsCheckWhatTheyRead) {
     EXPECT_NO_THROW(r.read_transport(k, t));  // not read: the solve does not use it
     EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader(store().string()).read_transport(k, t); }),
                          "detail checksum mismatch"));  // a new reader checks it again
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(k, out); }), "detail checksum mismatch"));
     spit(path, std::vector<uint8_t>(good.begin(), good.end() - 1));
     EXPECT_TRUE(Contains(error_of([&] { r.read_transport(k, t); }), "truncated"));
@@ -400,7 +400,7 @@ TEST_F(LinkStoreCorruption, TruncatedOrExtendedChunk) {
     LinkStoreReader r(store().string());
     const fs::path path = r.chunk_path(0);
     const std::vector<uint8_t> good = slurp(path);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     for (size_t size : {size_t(0), size_t(10), kChunkHeaderSize, good.size() - 1}) {
         spit(path, std::vector<uint8_t>(good.begin(), good.begin() + long(size)));
         EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(0, out); }),
@@ -427,7 +427,7 @@ TEST_F(LinkStoreCorruption, ManifestEntryThatDisagreesWithTheChunkHeader) {
     auto expect = [&](LinkStoreManifest m, const std::string& what) {
         spit(manifest_path, encode_manifest(m));
         LinkStoreReader r(store().string());  // a consistent manifest on its own
-        std::vector<LinkRecord> out;
+        std::vector<Link> out;
         EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(1, out); }), r.chunk_path(1) + ": chunk 1: " + what));
     };
     LinkStoreManifest m = good;
@@ -447,7 +447,7 @@ TEST_F(LinkStoreCorruption, ManifestEntryThatDisagreesWithTheChunkHeader) {
     m = good;
     m.chunks.erase(m.chunks.begin());
     spit(manifest_path, encode_manifest(m));
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     EXPECT_TRUE(Contains(error_of([&] { LinkStoreReader(store().string()).read_chunk(0, out); }),
                          "chunk index 1 in the chunk, 0 in the manifest"));
 }
@@ -458,7 +458,7 @@ TEST_F(LinkStoreCorruption, ChunkFilesSwappedWithEachOther) {
     const std::vector<uint8_t> a = slurp(r.chunk_path(0)), b = slurp(r.chunk_path(1));
     spit(r.chunk_path(0), b);
     spit(r.chunk_path(1), a);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     for (size_t k : {0, 1}) EXPECT_TRUE(Contains(error_of([&] { r.read_chunk(k, out); }), r.chunk_path(k)));
 }
 
@@ -466,9 +466,9 @@ TEST_F(LinkStoreCorruption, ChunkFilesSwappedWithEachOther) {
 // which does not validate): each is refused with the record and what is wrong.
 TEST_F(LinkStoreCorruption, InvalidRecordsInAWellFormedChunk) {
     const uint32_t nodes = 10;
-    const LinkRecord ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
+    const Link ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
     struct Case {
-        std::vector<LinkRecord> links;
+        std::vector<Link> links;
         std::string message;
     };
     const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
@@ -488,7 +488,7 @@ TEST_F(LinkStoreCorruption, InvalidRecordsInAWellFormedChunk) {
         ChunkEntry e;
         const std::vector<uint8_t> bytes = encode_chunk(0, 4, 6, c.links.data(), c.links.size(), e);
         m.chunks.push_back(e);
-        std::vector<LinkRecord> out(c.links.size());
+        std::vector<Link> out(c.links.size());
         const std::string msg = error_of([&] { decode_chunk(bytes.data(), bytes.size(), m, 0, "x.hlc", out.data()); });
         EXPECT_TRUE(Contains(msg, "x.hlc: chunk 0: link "));
         EXPECT_TRUE(Contains(msg, c.message));
@@ -559,8 +559,8 @@ TEST_F(LinkStoreCorruption, ImplausibleManifestsAreRefused) {
 
 TEST_F(LinkStoreWriterChecks, RefusesInvalidLinksAndRanges) {
     LinkStoreWriter w(store().string(), kInfo);
-    const LinkRecord ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
-    auto refused = [&](uint32_t begin, uint32_t end, std::vector<LinkRecord> links, const std::string& what) {
+    const Link ok{1, 4, 0.5f, 0.5f, 1.0f, 0.0f};
+    auto refused = [&](uint32_t begin, uint32_t end, std::vector<Link> links, const std::string& what) {
         try {
             w.write_chunk(begin, end, links);
             ADD_FAILURE() << "accepted: " << what;
@@ -583,7 +583,7 @@ TEST_F(LinkStoreWriterChecks, RefusesInvalidLinksAndRanges) {
     w.commit();
     LinkStoreReader r(store().string());
     ASSERT_EQ(r.chunk_count(), 2u);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     r.read_chunk(0, out);
     EXPECT_TRUE(same_bits(out, {ok}));
     EXPECT_THROW(w.commit(), std::logic_error);
@@ -624,7 +624,7 @@ TEST_F(LinkStoreLifecycle, RecreatingOverACommittedStoreNeverPairsTheOldManifest
     write_store(store(), new_chunks, {1, 0}, 2);  // over the leftovers of the abandoned one
     LinkStoreReader r(store().string());
     ASSERT_EQ(r.chunk_count(), 2u);
-    std::vector<LinkRecord> out;
+    std::vector<Link> out;
     for (size_t k = 0; k < 2; ++k) {
         r.read_chunk(k, out);
         EXPECT_TRUE(same_bits(out, new_chunks[k].links));

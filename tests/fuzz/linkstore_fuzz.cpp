@@ -37,7 +37,7 @@ constexpr uint64_t kMaxFuzzLinks = 1 << 16;
 // Both ways a chunk is read: whole, and its header and transport section alone.
 void check_chunk(const uint8_t* chunk, size_t size, const LinkStoreManifest& m) {
     if (m.chunks.empty() || m.chunks[0].link_count > kMaxFuzzLinks) return;
-    std::vector<LinkRecord> out(m.chunks[0].link_count);
+    std::vector<Link> out(m.chunks[0].link_count);
     try {
         decode_chunk(chunk, size, m, 0, "fuzz.hlc", out.data());
     } catch (const std::runtime_error&) {

@@ -19,8 +19,8 @@ using Bytes = std::vector<uint8_t>;
 
 // Links of the sources [begin, end) as refinement makes them: each source linked to a run
 // of receivers, couplings falling off smoothly, a few partly visible.
-std::vector<LinkRecord> links(uint32_t begin, uint32_t end, uint32_t per_source) {
-    std::vector<LinkRecord> out;
+std::vector<Link> links(uint32_t begin, uint32_t end, uint32_t per_source) {
+    std::vector<Link> out;
     for (uint32_t s = begin; s < end; ++s)
         for (uint32_t r = 0; r < per_source; ++r) {
             const float g = 1.0f / float(1 + r + s);
@@ -58,7 +58,7 @@ int main(int argc, char** argv) {
     const uint32_t nodes = 200;
     LinkStoreManifest m{{11, 22, nodes, 150}, {}};
     ChunkEntry e0, e1, e2;
-    const std::vector<LinkRecord> l0 = links(0, 8, 12), l1 = links(8, 10, 5);
+    const std::vector<Link> l0 = links(0, 8, 12), l1 = links(8, 10, 5);
     const Bytes c0 = encode_chunk(0, 0, 8, l0.data(), l0.size(), e0);
     const Bytes c1 = encode_chunk(1, 8, 10, l1.data(), l1.size(), e1);
     const Bytes empty = encode_chunk(0, 10, 12, nullptr, 0, e2);
@@ -68,7 +68,7 @@ int main(int argc, char** argv) {
 
     Bytes flipped = manifest;
     flipped[30] ^= 4;
-    std::vector<LinkRecord> out_of_range = l1;
+    std::vector<Link> out_of_range = l1;
     out_of_range[3].receiver = nodes + 5;
     ChunkEntry ignored;
     const Bytes c_bad = encode_chunk(0, 8, 10, out_of_range.data(), out_of_range.size(), ignored);
