@@ -7,7 +7,7 @@ from typing import Iterable
 
 import numpy as np
 
-from pxr import Gf, Tf, Usd
+from pxr import Gf, Sdf, Tf, Usd
 
 
 _LOOKS_NAME = "HiradLooks"  # material scope under SOLUTION_ROOT; reserved as a mesh name
@@ -17,6 +17,20 @@ _LOOKS_NAME = "HiradLooks"  # material scope under SOLUTION_ROOT; reserved as a 
 
 class SceneError(Exception):
     """The input (or a solution layer) cannot be used; the message names the file."""
+
+
+class _PrimError(SceneError):
+    """A value of one prim cannot be used; the message names the prim and the attribute, and
+    `read_scene` puts the scene file in front of it."""
+
+
+def _value_type(value) -> str:
+    """The USD type name of a value as authored (``int[]``, ``point3f[]``...), else its Python type."""
+    try:
+        name = str(Sdf.GetValueTypeNameForValue(value))
+    except Exception:  # pragma: no cover - depends on the value
+        name = ""
+    return name or type(value).__name__
 
 
 # ----------------------------------------------------------------------------------------------

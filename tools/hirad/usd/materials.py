@@ -7,10 +7,62 @@ import os
 import numpy as np
 
 from pxr import Sdf, Usd, UsdGeom, UsdShade
-from .common import _srgb_to_linear, _vec3
+from .common import _PrimError, _srgb_to_linear, _value_type
 
 
+# Reflectance is clamped to this (a closed room of reflectance 1 never converges).  Values
+# from the scene are checked where they are read: a non-finite or negative reflectance or
+# emission is an error naming the prim and attribute; a reflectance above this maximum is
+# clamped to it with a warning naming the prim and attribute.
 _MAX_REFLECTANCE = 0.999
+
+# Emitted radiance beyond this, W/(m^2 sr), is refused: the solution is written as 32-bit floats
+# (at most 3.4e38) and the solver's norms square it; the sun's disc is about 2e7.
+MAX_RADIANCE = 1e30
+
+
+def _colour(value, where: str) -> np.ndarray:
+    """An authored colour (or scalar, repeated) as an RGB float64 triple; anything that is not
+    numbers is an error naming `where`."""
+    try:
+        arr = np.array(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise _PrimError(f"{where}: expected a colour (3 numbers), got {_value_type(value)} {value!r}") from None
+    if arr.size == 1:
+        return np.repeat(arr, 3)
+    if arr.size < 3:
+        raise _PrimError(f"{where}: expected a colour (3 numbers), got {arr.size} value(s)")
+    return arr[:3]
+
+
+def _checked_reflectance(rgb: np.ndarray, where: str, warnings: list[str]) -> np.ndarray:
+    """Reflectance read at `where`: non-finite or negative is an error; above _MAX_REFLECTANCE
+    is clamped to it, with a warning (rgb may be (3,) or (n,3))."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    if not np.isfinite(rgb).all():
+        bad = rgb[~np.isfinite(rgb).all(axis=-1)] if rgb.ndim == 2 else rgb
+        raise _PrimError(f"{where}: reflectance is not finite ({np.asarray(bad).reshape(-1, 3)[0].tolist()})")
+    if (rgb < 0).any():
+        raise _PrimError(f"{where}: reflectance is negative (smallest {float(rgb.min()):g}); it must be in "
+                         f"[0, {_MAX_REFLECTANCE}]")
+    if (rgb > _MAX_REFLECTANCE).any():
+        warnings.append(f"{where}: reflectance {float(rgb.max()):g} above the maximum {_MAX_REFLECTANCE} "
+                        f"clamped to {_MAX_REFLECTANCE}")
+        rgb = np.minimum(rgb, _MAX_REFLECTANCE)
+    return rgb
+
+
+def _checked_emission(rgb: np.ndarray, where: str, what: str = "emitted radiance") -> np.ndarray:
+    """Emission read at `where`: non-finite or negative is an error."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    if not np.isfinite(rgb).all():
+        raise _PrimError(f"{where}: {what} is not finite ({rgb.reshape(-1, 3)[0].tolist()})")
+    if (rgb < 0).any():
+        raise _PrimError(f"{where}: {what} is negative ({rgb.reshape(-1, 3)[0].tolist()}); light cannot be negative")
+    if (rgb > MAX_RADIANCE).any():
+        raise _PrimError(f"{where}: {what} {float(rgb.max()):.3g} is beyond the {MAX_RADIANCE:g} W/(m^2 sr) hirad "
+                         "can represent")
+    return rgb
 
 
 # UsdPreviewSurface itself and its MaterialX node definition share inputs and meaning.
@@ -37,8 +89,12 @@ class _MaterialResolver:
         result: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         shader = self._surface_shader(material)
         if shader is not None and shader.GetShaderId() in _PREVIEW_SURFACE_IDS:
-            diffuse = self._eval_color_input(shader, "diffuseColor", key)
-            emissive = self._eval_color_input(shader, "emissiveColor", key)
+            diffuse, d_where = self._eval_color_input(shader, "diffuseColor", key)
+            emissive, e_where = self._eval_color_input(shader, "emissiveColor", key)
+            if diffuse is not None:
+                diffuse = _checked_reflectance(diffuse, d_where, self.warnings)
+            if emissive is not None:
+                emissive = _checked_emission(emissive, e_where, "emissive radiance")
             result = (diffuse, emissive)
         else:
             kind = shader.GetShaderId() if shader is not None else "no universal or MaterialX surface"
@@ -62,25 +118,27 @@ class _MaterialResolver:
             return UsdShade.Shader(shader.GetPrim())
         return None
 
-    def _eval_color_input(self, shader: UsdShade.Shader, name: str, where: str) -> np.ndarray | None:
+    def _eval_color_input(self, shader: UsdShade.Shader, name: str, where: str) -> tuple[np.ndarray | None, str]:
+        """(the input's constant colour or texture mean, or None; the attribute it came from)."""
         inp = shader.GetInput(name)
         if not inp:
-            return None
+            return None, ""
         for attr in inp.GetValueProducingAttributes():
             if UsdShade.Output.IsOutput(attr):
                 src = UsdShade.Shader(attr.GetPrim())
                 out_name = attr.GetBaseName()
                 if src and src.GetShaderId() == "UsdUVTexture":
-                    return self._texture_color(src, out_name, where)
+                    color = self._texture_color(src, out_name, where)
+                    return color, f"{inp.GetAttr().GetPath()} (mean of texture {src.GetPath()})"
                 self.warnings.append(
                     f"{where}: {name} is connected to unsupported shader "
                     f"{attr.GetPrim().GetPath()} ({src.GetShaderId() if src else '?'}); ignored"
                 )
-                return None
+                return None, ""
             value = attr.Get(self.time)
             if value is not None:
-                return _vec3(value)
-        return None
+                return _colour(value, str(attr.GetPath())), str(attr.GetPath())
+        return None, ""
 
     def _input_value(self, shader: UsdShade.Shader, name: str):
         inp = shader.GetInput(name)
@@ -110,7 +168,7 @@ class _MaterialResolver:
 
     def _texture_color(self, tex: UsdShade.Shader, out_name: str, where: str) -> np.ndarray | None:
         fallback = self._input_value(tex, "fallback")
-        fb = np.array(fallback[0], dtype=np.float64).reshape(-1) if fallback else None
+        fb = _numbers(fallback, "inputs:fallback", tex) if fallback else None
         file_v = self._input_value(tex, "file")
         path = ""
         if file_v is not None:
@@ -132,9 +190,9 @@ class _MaterialResolver:
             scale_v = self._input_value(tex, "scale")
             bias_v = self._input_value(tex, "bias")
             if scale_v is not None:
-                rgba = rgba * np.array(scale_v[0], dtype=np.float64).reshape(-1)[:4]
+                rgba = rgba * _numbers(scale_v, "inputs:scale", tex)[:4]
             if bias_v is not None:
-                rgba = rgba + np.array(bias_v[0], dtype=np.float64).reshape(-1)[:4]
+                rgba = rgba + _numbers(bias_v, "inputs:bias", tex)[:4]
         if out_name in ("r", "g", "b", "a"):
             return np.repeat(rgba["rgba".index(out_name)], 3)
         return rgba[:3]
@@ -182,32 +240,62 @@ class _MaterialResolver:
         return result
 
 
-def _display_color_per_face(prim: Usd.Prim, time, counts: np.ndarray, indices: np.ndarray) -> np.ndarray | None:
+def _numbers(value_attr, name: str, prim) -> np.ndarray:
+    value = value_attr[0]
+    try:
+        return np.array(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise _PrimError(f"{prim.GetPath()}.{name}: expected numbers, got {_value_type(value)} {value!r}") from None
+
+
+def _display_color_per_face(prim: Usd.Prim, time, counts: np.ndarray, indices: np.ndarray, n_points: int,
+                            warnings: list[str]) -> np.ndarray | None:
+    """Per-face mean of ``primvars:displayColor`` (reflectance, checked), or None when it is not
+    authored.  A displayColor whose number of values does not fit its interpolation is named in a
+    warning: too few values and it is not used, more than needed and the leading ones are."""
     pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
     if not pv or not pv.HasAuthoredValue():
         return None
-    vals = pv.ComputeFlattened(time)
-    if vals is None or len(vals) == 0:
+    where = f"{prim.GetPath()}.primvars:displayColor"
+    raw = pv.ComputeFlattened(time)
+    if raw is None or len(raw) == 0:
         return None
-    vals = np.array(vals, dtype=np.float64).reshape(-1, 3)
+    try:
+        vals = np.array(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        vals = np.zeros((0,))
+    if vals.ndim != 2 or vals.shape[1] != 3:
+        raise _PrimError(f"{where}: is {_value_type(raw)}, expected color3f[]")
     interp = pv.GetInterpolation()
     nf = len(counts)
-    if interp == UsdGeom.Tokens.constant or len(vals) == 1:
-        return np.repeat(vals[:1], nf, axis=0)
-    if interp == UsdGeom.Tokens.uniform:
-        if len(vals) < nf:
-            return None
-        return vals[:nf]
-    if interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        if indices.size and indices.max() >= len(vals):
-            return None
-        corner = vals[indices]
-    elif interp == UsdGeom.Tokens.faceVarying:
-        if len(vals) < len(indices):
-            return None
-        corner = vals[: len(indices)]
-    else:
+    expected = {UsdGeom.Tokens.constant: 1, UsdGeom.Tokens.uniform: nf, UsdGeom.Tokens.vertex: n_points,
+                UsdGeom.Tokens.varying: n_points, UsdGeom.Tokens.faceVarying: len(indices)}.get(interp)
+    what = {UsdGeom.Tokens.constant: "", UsdGeom.Tokens.uniform: " (one per face)",
+            UsdGeom.Tokens.faceVarying: " (one per face corner)"}.get(interp, " (one per point)")
+    if expected is None:
+        warnings.append(f"{where}: unknown interpolation {interp!r}; displayColor not used")
         return None
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    sums = np.add.reduceat(corner, starts, axis=0) if len(counts) else np.zeros((0, 3))
-    return sums / np.maximum(counts, 1)[:, None]
+    if len(vals) != expected:
+        if len(vals) == 1:
+            used = "the single value is used for every face"
+        elif len(vals) < expected:
+            used = "displayColor not used"
+        else:
+            used = f"the first {expected} are used"
+        warnings.append(f"{where}: {len(vals)} values for {interp} interpolation, which needs {expected}{what}; "
+                        f"{used}")
+        if len(vals) < expected and len(vals) != 1:
+            return None
+    if interp == UsdGeom.Tokens.constant or len(vals) == 1:
+        per_face = np.repeat(vals[:1], nf, axis=0)
+    elif interp == UsdGeom.Tokens.uniform:
+        per_face = vals[:nf]
+    else:
+        if interp == UsdGeom.Tokens.faceVarying:
+            corner = vals[: len(indices)]
+        else:
+            corner = vals[indices]
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        sums = np.add.reduceat(corner, starts, axis=0) if len(counts) else np.zeros((0, 3))
+        per_face = sums / np.maximum(counts, 1)[:, None]
+    return _checked_reflectance(per_face, where, warnings)

@@ -3,15 +3,37 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from pxr import Usd, UsdGeom, UsdLux, UsdShade
-from .common import _LOOKS_NAME, SceneError, _Names, _mat, _open_stage, _stage_time, _transform_points, _vec3
-from .materials import _MAX_REFLECTANCE, _MaterialResolver, _display_color_per_face
+from pxr import Usd, UsdGeom, UsdLux, UsdShade, Vt
+from .common import (_LOOKS_NAME, SceneError, _Names, _PrimError, _mat, _open_stage, _stage_time, _transform_points,
+                     _value_type, _vec3)
+from .materials import (_MAX_REFLECTANCE, MAX_RADIANCE, _MaterialResolver, _checked_emission, _checked_reflectance, _colour,
+                        _display_color_per_face)
+
+
+# Coordinates (in metres, after metersPerUnit and the transforms) beyond this are refused: no
+# scene a radiosity bake can mesh is that large, and meshing such a face would never end.
+MAX_COORDINATE_M = 1e15
+
+_POINT_ARRAYS = (Vt.Vec3fArray, Vt.Vec3dArray, Vt.Vec3hArray)
+_INDEX_ARRAYS = (Vt.IntArray, Vt.UIntArray, Vt.Int64Array, Vt.UInt64Array)
+
+# Light attributes whose meaning hirad reproduces; any other authored light attribute that
+# changes the light (a value other than the schema's fallback) is named in a warning.
+_HONOURED_LIGHT_ATTRS = {"inputs:intensity", "inputs:exposure", "inputs:color", "inputs:normalize",
+                         "inputs:enableColorTemperature", "inputs:colorTemperature"}
+_SHAPE_ATTRS = {"RectLight": {"inputs:width", "inputs:height"}, "DiskLight": {"inputs:radius"},
+                "SphereLight": {"inputs:radius"}}
+# Namespaces of light attributes and relationships (UsdLuxLightAPI, ShapingAPI, ShadowAPI, the
+# light types, light linking); other attributes of a mesh light are the mesh's own.
+_LIGHT_NAMESPACES = ("inputs:", "light:", "shaping:", "shadow:", "collection:lightLink", "collection:shadowLink",
+                     "collection:filterLink", "treatAsPoint", "treatAsLine", "portals", "filters")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -100,7 +122,8 @@ def _finite_area(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) ->
 
 class _Builder:
     def __init__(self, default_reflectance, uv_primvars, time, warnings):
-        self.default_reflectance = np.clip(_vec3(default_reflectance), 0.0, _MAX_REFLECTANCE)
+        self.default_reflectance = _checked_reflectance(_vec3(default_reflectance), "materials.default_reflectance",
+                                                        warnings)
         self.uv_primvars = tuple(uv_primvars)
         self.time = time
         self.warnings = warnings
@@ -115,9 +138,19 @@ class _Builder:
         self.emission: list[np.ndarray] = []
         self.uvs: list[np.ndarray | None] = []
         self.n_points = 0
+        self.unread_lights: list[str] = []  # lights that emit nothing in the bake, with why
 
     # --- geometry ------------------------------------------------------------------------------
     def _append(self, info, pts, counts, idx, source, refl, emis, uv):
+        finite = pts[np.isfinite(pts).all(axis=1)] if len(pts) else pts
+        reach = float(np.abs(finite).max()) if len(finite) else 0.0
+        if reach > MAX_COORDINATE_M:
+            raise _PrimError(f"{info.path}: coordinates reach {reach:.3g} m (after metersPerUnit and transforms), "
+                             f"beyond the {MAX_COORDINATE_M:g} m hirad can mesh; check the units "
+                             "(metersPerUnit) and the transforms")
+        if len(emis) and not (np.isfinite(emis).all() and emis.max() <= math.pi * MAX_RADIANCE):
+            raise _PrimError(f"{info.path}: emitted exitance {float(np.nanmax(emis)):.3g} W/m^2 is not finite or beyond "
+                             f"pi x {MAX_RADIANCE:g} (normalize over a tiny area?)")
         k = len(self.meshes)
         self.meshes.append(info)
         self.points.append(pts)
@@ -139,8 +172,13 @@ class _Builder:
             vals = pv.ComputeFlattened(self.time)
             if vals is None or len(vals) == 0:
                 continue
-            arr = np.array(vals, dtype=np.float64)
+            try:
+                arr = np.array(vals, dtype=np.float64)
+            except (TypeError, ValueError):
+                arr = np.zeros(0)
             if arr.ndim != 2 or arr.shape[1] < 2:
+                self.warnings.append(f"{prim.GetPath()}: primvar {name} is {_value_type(vals)}, not texCoord2f[]; "
+                                     "ignored")
                 continue
             arr = arr[:, :2]
             interp = pv.GetInterpolation()
@@ -162,9 +200,9 @@ class _Builder:
     def add_mesh(self, prim: Usd.Prim, world: np.ndarray, mpu: float, path: str, hide_path: str):
         mesh = UsdGeom.Mesh(prim)
         t = self.time
-        pts = mesh.GetPointsAttr().Get(t)
-        counts = mesh.GetFaceVertexCountsAttr().Get(t)
-        indices = mesh.GetFaceVertexIndicesAttr().Get(t)
+        pts = _typed(mesh.GetPointsAttr(), t, _POINT_ARRAYS, "point3f[]", path)
+        counts = _typed(mesh.GetFaceVertexCountsAttr(), t, _INDEX_ARRAYS, "int[]", path)
+        indices = _typed(mesh.GetFaceVertexIndicesAttr(), t, _INDEX_ARRAYS, "int[]", path)
         if pts is None or counts is None or indices is None or len(counts) == 0:
             self.warnings.append(f"{path}: mesh has no points or faces; skipped")
             return
@@ -212,11 +250,12 @@ class _Builder:
         # per-face material (over all authored faces, then select kept ones)
         n_faces = len(counts)
         valid_idx = np.where(bad_index, 0, indices) if len(indices) else indices
-        refl, emis = self._face_materials(prim, path, n_faces, counts, valid_idx, total)
+        refl, emis = self._face_materials(prim, path, n_faces, counts, valid_idx, total, n_pts)
         refl, emis = refl[kept_faces], emis[kept_faces]
 
         is_light = False
         if prim.HasAPI(UsdLux.MeshLightAPI):
+            self._warn_unhonoured(prim, path, "MeshLightAPI", set())
             radiance = self._light_radiance(prim, path)
             if radiance is not None:
                 if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(t):
@@ -232,19 +271,26 @@ class _Builder:
         info = MeshInfo(path=path, name=name, hide_path=hide_path, is_light=is_light, has_uv=uv is not None)
         self._append(info, world_pts, kept_counts, new_indices, kept_faces, refl, emis, uv)
 
-    def _face_materials(self, prim, path, n_faces, counts, indices, total):
+    def _face_materials(self, prim, path, n_faces, counts, indices, total, n_points):
+        """Per-face reflectance and exitance: the bound material's (per GeomSubset), else the
+        displayColor, else the default; displayColor is read (and checked) only where it is used."""
         refl = np.repeat(self.default_reflectance[None, :], n_faces, axis=0)
         emis = np.zeros((n_faces, 3))
-        display = None
-        if total <= len(indices):
-            display = _display_color_per_face(prim, self.time, counts, indices[:total])
-        if display is not None:
-            refl = display.copy()
+        read: list = []
+
+        def display_color():
+            if not read:
+                read.append(_display_color_per_face(prim, self.time, counts, indices[:total], n_points, self.warnings)
+                            if total <= len(indices) else None)
+            return read[0]
+
         binding = UsdShade.MaterialBindingAPI(prim)
         mat = binding.ComputeBoundMaterial()[0]
         diffuse, emissive = self.materials.material_colors(mat)
         if diffuse is not None:
             refl[:] = diffuse
+        elif display_color() is not None:
+            refl = display_color().copy()
         if emissive is not None:
             emis[:] = math.pi * emissive
         try:
@@ -255,7 +301,7 @@ class _Builder:
             sub_mat = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0]
             if not sub_mat or not sub_mat.GetPrim().IsValid():
                 continue
-            faces = subset.GetIndicesAttr().Get(self.time)
+            faces = _typed(subset.GetIndicesAttr(), self.time, _INDEX_ARRAYS, "int[]", str(subset.GetPath()))
             if faces is None:
                 continue
             faces = np.array(faces, dtype=np.int64)
@@ -263,49 +309,90 @@ class _Builder:
             s_diffuse, s_emissive = self.materials.material_colors(sub_mat)
             if s_diffuse is not None:
                 refl[faces] = s_diffuse
-            elif display is not None:
-                refl[faces] = display[faces]
+            elif display_color() is not None:
+                refl[faces] = display_color()[faces]
             else:
                 refl[faces] = self.default_reflectance
             emis[faces] = math.pi * s_emissive if s_emissive is not None else 0.0
         return refl, emis
 
     # --- lights ------------------------------------------------------------------------------
-    def _light_radiance(self, prim: Usd.Prim, path: str) -> np.ndarray | None:
+    def _light_radiance(self, prim: Usd.Prim, path: str) -> np.ndarray:
+        """intensity x 2^exposure x color (x the blackbody colour when enabled), checked: a
+        negative or non-finite intensity, colour or result is an error naming the attribute."""
         light = UsdLux.LightAPI(prim)
         t = self.time
-        intensity = light.GetIntensityAttr().Get(t)
-        exposure = light.GetExposureAttr().Get(t)
-        color = light.GetColorAttr().Get(t)
-        intensity = 1.0 if intensity is None else float(intensity)
-        exposure = 0.0 if exposure is None else float(exposure)
-        color = _vec3(color, (1.0, 1.0, 1.0))
-        radiance = intensity * (2.0**exposure) * color
+        intensity = _number(light.GetIntensityAttr(), t, path, 1.0)
+        exposure = _number(light.GetExposureAttr(), t, path, 0.0)
+        color_attr = light.GetColorAttr()
+        color = color_attr.Get(t)
+        color = np.ones(3) if color is None else _colour(color, f"{path}.{color_attr.GetName()}")
+        if not math.isfinite(intensity) or intensity < 0:
+            raise _PrimError(f"{path}.inputs:intensity: {intensity:g} is not a light intensity "
+                             "(it must be finite and not negative)")
+        if not math.isfinite(exposure):
+            raise _PrimError(f"{path}.inputs:exposure: {exposure:g} is not finite")
+        _checked_emission(color, f"{path}.inputs:color", "colour")
+        with np.errstate(over="ignore", invalid="ignore"):
+            scale = 2.0 ** exposure if exposure < 1024 else math.inf
+            radiance = intensity * scale * color
+        if not (np.isfinite(radiance).all() and radiance.max() <= MAX_RADIANCE):
+            raise _PrimError(f"{path}.inputs:exposure: intensity {intensity:g} x 2^{exposure:g} = "
+                             f"{intensity * scale:.3g} W/(m^2 sr) is not a finite radiance hirad can represent "
+                             f"(at most {MAX_RADIANCE:g})")
         if light.GetEnableColorTemperatureAttr().Get(t):
-            temp = light.GetColorTemperatureAttr().Get(t)
-            temp = 6500.0 if temp is None else float(temp)
+            temp = _number(light.GetColorTemperatureAttr(), t, path, 6500.0)
+            if not math.isfinite(temp) or temp <= 0:
+                raise _PrimError(f"{path}.inputs:colorTemperature: {temp:g} K is not a temperature")
             radiance = radiance * _vec3(UsdLux.BlackbodyTemperatureAsRgb(temp))
         return radiance
 
+    def _warn_unhonoured(self, prim: Usd.Prim, path: str, kind: str, shape: set[str]) -> None:
+        """One warning naming every authored light attribute or relationship hirad does not
+        reproduce (shaping, shadows, textures, light linking, filters, diffuse/specular
+        multipliers...) whose value differs from the schema's fallback."""
+        definition = prim.GetPrimDefinition()
+        ignored = []
+        for attr in prim.GetAuthoredAttributes():
+            name = attr.GetName()
+            if not name.startswith(_LIGHT_NAMESPACES) or name in _HONOURED_LIGHT_ATTRS or name in shape:
+                continue
+            value = attr.Get(self.time)
+            if value is None:
+                continue
+            fallback = definition.GetAttributeFallbackValue(name) if definition else None
+            if fallback is not None and _same(value, fallback):
+                continue
+            ignored.append(f"{name} = {_short(value)}")
+        for rel in prim.GetAuthoredRelationships():
+            name = rel.GetName()
+            if name.startswith(_LIGHT_NAMESPACES) and rel.GetTargets():
+                ignored.append(f"{name} -> {', '.join(str(t) for t in rel.GetTargets())}")
+        if ignored:
+            self.warnings.append(f"{path}: {kind}: not honoured by hirad (ignored): " + "; ".join(ignored))
+
     def add_light(self, prim: Usd.Prim, world: np.ndarray, mpu: float, segments: int):
         path = str(prim.GetPath())
+        kind = prim.GetTypeName() or "light"
         t = self.time
         if prim.IsA(UsdLux.RectLight):
             lt = UsdLux.RectLight(prim)
-            w = float(lt.GetWidthAttr().Get(t) or 0.0)
-            h = float(lt.GetHeightAttr().Get(t) or 0.0)
+            w = _number(lt.GetWidthAttr(), t, path, 0.0)
+            h = _number(lt.GetHeightAttr(), t, path, 0.0)
             # counter-clockwise seen from -Z, so the right-hand normal is local -Z
             local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
             counts = np.array([4])
             idx = np.arange(4)
-            if w <= 0 or h <= 0:
+            if not (w > 0 and h > 0):
                 self.warnings.append(f"{path}: RectLight with zero size ignored")
+                self.unread_lights.append(f"{path} (RectLight of zero size)")
                 return
         elif prim.IsA(UsdLux.DiskLight):
             lt = UsdLux.DiskLight(prim)
-            r = float(lt.GetRadiusAttr().Get(t) or 0.0)
-            if r <= 0:
+            r = _number(lt.GetRadiusAttr(), t, path, 0.0)
+            if not r > 0:
                 self.warnings.append(f"{path}: DiskLight with zero radius ignored")
+                self.unread_lights.append(f"{path} (DiskLight of zero radius)")
                 return
             n = max(3, int(segments))
             ang = -2.0 * math.pi * np.arange(n) / n  # clockwise from +Z => normal -Z
@@ -314,14 +401,21 @@ class _Builder:
             idx = np.arange(n)
         elif prim.IsA(UsdLux.SphereLight):
             lt = UsdLux.SphereLight(prim)
-            r = float(lt.GetRadiusAttr().Get(t) or 0.0)
-            if r <= 0:
+            r = _number(lt.GetRadiusAttr(), t, path, 0.0)
+            if not r > 0:
                 self.warnings.append(f"{path}: SphereLight with zero radius (point light) ignored")
+                self.unread_lights.append(f"{path} (SphereLight of zero radius: a point light)")
                 return
+            if lt.GetTreatAsPointAttr().Get(t):
+                self.warnings.append(f"{path}: SphereLight treatAsPoint is not honoured: read as a sphere of "
+                                     f"radius {r:g}")
             local, counts, idx = _uv_sphere(r, max(3, int(segments)), max(2, int(segments) // 2))
         else:
-            self.warnings.append(f"{path}: {prim.GetTypeName()} is not supported; ignored")
+            self.warnings.append(f"{path}: {kind} is a light type hirad does not read (only RectLight, DiskLight, "
+                                 "SphereLight and MeshLightAPI emit); ignored, it emits nothing in the bake")
+            self.unread_lights.append(f"{path} ({kind})")
             return
+        self._warn_unhonoured(prim, path, kind, _SHAPE_ATTRS.get(kind, set()) | {"treatAsPoint"})
         radiance = self._light_radiance(prim, path)
         world_pts = _transform_points(local, world) * mpu
         if np.linalg.det(world[:3, :3]) < 0:
@@ -361,6 +455,38 @@ class _Builder:
             warnings=self.warnings,
             source_path=source,
         )
+
+
+def _typed(attr: Usd.Attribute, time, types: tuple, expected: str, path: str):
+    """The attribute's value, None when it has none; a value of another type (``int[] points``)
+    is an error naming the prim, the attribute and both types."""
+    value = attr.Get(time)
+    if value is None or isinstance(value, types):
+        return value
+    raise _PrimError(f"{path}.{attr.GetName()}: is {_value_type(value)}, expected {expected}")
+
+
+def _number(attr: Usd.Attribute, time, path: str, default: float) -> float:
+    """A scalar light attribute as a float (`default` when it has no value); anything that is not
+    one number is an error naming the attribute."""
+    value = attr.Get(time)
+    if value is None:
+        return default
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _PrimError(f"{path}.{attr.GetName()}: is {_value_type(value)} {_short(value)}, expected a number")
+    return float(value)
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except Exception:  # pragma: no cover - exotic value types
+        return False
+
+
+def _short(value) -> str:
+    text = repr(value) if isinstance(value, str) else str(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _flip_faces(counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -451,46 +577,98 @@ def _is_light_prim(prim: Usd.Prim) -> bool:
     return prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or prim.IsA(UsdLux.NonboundableLightBase)
 
 
+def _composition_warnings(stage: Usd.Stage, path) -> list[str]:
+    """USD's composition errors (a missing sublayer or reference, a reference cycle...), which
+    USD itself only prints on stderr, as warnings; each distinct one once."""
+    out: list[str] = []
+    try:
+        errors = stage.GetCompositionErrors()
+    except Exception:  # pragma: no cover - older USD
+        return out
+    for err in errors:
+        text = " ".join(str(err).split())
+        text = re.sub(r",?@anon:[^@]*@", "", text)  # the session layer's address differs per run
+        line = f"{path}: USD composition: {text}"
+        if line not in out:
+            out.append(line)
+    return out
+
+
 def read_scene(
     path: str | Path,
     default_reflectance=(0.5, 0.5, 0.5),
     uv_primvars: Sequence[str] = ("st", "uv", "UVMap", "st0", "map1"),
     light_segments: int = 32,
+    require_emission: bool = False,
 ) -> SceneArrays:
-    """Flatten a USD stage into :class:`SceneArrays` (see module docstring for conventions)."""
+    """Flatten a USD stage into :class:`SceneArrays` (see module docstring for conventions).
+
+    The scene is checked as it is read, and every problem names the prim and the attribute:
+
+    * errors (:class:`SceneError`): ``metersPerUnit`` not finite and positive, ``upAxis`` other
+      than Y or Z, coordinates beyond ``MAX_COORDINATE_M`` metres, geometry attributes of the
+      wrong type (``int[] points``), a negative or non-finite light intensity, colour or
+      colour temperature, an exposure whose radiance is not finite, a negative or non-finite
+      reflectance (diffuseColor, displayColor) or emissiveColor;
+    * warnings (``SceneArrays.warnings``): a reflectance above 0.999, clamped to 0.999; a
+      displayColor whose size does not fit its interpolation; USD composition errors (a
+      missing sublayer or reference, a reference cycle); light types hirad does not read
+      (DomeLight, DistantLight, CylinderLight, PortalLight, ...) and authored light attributes
+      it does not honour (shaping, shadows, light linking, ``inputs:diffuse`` or
+      ``inputs:specular`` other than 1, SphereLight ``treatAsPoint``).
+
+    With `require_emission` (a bake), a scene in which nothing emits light is an error; reading
+    a dark scene is fine otherwise (``hirad info``, tests).
+    """
     stage = _open_stage(path)
     time = _stage_time(stage)
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    if not (math.isfinite(mpu) and mpu > 0):
+        raise SceneError(f"{path}: metersPerUnit = {mpu:g}: must be a positive, finite number of metres per unit")
+    if mpu > MAX_COORDINATE_M:
+        raise SceneError(f"{path}: metersPerUnit = {mpu:g}: a unit longer than {MAX_COORDINATE_M:g} m is beyond "
+                         "what hirad can mesh")
     up_axis = str(UsdGeom.GetStageUpAxis(stage))
+    if up_axis not in ("Y", "Z"):
+        raise SceneError(f"{path}: upAxis = {up_axis!r}: USD allows only \"Y\" or \"Z\"")
     xfc = UsdGeom.XformCache(time)
-    warnings: list[str] = []
-    b = _Builder(default_reflectance, uv_primvars, time, warnings)
+    warnings: list[str] = _composition_warnings(stage, path)
     cameras: list[CameraInfo] = []
-
-    it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
-    for prim in it:
-        if _skip_imageable(prim, time):
-            it.PruneChildren()
-            continue
-        if prim.IsA(UsdGeom.PointInstancer):
-            _add_point_instancer(b, prim, xfc, mpu, time)
-            it.PruneChildren()
-            continue
-        if prim.IsA(UsdGeom.Camera):
-            cameras.append(_camera_info(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, time))
-            continue
-        if prim.IsA(UsdGeom.Mesh):
-            world = _mat(xfc.GetLocalToWorldTransform(prim))
-            hide = _nearest_instance_root(prim) if prim.IsInstanceProxy() else prim
-            b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()))
-        elif _is_light_prim(prim):
-            b.add_light(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, light_segments)
+    try:
+        b = _Builder(default_reflectance, uv_primvars, time, warnings)
+        it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
+        for prim in it:
+            if _skip_imageable(prim, time):
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.PointInstancer):
+                _add_point_instancer(b, prim, xfc, mpu, time)
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.Camera):
+                cameras.append(_camera_info(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, time))
+                continue
+            if prim.IsA(UsdGeom.Mesh):
+                world = _mat(xfc.GetLocalToWorldTransform(prim))
+                hide = _nearest_instance_root(prim) if prim.IsInstanceProxy() else prim
+                b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()))
+            elif _is_light_prim(prim):
+                b.add_light(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, light_segments)
+            elif prim.IsA(UsdLux.LightFilter):
+                warnings.append(f"{prim.GetPath()}: {prim.GetTypeName()} (a light filter) is not honoured; ignored")
+    except _PrimError as exc:
+        raise SceneError(f"{path}: {exc}") from None
 
     if not b.meshes:
         raise SceneError(f"{path}: no meshes found")
     if not any(m for m in b.meshes if not m.is_light) and b.meshes:
         warnings.append(f"{path}: the stage contains only lights, no surfaces")
-    return b.build(cameras, mpu, up_axis, str(path))
+    scene = b.build(cameras, mpu, up_axis, str(path))
+    if require_emission and not np.any(scene.face_emission > 0):
+        found = "; ".join(b.unread_lights) if b.unread_lights else "no light of any kind"
+        raise SceneError(f"{path}: nothing emits light: no emissive material, MeshLightAPI or supported UsdLux "
+                         f"light (RectLight, DiskLight, SphereLight) with a positive intensity (found: {found})")
+    return scene
 
 
 def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, mpu: float, time):
