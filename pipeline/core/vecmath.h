@@ -3,6 +3,8 @@
 #include <cmath>
 #include <cstdint>
 
+#include "pipeline/core/colour.h"  // luminance, the emission norm: with the RGB type they apply to
+
 namespace hirad {
 
 struct Vec3 {
@@ -34,7 +36,6 @@ inline Vec3 normalize(const Vec3& v) {
 inline bool isfinite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 inline Vec3 mul(const Vec3& a, const Vec3& b) { return {a.x * b.x, a.y * b.y, a.z * b.z}; }
 inline double max_component(const Vec3& v) { return std::fmax(v.x, std::fmax(v.y, v.z)); }
-inline double luminance(const Vec3& c) { return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z; }
 
 // RGB values (reflectance, radiosity) use the same type: three channels solved independently.
 using RGB = Vec3;

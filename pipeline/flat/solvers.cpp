@@ -32,9 +32,9 @@ double ordered_sum(uint32_t n, F f) {
 
 double norm2(const RGB& v) { return dot(v, v); }
 
+// The emission norm (colour.h) with every weight 1, summed in ordered_sum's blocks.
 double emission_norm(const RadiositySystem& sys) {
-    double e = std::sqrt(ordered_sum(sys.size(), [&](uint32_t i) { return norm2(sys.emission[i]); }));
-    return e > 0 ? e : 1.0;
+    return norm_or_one(ordered_sum(sys.size(), [&](uint32_t i) { return norm2(sys.emission[i]); }));
 }
 
 // Unshot power of a residual: what Southwell and progressive refinement rank patches by.

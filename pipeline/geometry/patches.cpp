@@ -49,6 +49,33 @@ Vec2 Patch::coordinates(const Vec3& x, Vec2 guess) const {
     return {s, t};
 }
 
+void finish_patch(Patch& patch, PatchCentroid centroid) {
+    if (patch.nv == 3) {
+        patch.p[3] = patch.p[2];
+        patch.uv[3] = patch.uv[2];
+    }
+    // Newell's normal: twice the area, along the normal of a planar polygon of any shape.
+    Vec3 n;
+    for (int k = 0; k < patch.nv; ++k) n += cross(patch.p[k], patch.p[(k + 1) % patch.nv]);
+    patch.area = 0.5 * length(n);
+    patch.normal = normalize(n);
+    if (centroid == PatchCentroid::CornerMean) {
+        Vec3 c;
+        for (int k = 0; k < patch.nv; ++k) c += patch.p[k];
+        patch.centroid = c / patch.nv;
+        return;
+    }
+    // Area-weighted centroid over a fan of triangles.
+    Vec3 c;
+    double total = 0;
+    for (int k = 1; k + 1 < patch.nv; ++k) {
+        double a = 0.5 * length(cross(patch.p[k] - patch.p[0], patch.p[k + 1] - patch.p[0]));
+        c += (patch.p[0] + patch.p[k] + patch.p[k + 1]) * (a / 3);
+        total += a;
+    }
+    patch.centroid = total > 0 ? c / total : patch.p[0];
+}
+
 namespace {
 
 // The point i/n of the way from a to b, computed the same way whichever face asks and
@@ -81,22 +108,6 @@ struct Welder {
         return it->second;
     }
 };
-
-void finish(Patch& patch) {
-    Vec3 n;
-    for (int k = 0; k < patch.nv; ++k) n += cross(patch.p[k], patch.p[(k + 1) % patch.nv]);
-    patch.area = 0.5 * length(n);
-    patch.normal = normalize(n);
-    // Area-weighted centroid over a fan of triangles.
-    Vec3 c;
-    double total = 0;
-    for (int k = 1; k + 1 < patch.nv; ++k) {
-        double a = 0.5 * length(cross(patch.p[k] - patch.p[0], patch.p[k + 1] - patch.p[0]));
-        c += (patch.p[0] + patch.p[k] + patch.p[k + 1]) * (a / 3);
-        total += a;
-    }
-    patch.centroid = total > 0 ? c / total : patch.p[0];
-}
 
 }  // namespace
 
@@ -160,7 +171,7 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
                         patch.uv[k] = grid_uv(ci[k], cj[k]);
                         patch.vertex[k] = welder.vertex(f.mesh, patch.p[k]);
                     }
-                    finish(patch);
+                    finish_patch(patch, PatchCentroid::AreaWeighted);
                     out.patches.push_back(patch);
                 }
         } else {
@@ -188,10 +199,8 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
                     patch.uv[c] = tri_uv(ci[c], cj[c]);
                     patch.vertex[c] = welder.vertex(f.mesh, patch.p[c]);
                 }
-                patch.p[3] = patch.p[2];
-                patch.uv[3] = patch.uv[2];
                 patch.vertex[3] = patch.vertex[2];
-                finish(patch);
+                finish_patch(patch, PatchCentroid::AreaWeighted);
                 out.patches.push_back(patch);
             };
             for (int j = 0; j < k; ++j)

@@ -37,6 +37,13 @@ struct Patch {
     Vec2 coordinates(const Vec3& x, Vec2 guess = {0.5, 0.5}) const;
 };
 
+// Finishing a patch whose corners (p, uv, nv) are set: its area and unit normal from Newell's
+// formula, its centroid, and for a triangle corner 3 = corner 2. Meshing uses the
+// area-weighted centroid; the hierarchy the mean of the corners, which its cluster splits
+// are median splits of (and which its elements keep, so that every solution keeps its bits).
+enum class PatchCentroid { AreaWeighted, CornerMean };
+void finish_patch(Patch& patch, PatchCentroid centroid);
+
 // (s, t) of p in the bilinear quad q: corner 0 at (0, 0), 1 at (1, 0), 2 at (1, 1), 3 at
 // (0, 1). Newton iterations from the (s, t) given; clamped to [0, 1].
 void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t);

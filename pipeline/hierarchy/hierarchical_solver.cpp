@@ -15,6 +15,12 @@ void sort_links(std::vector<Link>& links) {
     });
 }
 
+double leaf_emission_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves) {
+    return emission_norm(
+        leaves.size(), [&](size_t k) { return h.nodes[leaves[k]].area; },
+        [&](size_t k) { return h.nodes[leaves[k]].shape.emission; });
+}
+
 std::vector<RGB> node_emission(const Hierarchy& h) {
     std::vector<RGB> e(h.nodes.size());
     // Children have larger indices than their parents: a reverse sweep pulls.
@@ -97,9 +103,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     std::vector<RGB> gathered(n), irradiance(n), next(n);
     const std::vector<size_t> groups = receiver_groups(links);
     const std::vector<uint32_t> leaves = h.leaves();
-    double enorm = 0;
-    for (uint32_t i : leaves) enorm += h.nodes[i].area * dot(h.nodes[i].shape.emission, h.nodes[i].shape.emission);
-    enorm = enorm > 0 ? std::sqrt(enorm) : 1.0;
+    const double enorm = leaf_emission_norm(h, leaves);
 
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         std::fill(gathered.begin(), gathered.end(), RGB{});
@@ -224,10 +228,7 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
         by_face[slot].push_back(k);
     }
     const std::vector<uint32_t> leaves = h.leaves();
-    std::vector<RGB> emission(n);
-    for (uint32_t i : leaves) emission[i] = h.nodes[i].shape.emission;
-    double enorm = leaf_norm(h, leaves, emission);
-    enorm = enorm > 0 ? enorm : 1.0;
+    const double enorm = leaf_emission_norm(h, leaves);
 
     HierarchicalSolution sol;
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
@@ -271,10 +272,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         std::vector<uint32_t> cursor(source_first.begin(), source_first.end() - 1);
         for (uint32_t k = 0; k < links.size(); ++k) by_source[cursor[links[k].source]++] = k;
     }
-    std::vector<RGB> emission(n);
-    for (uint32_t i : leaves) emission[i] = h.nodes[i].shape.emission;
-    double enorm = leaf_norm(h, leaves, emission);
-    enorm = enorm > 0 ? enorm : 1.0;
+    const double enorm = leaf_emission_norm(h, leaves);
 
     // b: radiosity already shot; r = T(b) - b: unshot, kept at the leaves.
     std::vector<RGB> b = start.size() == n ? start : std::vector<RGB>(n);

@@ -37,6 +37,10 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);
 
+// The emission norm (colour.h) the hierarchical residuals divide by: sqrt(sum A |E|^2) over
+// `leaves` in their order (h.leaves()), or 1 without emission.
+double leaf_emission_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves);
+
 // Jacobi iteration with push-pull from `start` (per node radiosity; emission if empty) until
 // the relative residual sqrt(sum A (B' - B)^2) / sqrt(sum A E^2) over the leaves falls below
 // the tolerance. Links must be sorted by sort_links.

@@ -12,16 +12,9 @@ namespace hirad {
 
 namespace {
 
-void finish_shape(Patch& p) {
-    Vec3 n;
-    for (int k = 0; k < p.nv; ++k) n += cross(p.p[k], p.p[(k + 1) % p.nv]);
-    p.area = 0.5 * length(n);
-    p.normal = normalize(n);
-    Vec3 c;
-    for (int k = 0; k < p.nv; ++k) c += p.p[k];
-    p.centroid = c / p.nv;
-    if (p.nv == 3) { p.p[3] = p.p[2]; p.uv[3] = p.uv[2]; }
-}
+// Faces and elements are finished with the mean of their corners as the centroid: the cluster
+// tree is built from median splits of the faces' centroids.
+void finish_shape(Patch& p) { finish_patch(p, PatchCentroid::CornerMean); }
 
 void bound_shape(Node& node) {
     node.lo = {1e300, 1e300, 1e300};

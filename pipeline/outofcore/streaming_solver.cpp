@@ -192,9 +192,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         cache_capacity = opt.memory_budget - stats.minimum_budget;
     }
     const std::vector<uint32_t> leaves = h.leaves();
-    double enorm = 0;
-    for (uint32_t i : leaves) enorm += h.nodes[i].area * dot(h.nodes[i].shape.emission, h.nodes[i].shape.emission);
-    enorm = enorm > 0 ? std::sqrt(enorm) : 1.0;
+    const double enorm = leaf_emission_norm(h, leaves);
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
@@ -290,7 +288,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             for (uint32_t s : sources[g]) {
                 const RGB d = b[s] - shot[s];
                 const double a = h.nodes[s].area;
-                power[g] += a * (0.2126 * std::fabs(d.x) + 0.7152 * std::fabs(d.y) + 0.0722 * std::fabs(d.z));
+                power[g] += a * luminance_of_magnitude(d);
                 r2 += a * dot(d, d);
             }
         const double residual = std::sqrt(r2) / enorm;

@@ -318,3 +318,46 @@ TEST(PatchCoordinates, ClosestPointGivesThePatchsOwnCoordinates) {
 
 }  // namespace
 }  // namespace hirad
+
+namespace hirad {
+namespace {
+
+// The one patch-finishing routine: area and normal by Newell, centroid either way, against
+// the closed forms of a trapezoid (parallel sides a at y = 0 and b at y = h: area
+// (a + b) h / 2, centroid height h (a + 2b) / (3 (a + b))).
+TEST(FinishPatch, TrapezoidAreaNormalAndBothCentroids) {
+    Patch p;
+    p.nv = 4;
+    p.p = {Vec3{0, 0, 1}, Vec3{2, 0, 1}, Vec3{1.5, 1, 1}, Vec3{0.5, 1, 1}};  // a = 2, b = 1, h = 1
+    finish_patch(p, PatchCentroid::AreaWeighted);
+    EXPECT_NEAR(p.area, 1.5, 1e-15);
+    EXPECT_NEAR(p.normal.z, 1.0, 1e-15);
+    EXPECT_NEAR(p.centroid.x, 1.0, 1e-15);
+    EXPECT_NEAR(p.centroid.y, 4.0 / 9.0, 1e-15);
+    EXPECT_NEAR(p.centroid.z, 1.0, 1e-15);
+    finish_patch(p, PatchCentroid::CornerMean);
+    EXPECT_NEAR(p.area, 1.5, 1e-15);
+    EXPECT_NEAR(p.centroid.y, 0.5, 1e-15);  // the corners' mean, not the area's
+}
+
+TEST(FinishPatch, TriangleRepeatsItsLastCornerAndFacesItsWinding) {
+    Patch t;
+    t.nv = 3;
+    t.p = {Vec3{0, 0, 0}, Vec3{0, 3, 0}, Vec3{3, 0, 0}, Vec3{9, 9, 9}};  // clockwise seen from +z
+    t.uv = {Vec2{0, 0}, Vec2{0, 1}, Vec2{1, 0}, Vec2{5, 5}};
+    finish_patch(t, PatchCentroid::AreaWeighted);
+    EXPECT_NEAR(t.area, 4.5, 1e-15);
+    EXPECT_NEAR(t.normal.z, -1.0, 1e-15);
+    EXPECT_NEAR(t.centroid.x, 1.0, 1e-15);
+    EXPECT_NEAR(t.centroid.y, 1.0, 1e-15);
+    EXPECT_EQ(t.p[3].x, 3.0);
+    EXPECT_EQ(t.uv[3].u, 1.0);
+    // A triangle's centroid is its corners' mean: both rules agree.
+    Patch m = t;
+    finish_patch(m, PatchCentroid::CornerMean);
+    EXPECT_NEAR(m.centroid.x, t.centroid.x, 1e-15);
+    EXPECT_NEAR(m.centroid.y, t.centroid.y, 1e-15);
+}
+
+}  // namespace
+}  // namespace hirad
