@@ -9,6 +9,7 @@ hierarchical bakes can be compared with (`hirad reference` on the command line).
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 from pathlib import Path
@@ -26,13 +27,33 @@ UNSPLIT = 1e9    # meshing limits that keep every face as one patch
 
 def read_points(path: Path):
     """Points (n,3), normals (n,3) (zeros where not given) and the line of each, from a CSV of
-    x,y,z[,nx,ny,nz] in metres; a header line, blank lines and '#' comments are skipped."""
+    x,y,z[,nx,ny,nz] in metres; a header line, blank lines and '#' comments are skipped.
+    Anything else (binary data, text that is not UTF-8, a NUL byte, a FIFO) is a BakeError
+    naming the file and, where there is one, the line."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise BakeError(f"{path}: file not found")
+    if not path.is_file():
+        raise BakeError(f"{path}: not a regular file (a CSV of x,y,z[,nx,ny,nz] is expected)")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise BakeError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        start = exc.start + (3 if data.startswith(b"\xef\xbb\xbf") else 0)
+        line = data.count(b"\n", 0, start) + 1
+        raise BakeError(f"{path}:{line}: not UTF-8 text (byte 0x{data[start]:02x} at offset {start}): expected a CSV"
+                        " of x,y,z[,nx,ny,nz]") from None
+    if "\0" in text:
+        line = text.count("\n", 0, text.index("\0")) + 1
+        raise BakeError(f"{path}:{line}: a NUL byte: not a text CSV of x,y,z[,nx,ny,nz]")
     pts, nrm, lines = [], [], []
-    with open(path, newline="") as f:
-        for line_no, row in enumerate(csv.reader(f), start=1):
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        for row in reader:
+            line_no = reader.line_num
             cells = [c.strip() for c in row if c.strip()]
             if not cells or cells[0].startswith("#"):
                 continue
@@ -47,6 +68,8 @@ def read_points(path: Path):
             pts.append(values[:3])
             nrm.append(values[3:] if len(values) == 6 else [0.0, 0.0, 0.0])
             lines.append(line_no)
+    except csv.Error as exc:
+        raise BakeError(f"{path}:{reader.line_num}: not a CSV of x,y,z[,nx,ny,nz] ({exc})") from None
     if not pts:
         raise BakeError(f"{path}: no points")
     return np.array(pts), np.array(nrm), lines
