@@ -44,8 +44,9 @@ def tree_hashes(root: Path) -> dict[str, str]:
 
 
 def write_config(path: Path, scene: Path, output: Path, **sections) -> Path:
-    """A YAML config with absolute scene/output paths plus any top-level sections given."""
-    data = {"scene": str(Path(scene).resolve()), "output": str(Path(output).resolve())}
+    """A YAML config with absolute scene/output paths plus any top-level sections given (method:
+    flat unless one is given: these tests were written for the flat method)."""
+    data = {"scene": str(Path(scene).resolve()), "output": str(Path(output).resolve()), "method": "flat"}
     data.update(sections)
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path

@@ -57,7 +57,7 @@ def test_shared_cornell_box_bakes_with_energy_balance(tmp_path):
     # The 10x-size Z-up variant: metres, a closed-but-for-the-front box lit by its ceiling light.
     scene = DATA / "cornell_box_usd/cornell-box/usdpreviewsurface/cornell-box.usda"
     cfg = config_from_dict({
-        "scene": str(scene), "output": str(tmp_path / "out"),
+        "scene": str(scene), "output": str(tmp_path / "out"), "method": "flat",
         "meshing": {"max_patch_area": 1.0, "max_edge_length": 1.0},
         "formfactors": {"samples": 16},
         "solver": {"tolerance": 1e-6},

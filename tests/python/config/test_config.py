@@ -240,7 +240,7 @@ def test_snapshots_need_progressive(tmp_path: Path) -> None:
         config_from_dict({"scene": "scene.usda", "solver": {"snapshots": 1}}, tmp_path)
 
     cfg = load_config(
-        write(tmp_path, "scene: scene.usda\nsolver:\n  method: progressive\n  snapshots: 10\n")
+        write(tmp_path, "scene: scene.usda\nmethod: flat\nsolver:\n  method: progressive\n  snapshots: 10\n")
     )
     assert cfg.solver.snapshots == 10
 

@@ -18,10 +18,21 @@ though PyYAML's YAML 1.1 rules would read that as a string.
 Relative paths in a config resolve against the directory holding the config
 file and are stored as absolute paths.
 
+Reading is bounded: a config must be a regular file of at most 1 MiB (a FIFO or
+``/dev/zero`` is refused, not waited on), and YAML aliases may not expand the document beyond
+10,000 values.  Values the engine cannot take are refused with the same located errors
+(``seed`` beyond 2^64-1, ``links.memory_budget`` beyond 1PB, ``meshing.max_patch_area`` below
+1e-8 m^2...).
+
+The default ``method`` is ``hierarchical``, the production method; ``method: flat`` is the
+classic one, kept as the reference.  :meth:`Config.ignored_settings` names the sections a
+config gives that its method does not read.
+
 Modules: `errors` (ConfigError), `schema` (the pydantic models), `loader` (YAML with
-located errors).
+located errors), `describe` (the schema as text: :func:`schema_text`).
 """
 
+from .describe import schema_text
 from .errors import DICT_SOURCE, ConfigError
 from .loader import config_from_dict, load_config
 from .schema import (Config, FormFactorConfig, HierarchyConfig, LightmapOutputConfig, LinksConfig, MaterialsConfig,
@@ -42,4 +53,5 @@ __all__ = [
     "VolumeOutputConfig",
     "config_from_dict",
     "load_config",
+    "schema_text",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import difflib
 import os
 import re
+import stat
 from pathlib import Path
 from typing import Any, Optional, Union
 
@@ -23,8 +24,32 @@ from .schema import Config
 # --------------------------------------------------------------------------
 
 
+# A config is a few kilobytes; these bound what reading one may cost (PyYAML composes about
+# 10,000 nodes a second and scans about 0.4 MB of comment a second, so an unbounded file or
+# alias expansion could take minutes).
+MAX_CONFIG_BYTES = 1 << 20  # 1 MiB
+MAX_YAML_NODES = 10_000  # values in the document, aliases counted each time they are used (a config has ~200)
+
+
+class _TooBig(Exception):
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(problem)
+        self.line = line
+        self.problem = problem
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that also reads YAML 1.2 floats without a dot (``1e-4``)."""
+    """SafeLoader that also reads YAML 1.2 floats without a dot (``1e-4``), and stops composing
+    a document of more than MAX_YAML_NODES nodes."""
+
+    _nodes = 0
+
+    def compose_node(self, parent, index):  # noqa: D401 - PyYAML's hook
+        self._nodes += 1
+        if self._nodes > MAX_YAML_NODES:
+            mark = self.peek_event().start_mark
+            raise _TooBig(mark.line + 1, f"more than {MAX_YAML_NODES} values; a config is a short mapping")
+        return super().compose_node(parent, index)
 
 
 _Loader.add_implicit_resolver(
@@ -76,8 +101,50 @@ def _locate(root: Optional[Node], loc: tuple[Any, ...]) -> int:
     return line
 
 
-def _check_keys(node: Optional[Node], loc: tuple[Any, ...], found: list[tuple[int, str, str]]) -> None:
-    """Find duplicate and non-string mapping keys, which validation cannot see."""
+def _expanded_size(root: Node) -> None:
+    """Refuses a document whose aliases expand to more than MAX_YAML_NODES values (nested
+    aliases grow exponentially: the "billion laughs") or refer to themselves.  Each node is
+    sized once (memoised by identity), so this costs one pass over the distinct nodes."""
+    size: dict[int, int] = {}
+    open_: set[int] = set()
+    stack: list[tuple[Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children: list[Node] = []
+        if isinstance(node, SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, MappingNode):
+            children = [n for pair in node.value for n in pair]
+        if done:
+            open_.discard(key)
+            size[key] = 1 + sum(size[id(c)] for c in children)
+            if size[key] > MAX_YAML_NODES:
+                raise _TooBig(_line(node), f"YAML aliases expand this value to more than {MAX_YAML_NODES} values"
+                                           " (nested aliases, a 'billion laughs' document?)")
+            continue
+        if key in size:
+            continue
+        if key in open_:
+            raise _TooBig(_line(node), "a YAML alias refers to the value that contains it (a recursive alias)")
+        open_.add(key)
+        stack.append((node, True))
+        for c in children:
+            if id(c) in open_:
+                raise _TooBig(_line(c), "a YAML alias refers to the value that contains it (a recursive alias)")
+            if id(c) not in size:
+                stack.append((c, False))
+
+
+def _check_keys(node: Optional[Node], loc: tuple[Any, ...], found: list[tuple[int, str, str]],
+                seen_nodes: Optional[set[int]] = None) -> None:
+    """Find duplicate and non-string mapping keys, which validation cannot see.  A node reached
+    again through an alias is checked once (its problems are the same wherever it is used)."""
+    if seen_nodes is None:
+        seen_nodes = set()
+    if node is None or id(node) in seen_nodes:
+        return
+    seen_nodes.add(id(node))
     if isinstance(node, MappingNode):
         seen: dict[str, int] = {}
         for key_node, value_node in node.value:
@@ -104,10 +171,10 @@ def _check_keys(node: Optional[Node], loc: tuple[Any, ...], found: list[tuple[in
                 )
             else:
                 seen[name] = _line(key_node)
-            _check_keys(value_node, loc + (name,), found)
+            _check_keys(value_node, loc + (name,), found, seen_nodes)
     elif isinstance(node, SequenceNode):
         for i, item in enumerate(node.value):
-            _check_keys(item, loc + (i,), found)
+            _check_keys(item, loc + (i,), found, seen_nodes)
 
 
 def _model_at(loc: tuple[Any, ...]) -> Optional[type[BaseModel]]:
@@ -184,6 +251,57 @@ def _validate(
 # --------------------------------------------------------------------------
 
 
+_FILE_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _not_regular(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "config path is a directory, not a file"
+    kind = next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
+    return f"config path is {kind}, not a regular file"
+
+
+def _read_text(file: str) -> str:
+    """The config file's text: a regular file of at most MAX_CONFIG_BYTES, UTF-8.  A FIFO or a
+    device (``/dev/zero``) is refused before it is opened, and opened without blocking in case
+    it is swapped in between; at most MAX_CONFIG_BYTES + 1 bytes are ever read."""
+    try:
+        mode = os.stat(file).st_mode
+    except FileNotFoundError:
+        raise ConfigError(file, 0, "", "config file not found") from None
+    except OSError as exc:
+        raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(mode):
+        raise ConfigError(file, 0, "", _not_regular(mode))
+    try:
+        fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise ConfigError(file, 0, "", _not_regular(mode))
+        chunks, total = [], 0
+        while total <= MAX_CONFIG_BYTES:
+            chunk = os.read(fd, MAX_CONFIG_BYTES + 1 - total)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+    except OSError as exc:
+        raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if total > MAX_CONFIG_BYTES:
+        raise ConfigError(file, 0, "", f"config file is larger than {MAX_CONFIG_BYTES >> 20} MiB; a config is a few"
+                                       " kilobytes of YAML")
+    try:
+        return b"".join(chunks).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(file, 0, "", f"config file is not UTF-8 text ({exc.reason})") from None
+
+
 def load_config(path: Union[str, os.PathLike[str]]) -> Config:
     """Read and validate a YAML config file.
 
@@ -193,21 +311,18 @@ def load_config(path: Union[str, os.PathLike[str]]) -> Config:
     """
     file = os.fspath(path)
     config_path = Path(file)
-    try:
-        text = config_path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(file, 0, "", "config file not found") from None
-    except IsADirectoryError:
-        raise ConfigError(file, 0, "", "config path is a directory, not a file") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(file, 0, "", f"config file is not UTF-8 text ({exc.reason})") from None
-    except OSError as exc:
-        raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+    text = _read_text(file)
 
     loader = _Loader(text)
     try:
         root = loader.get_single_node()
+        if root is not None:
+            _expanded_size(root)
         data = loader.construct_document(root) if root is not None else None
+    except _TooBig as exc:
+        raise ConfigError(file, exc.line, "", exc.problem) from None
+    except RecursionError:
+        raise ConfigError(file, 0, "", "malformed YAML: values nested too deeply") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else 0

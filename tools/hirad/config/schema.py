@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import re
+from fractions import Fraction
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -31,6 +32,25 @@ StrictFloat = Annotated[float, Strict()]
 StrictBool = Annotated[bool, Strict()]
 StrictStr = Annotated[str, Strict()]
 Reflectance = Annotated[float, Strict(), Field(ge=0.0, lt=1.0)]
+
+# Bounds of what the engine can take (its integer types) and floors below which a setting
+# would only allocate without bound: the schema cannot know the scene, so these are the
+# smallest values any real scene needs, not estimates of a particular bake's cost.
+UINT32_MAX = 2**32 - 1
+UINT64_MAX = 2**64 - 1
+INT64_MAX = 2**63 - 1
+MAX_THREADS = 65536
+MAX_MEMORY_BUDGET = 1 << 50  # 1 PiB
+MIN_PATCH_AREA = 1e-8  # m^2: a 0.1 mm square
+MIN_EDGE_LENGTH = 1e-4  # m: 0.1 mm
+MIN_ELEMENT_AREA = 1e-8  # m^2
+
+
+def _at_least(value: float, floor: float, unit: str, what: str) -> float:
+    if value < floor:
+        raise ValueError(f"{value:g} {unit} is below the floor of {floor:g} {unit} ({what}): finer than that, the"
+                         " number of patches or elements would grow beyond any memory for a real scene")
+    return value
 
 _MODEL_CONFIG = ConfigDict(
     extra="forbid",
@@ -67,15 +87,30 @@ class MeshingConfig(BaseModel):
     model_config = _MODEL_CONFIG
 
     max_patch_area: StrictFloat = Field(
+        json_schema_extra={"unit": "m^2", "at_least": MIN_PATCH_AREA},
         default=0.01,
         gt=0.0,
-        description="Largest patch area, in square metres; smaller means more patches.",
+        description=(
+            f"Largest patch area, in square metres; smaller means more patches. At least {MIN_PATCH_AREA:g} m^2"
+            " (a 0.1 mm square)."
+        ),
     )
     max_edge_length: StrictFloat = Field(
+        json_schema_extra={"unit": "m", "at_least": MIN_EDGE_LENGTH},
         default=0.1,
         gt=0.0,
-        description="Longest patch edge, in metres; bounds sliver patches.",
+        description=f"Longest patch edge, in metres; bounds sliver patches. At least {MIN_EDGE_LENGTH:g} m.",
     )
+
+    @field_validator("max_patch_area")
+    @classmethod
+    def _area_floor(cls, value: float) -> float:
+        return _at_least(value, MIN_PATCH_AREA, "m^2", "a 0.1 mm square")
+
+    @field_validator("max_edge_length")
+    @classmethod
+    def _edge_floor(cls, value: float) -> float:
+        return _at_least(value, MIN_EDGE_LENGTH, "m", "0.1 mm")
 
 
 class FormFactorConfig(BaseModel):
@@ -88,18 +123,21 @@ class FormFactorConfig(BaseModel):
         description="'raycast' (stratified area sampling) or 'hemicube' (rasterised hemicubes).",
     )
     samples: StrictInt = Field(
+        json_schema_extra={"unit": "points per patch"},
         default=16,
         ge=1,
         le=4096,
         description="Stratified sample points per patch for the raycast method.",
     )
     hemicube_resolution: StrictInt = Field(
+        json_schema_extra={"unit": "pixels"},
         default=128,
         ge=8,
         le=2048,
         description="Pixels along the top face of each hemicube (hemicube method).",
     )
     hemicube_points: StrictInt = Field(
+        json_schema_extra={"unit": "hemicubes per patch"},
         default=4,
         ge=1,
         le=64,
@@ -121,6 +159,7 @@ class HierarchyConfig(BaseModel):
     model_config = _MODEL_CONFIG
 
     epsilon: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction of the emitted power"},
         default=1e-5,
         ge=0.0,
         lt=1.0,
@@ -130,17 +169,29 @@ class HierarchyConfig(BaseModel):
         ),
     )
     min_area: StrictFloat = Field(
-        default=1e-3, gt=0.0, description="Smallest element area, in m^2; elements are not split below it."
+        json_schema_extra={"unit": "m^2", "at_least": MIN_ELEMENT_AREA},
+        default=1e-3,
+        gt=0.0,
+        description=(
+            f"Smallest element area, in m^2; elements are not split below it. At least {MIN_ELEMENT_AREA:g} m^2."
+        ),
     )
     samples: StrictInt = Field(
+        json_schema_extra={"unit": "point pairs per link"},
         default=16, ge=1, le=4096, description="Point pairs per link estimate (rounded to a square)."
     )
     max_rounds: StrictInt = Field(
+        json_schema_extra={"unit": "rounds"},
         default=6,
         ge=1,
         le=100,
         description="Most refine-solve rounds; rounds stop earlier once no link wants to split.",
     )
+
+    @field_validator("min_area")
+    @classmethod
+    def _element_floor(cls, value: float) -> float:
+        return _at_least(value, MIN_ELEMENT_AREA, "m^2", "a 0.1 mm square")
 
 
 class SolverConfig(BaseModel):
@@ -159,19 +210,24 @@ class SolverConfig(BaseModel):
         ),
     )
     tolerance: StrictFloat = Field(
+        json_schema_extra={"unit": "relative residual"},
         default=1e-4,
         gt=0.0,
         lt=1.0,
         description="Stop when the relative residual ||E - M B|| / ||E|| falls below this.",
     )
     max_iterations: StrictInt = Field(
+        json_schema_extra={"unit": "iterations"},
         default=100_000_000,
         ge=1,
+        le=INT64_MAX,
         description="Upper bound on iterations (shots for shooting methods, sweeps otherwise).",
     )
     snapshots: StrictInt = Field(
+        json_schema_extra={"unit": "shots"},
         default=0,
         ge=0,
+        le=INT64_MAX,
         description=(
             "Progressive solver only: write a preview image every this many shots;"
             " 0 writes none."
@@ -204,21 +260,25 @@ class LinksConfig(BaseModel):
         ),
     )
     memory_budget: Union[StrictInt, str] = Field(
+        json_schema_extra={"unit": "bytes (or '512MB', '2GB')"},
         default=1 << 30,
         description=(
             "Memory for the solver's state and the link chunks it keeps decoded, e.g. '512MB',"
-            " '2GB' (or bytes; default 1GB); 0 = unlimited. The result does not depend on it."
+            " '2GB' (or bytes; default 1GB; at most 1PB); 0 = unlimited. The result does not depend on it."
         ),
     )
     group_faces: StrictInt = Field(
+        json_schema_extra={"unit": "input faces"},
         default=1024,
         ge=1,
+        le=UINT32_MAX,
         description=(
             "Input faces per source group: the links of one group form one chunk, refined and"
             " shot together. Part of the refinement settings (changing it changes the links)."
         ),
     )
     checkpoint_seconds: StrictFloat = Field(
+        json_schema_extra={"unit": "s"},
         default=60.0,
         ge=0.0,
         description="Write the solver's state this often (0: never); `hirad bake --resume` continues from it.",
@@ -236,16 +296,23 @@ class LinksConfig(BaseModel):
 
 
 def parse_bytes(value) -> int:
-    """'512MB', '2 GiB', '1.5GB', 1048576 -> bytes (powers of 1024: GB means GiB)."""
+    """'512MB', '2 GiB', '1.5GB', '1PB', 1048576 -> bytes (powers of 1024: GB means GiB), at most
+    MAX_MEMORY_BUDGET (1 PiB: beyond any machine, and within the engine's 64-bit sizes)."""
     if isinstance(value, int):
         if value < 0:
             raise ValueError("a memory size cannot be negative")
-        return value
-    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", str(value))
-    if not m:
-        raise ValueError(f"{value!r} is not a memory size (e.g. 512MB, 2GB, or a number of bytes)")
-    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
-    return int(float(m.group(1)) * scale)
+        size = value
+    else:
+        m = re.fullmatch(r"\s*([0-9]{1,30}(?:\.[0-9]{1,30})?)\s*([kKmMgGtTpP]?)i?[bB]?\s*", str(value))
+        if not m:
+            shown = repr(value) if len(str(value)) <= 40 else repr(str(value)[:37]) + "..."
+            raise ValueError(f"{shown} is not a memory size (e.g. 512MB, 2GB, or a number of bytes)")
+        scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40, "p": 1 << 50}[m.group(2).lower()]
+        size = int(Fraction(m.group(1)) * scale)
+    if size > MAX_MEMORY_BUDGET:
+        shown = value if isinstance(value, str) else f"{value} bytes"
+        raise ValueError(f"{shown} is more than the largest memory size hirad takes, 1PB ({MAX_MEMORY_BUDGET} bytes)")
+    return size
 
 
 class ReconstructionConfig(BaseModel):
@@ -254,6 +321,7 @@ class ReconstructionConfig(BaseModel):
     model_config = _MODEL_CONFIG
 
     crease_angle: StrictFloat = Field(
+        json_schema_extra={"unit": "degrees"},
         default=30.0,
         ge=0.0,
         le=180.0,
@@ -276,6 +344,7 @@ class LightmapOutputConfig(BaseModel):
 
     enabled: StrictBool = Field(default=True, description="Write lightmap textures.")
     texels_per_metre: Optional[StrictFloat] = Field(
+        json_schema_extra={"unit": "texels/m"},
         default=None,
         gt=0.0,
         le=1.0e5,
@@ -285,6 +354,7 @@ class LightmapOutputConfig(BaseModel):
         ),
     )
     texels_per_patch: StrictInt = Field(
+        json_schema_extra={"unit": "texels"},
         default=4,
         ge=1,
         le=64,
@@ -293,18 +363,21 @@ class LightmapOutputConfig(BaseModel):
         ),
     )
     padding: StrictInt = Field(
+        json_schema_extra={"unit": "texels"},
         default=2,
         ge=0,
         le=64,
         description="Empty texels between charts (and between meshes), filled by dilation.",
     )
     max_size: StrictInt = Field(
+        json_schema_extra={"unit": "texels"},
         default=4096,
         ge=64,
         le=16384,
         description="Largest lightmap atlas page side, in texels.",
     )
     supersample: StrictInt = Field(
+        json_schema_extra={"unit": "samples per texel side"},
         default=2,
         ge=1,
         le=8,
@@ -319,9 +392,11 @@ class LightmapOutputConfig(BaseModel):
         ),
     )
     gather_rays: StrictInt = Field(
+        json_schema_extra={"unit": "rays per link"},
         default=4, ge=1, le=256, description="Visibility rays per link in final_gather mode."
     )
     sample_offset: StrictFloat = Field(
+        json_schema_extra={"unit": "m"},
         default=1.0e-4,
         ge=0.0,
         le=1.0,
@@ -347,6 +422,7 @@ class LightmapOutputConfig(BaseModel):
         default=False, description="Also write each page as an 8-bit RGBM PNG."
     )
     rgbm_range: Optional[StrictFloat] = Field(
+        json_schema_extra={"unit": "W/(m^2 sr)"},
         default=None,
         gt=0.0,
         description="RGBM range (value = rgb * a * range); null uses each page's maximum.",
@@ -360,9 +436,11 @@ class VolumeOutputConfig(BaseModel):
 
     enabled: StrictBool = Field(default=False, description="Write volume.vdb.")
     spacing: StrictFloat = Field(
+        json_schema_extra={"unit": "m"},
         default=0.25, gt=0.0, description="Metres between probes (the lattice's voxel size)."
     )
     max_distance: Optional[StrictFloat] = Field(
+        json_schema_extra={"unit": "m"},
         default=None,
         gt=0.0,
         description=(
@@ -371,9 +449,11 @@ class VolumeOutputConfig(BaseModel):
         ),
     )
     rays: StrictInt = Field(
+        json_schema_extra={"unit": "directions per probe"},
         default=1024, ge=16, le=65536, description="Stratified directions per probe."
     )
     max_probes: StrictInt = Field(
+        json_schema_extra={"unit": "probes"},
         default=2_000_000,
         ge=1,
         description="Refuse lattices with more candidate points than this (raise the spacing).",
@@ -393,9 +473,14 @@ class PreviewOutputConfig(BaseModel):
             " null uses the first camera in the scene, or a default view if it has none."
         ),
     )
-    width: StrictInt = Field(default=512, ge=16, le=8192, description="Image width, in pixels.")
-    height: StrictInt = Field(default=512, ge=16, le=8192, description="Image height, in pixels.")
+    width: StrictInt = Field(
+        default=512, ge=16, le=8192, description="Image width, in pixels.", json_schema_extra={"unit": "pixels"}
+    )
+    height: StrictInt = Field(
+        default=512, ge=16, le=8192, description="Image height, in pixels.", json_schema_extra={"unit": "pixels"}
+    )
     samples: StrictInt = Field(
+        json_schema_extra={"unit": "samples per pixel"},
         default=4, ge=1, le=256, description="Anti-aliasing samples per pixel."
     )
 
@@ -451,10 +536,14 @@ class Config(BaseModel):
         ),
     )
     threads: StrictInt = Field(
-        default=0, ge=0, description="Worker threads; 0 uses all cores."
+        json_schema_extra={"unit": "threads"},
+        default=0, ge=0, le=MAX_THREADS, description=f"Worker threads; 0 uses all cores (at most {MAX_THREADS})."
     )
     seed: StrictInt = Field(
-        default=1, ge=0, description="Random seed for all sampling; equal seeds give equal results."
+        default=1,
+        ge=0,
+        le=UINT64_MAX,
+        description="Random seed for all sampling, 0 to 2^64-1; equal seeds give equal results.",
     )
     materials: MaterialsConfig = Field(
         default_factory=MaterialsConfig, description="Material settings."
@@ -464,10 +553,11 @@ class Config(BaseModel):
         default_factory=FormFactorConfig, description="Form factor computation."
     )
     method: Literal["flat", "hierarchical"] = Field(
-        default="flat",
+        default="hierarchical",
         description=(
-            "'flat': patches from `meshing`, every pair linked (the classic method, the"
-            " reference); 'hierarchical': adaptive elements and cluster links from `hierarchy`."
+            "'hierarchical' (the default, the production method): adaptive elements and cluster"
+            " links from `hierarchy`; 'flat': patches from `meshing`, every pair linked (the classic"
+            " method, kept as the reference)."
         ),
     )
     hierarchy: HierarchyConfig = Field(
@@ -511,6 +601,26 @@ class Config(BaseModel):
             raise ValueError("outputs.lightmaps.mode: final_gather needs method: hierarchical (the gather re-evaluates"
                              " the hierarchy's links); use mode: interpolate for flat bakes")
         return value
+
+    def ignored_settings(self) -> list[str]:
+        """Sections given in the config that the chosen method does not read, each with why (for
+        a warning): `meshing` and `formfactors` under method: hierarchical (the default since
+        it became the production method, so a config written for the flat method that does not
+        say `method: flat` lands here), `hierarchy` under method: flat, `links` unless
+        solver.method is block_southwell."""
+        given = self.model_fields_set
+        out = []
+        how = "method: hierarchical" + ("" if "method" in given else " (the default)")
+        if self.method == "hierarchical":
+            for key in ("meshing", "formfactors"):
+                if key in given:
+                    out.append(f"{key}: not used by {how}; set method: flat to use it")
+        else:
+            if "hierarchy" in given:
+                out.append("hierarchy: not used by method: flat")
+        if "links" in given and self.solver.method != "block_southwell":
+            out.append("links: only used by solver.method: block_southwell")
+        return out
 
     def link_store(self) -> Path:
         """Where an out-of-core bake keeps its links."""
