@@ -223,7 +223,7 @@ def test_solution_layer(cornell):
         prim = stage.GetPrimAtPath(mesh_path)
         assert UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible
     # one solved mesh per input mesh, visible, with the radiosity primvars
-    solved = [p for p in stage.GetPrimAtPath("/HiradSolution").GetChildren() if p.IsA(UsdGeom.Mesh)]
+    solved = [p for p in stage.GetPrimAtPath("/World/HiradSolution").GetChildren() if p.IsA(UsdGeom.Mesh)]
     assert len(solved) == len(inputs)
     assert {p.GetCustomDataByKey("hirad:sourcePath") for p in solved} == set(inputs)
     radiance_by_mesh = {}
@@ -250,7 +250,7 @@ def test_solution_layer(cornell):
     alone = Usd.Stage.Open(str(scene))
     for mesh_path in inputs:
         assert UsdGeom.Imageable(alone.GetPrimAtPath(mesh_path)).ComputeVisibility() == UsdGeom.Tokens.inherited
-    assert not alone.GetPrimAtPath("/HiradSolution")
+    assert not alone.GetPrimAtPath("/World/HiradSolution")
 
 
 def test_output_files_follow_the_umask(cornell, tmp_path):

@@ -123,7 +123,7 @@ def solved_meshes(out: Path) -> dict:
     """name -> points, faces (list of corner index arrays), uv per face corner, texture file."""
     stage = Usd.Stage.Open(str(out / "solution.usda"))
     meshes = {}
-    for prim in stage.GetPrimAtPath("/HiradSolution").GetChildren():
+    for prim in stage.GetPrimAtPath("/World/HiradSolution").GetChildren():
         if not prim.IsA(UsdGeom.Mesh):
             continue
         mesh = UsdGeom.Mesh(prim)

@@ -691,8 +691,10 @@ def test_write_and_read_solution_layer(tmp_path):
     assert UsdGeom.GetStageMetersPerUnit(stage) == pytest.approx(0.001)
     # input geometry hidden, solution meshes visible, world space (no parent transform)
     assert UsdGeom.Imageable(stage.GetPrimAtPath("/World/floor")).ComputeVisibility() == UsdGeom.Tokens.invisible
-    root = stage.GetPrimAtPath("/HiradSolution")
-    assert root.IsA(UsdGeom.Scope) and root.GetParent().IsPseudoRoot()
+    # under the input's defaultPrim, which the layer names as its own
+    assert layer.defaultPrim == "World"
+    root = stage.GetPrimAtPath("/World/HiradSolution")
+    assert root.IsA(UsdGeom.Scope) and root.GetParent().GetPath() == "/World"
     meshes = [p for p in root.GetChildren() if p.IsA(UsdGeom.Mesh)]
     assert len(meshes) == 8
     for prim, pm in zip(meshes, patches):

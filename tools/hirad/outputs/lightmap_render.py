@@ -24,7 +24,9 @@ def _texture_terms(solution: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
     stage = Usd.Stage.Open(str(solution))
     out = {}
-    root = stage.GetPrimAtPath(usd.SOLUTION_ROOT)
+    from ..usd.solution import find_solution_root
+
+    root = find_solution_root(stage)
     for prim in root.GetChildren() if root else []:
         mat = UsdShade.MaterialBindingAPI(prim).GetDirectBinding().GetMaterial()
         tex = mat.GetPrim().GetChild("Lightmap") if mat and mat.GetPrim().IsValid() else None

@@ -11,11 +11,18 @@ from typing import Any, Sequence
 import numpy as np
 
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
-from .common import _LOOKS_NAME, SceneError, _open_stage
+from .common import _LOOKS_NAME, SceneError, _mat, _open_stage, _stage_time, _transform_points
 from .scene import CameraInfo, MeshInfo, SceneArrays, read_cameras
 
 
-SOLUTION_ROOT = "/HiradSolution"
+SOLUTION_NAME = "HiradSolution"
+# Where the solution goes when the input has no defaultPrim it can sit under (and where layers
+# written before the solution moved under the defaultPrim keep it): a root prim, which the
+# solution layer then names as its defaultPrim.
+SOLUTION_ROOT = "/" + SOLUTION_NAME
+# The colour space of every colour hirad writes: linear Rec.709 primaries, scene referred (the
+# values are physical radiance and irradiance per channel, not display values).
+COLOR_SPACE = "lin_rec709_scene"
 
 
 @dataclass
@@ -122,9 +129,70 @@ def _relative_asset(target: Path, from_dir: Path) -> str:
     return rel
 
 
-def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData, info: MeshInfo, mpu: float):
+def _unlit_surface(stage: Usd.Stage, mat: UsdShade.Material) -> UsdShade.Shader:
+    """A UsdPreviewSurface that only emits: no diffuse and no specular lobe (specular workflow
+    with a black specular colour), so a viewer shows the emissive colour as it is and never
+    lights the baked light a second time."""
+    surf = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("PreviewSurface"))
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
+    surf.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+    surf.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
+    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(1.0)
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    return surf
+
+
+def _bind_lightmap_material(stage: Usd.Stage, looks: Sdf.Path, prim: Usd.Prim, pm: PatchMeshData):
+    """Shows albedo x lightmap (+ emission) through the hirad:lightmapUV primvar."""
+    mat = UsdShade.Material.Define(stage, looks.AppendChild(prim.GetName()))
+    surf = _unlit_surface(stage, mat)
+    reader = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("LightmapUV"))
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("hirad:lightmapUV")
+    reader_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    tex = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("Lightmap"))
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(pm.lightmap_path))
+    # linear half-float EXR data: no transfer function to undo
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader_out)
+    if pm.lightmap_albedo is not None:
+        # texels hold incident radiance H/pi: the surface shows albedo x H/pi (+ E/pi)
+        r, g, b = (float(v) for v in pm.lightmap_albedo)
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 1.0))
+    if pm.lightmap_emission is not None:
+        r, g, b = (float(v) for v in pm.lightmap_emission)
+        tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 0.0))
+    rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surf.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat)
+
+
+def _bind_radiance_material(stage: Usd.Stage, looks: Sdf.Path, prim: Usd.Prim):
+    """Shows the baked exitant radiance (primvars:hirad:radiance, interpolated over the faces)
+    as the surface's emission, unlit."""
+    mat = UsdShade.Material.Define(stage, looks.AppendChild(prim.GetName()))
+    surf = _unlit_surface(stage, mat)
+    reader = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("Radiance"))
+    reader.CreateIdAttr("UsdPrimvarReader_float3")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("hirad:radiance")
+    reader.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(0, 0, 0))
+    out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+    surf.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(out)
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat)
+
+
+def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData, info: MeshInfo, mpu: float,
+                       world_to_parent: np.ndarray | None = None):
+    """One solution mesh. Points are world metres in `pm`; they are written in stage units in
+    the frame of the solution root's parent (`world_to_parent`, row vectors; None: the world)."""
     mesh = UsdGeom.Mesh.Define(stage, mesh_path)
     pts = np.asarray(pm.points, dtype=np.float64) / mpu
+    if world_to_parent is not None:
+        pts = _transform_points(pts, world_to_parent)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.asarray(pm.face_vertex_counts, dtype=np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(pm.face_vertex_indices, dtype=np.int32)))
@@ -139,6 +207,7 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
     def color_pv(name, data, interp):
         pv = api.CreatePrimvar(name, Sdf.ValueTypeNames.Color3fArray, interp)
         pv.Set(Vt.Vec3fArray.FromNumpy(np.asarray(data, dtype=np.float32).reshape(-1, 3)))
+        pv.GetAttr().SetColorSpace(COLOR_SPACE)
 
     color_pv("hirad:radiance", pm.vertex_radiance, UsdGeom.Tokens.vertex)
     color_pv("hirad:irradiance", pm.vertex_irradiance, UsdGeom.Tokens.vertex)
@@ -151,40 +220,49 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
     prim.SetCustomDataByKey("hirad:sourcePath", info.path)
     prim.SetCustomDataByKey("hirad:isLight", bool(info.is_light))
 
+    looks = mesh_path.GetParentPath().AppendChild(_LOOKS_NAME)
+    UsdGeom.Scope.Define(stage, looks)
     if pm.lightmap_uv is not None:
         pv = api.CreatePrimvar("hirad:lightmapUV", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
         pv.Set(Vt.Vec2fArray.FromNumpy(np.asarray(pm.lightmap_uv, dtype=np.float32).reshape(-1, 2)))
-        if pm.lightmap_path:
-            looks = Sdf.Path(SOLUTION_ROOT).AppendChild(_LOOKS_NAME)
-            UsdGeom.Scope.Define(stage, looks)
-            mat = UsdShade.Material.Define(stage, looks.AppendChild(mesh_path.name))
-            surf = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("PreviewSurface"))
-            surf.CreateIdAttr("UsdPreviewSurface")
-            surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-            surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(1.0)
-            reader = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("LightmapUV"))
-            reader.CreateIdAttr("UsdPrimvarReader_float2")
-            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("hirad:lightmapUV")
-            reader_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-            tex = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("Lightmap"))
-            tex.CreateIdAttr("UsdUVTexture")
-            tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(pm.lightmap_path))
-            tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-            tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-            tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-            tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader_out)
-            if pm.lightmap_albedo is not None:
-                # texels hold incident radiance H/pi: the surface shows albedo x H/pi (+ E/pi)
-                r, g, b = (float(v) for v in pm.lightmap_albedo)
-                tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 1.0))
-            if pm.lightmap_emission is not None:
-                r, g, b = (float(v) for v in pm.lightmap_emission)
-                tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(r, g, b, 0.0))
-            rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-            surf.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
-            mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-            UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat)
+    if pm.lightmap_uv is not None and pm.lightmap_path:
+        _bind_lightmap_material(stage, looks, prim, pm)
+    else:
+        _bind_radiance_material(stage, looks, prim)
     return mesh
+
+
+def _solution_parent(input_path: Path, hidden: set[str]) -> tuple[str | None, np.ndarray | None]:
+    """The input's defaultPrim path the solution can sit under, and the matrix taking world
+    coordinates (stage units, row vectors) into that prim's frame (None when it is the
+    identity). (None, None) when the input has no defaultPrim, or one the solution cannot go
+    under: a gprim (gprims do not nest), an instance (its children are not composed), or a
+    prim the layer hides (the solution would be hidden with it)."""
+    try:
+        in_layer = Sdf.Layer.FindOrOpen(str(input_path))
+    except Tf.ErrorException:
+        return None, None
+    if in_layer is None or not in_layer.defaultPrim:
+        return None, None
+    path = Sdf.Path.absoluteRootPath.AppendChild(in_layer.defaultPrim)
+    for h in hidden:
+        if path.HasPrefix(Sdf.Path(h)):
+            return None, None
+    try:
+        stage = Usd.Stage.OpenMasked(in_layer, Usd.StagePopulationMask([path]), Usd.Stage.LoadNone)
+    except Tf.ErrorException:
+        return None, None
+    prim = stage.GetPrimAtPath(path)
+    if not prim or not prim.IsActive() or prim.IsA(UsdGeom.Gprim) or prim.IsInstance():
+        return None, None
+    m = np.eye(4)
+    if prim.IsA(UsdGeom.Xformable):
+        m = _mat(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(_stage_time(stage)))
+    if np.array_equal(m, np.eye(4)):
+        return str(path), None
+    if not np.isfinite(m).all() or abs(np.linalg.det(m[:3, :3])) < 1e-300:
+        return None, None
+    return str(path), np.linalg.inv(m)
 
 
 def write_solution_layer(
@@ -213,12 +291,6 @@ def write_solution_layer(
     # stage-level metadata only comes from the root layer: copy the input's
     UsdGeom.SetStageMetersPerUnit(stage, mpu)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if scene.up_axis.upper() == "Y" else UsdGeom.Tokens.z)
-    try:
-        in_layer = Sdf.Layer.FindOrOpen(str(input_path))
-        if in_layer is not None and in_layer.defaultPrim:
-            layer.defaultPrim = in_layer.defaultPrim
-    except Tf.ErrorException:
-        pass
 
     hidden: set[str] = set()
     for info in scene.meshes:
@@ -230,8 +302,20 @@ def write_solution_layer(
             UsdGeom.Tokens.invisible
         )
 
-    UsdGeom.Scope.Define(stage, SOLUTION_ROOT)
-    root = Sdf.Path(SOLUTION_ROOT)
+    # The solution sits under the input's defaultPrim, so a stage that references this layer
+    # (which brings in the defaultPrim only) shows it; the points are written in that prim's
+    # frame, so they land where they were solved and follow any transform the referencing
+    # stage puts on the prim.
+    parent, world_to_parent = _solution_parent(input_path, hidden)
+    if parent is None:
+        root = Sdf.Path(SOLUTION_ROOT)
+        layer.defaultPrim = SOLUTION_NAME
+    else:
+        stage.OverridePrim(parent)
+        root = Sdf.Path(parent).AppendChild(SOLUTION_NAME)
+        layer.defaultPrim = Sdf.Path(parent).name
+    scope = UsdGeom.Scope.Define(stage, root)
+    Usd.ColorSpaceAPI.Apply(scope.GetPrim()).CreateColorSpaceNameAttr(COLOR_SPACE)
     used: set[str] = {_LOOKS_NAME}
     for pm in patch_meshes:
         info = scene.meshes[pm.mesh_index]
@@ -240,12 +324,15 @@ def write_solution_layer(
             name = f"{info.name}_{k}"
             k += 1
         used.add(name)
-        _author_patch_mesh(stage, root.AppendChild(name), pm, info, mpu)
+        _author_patch_mesh(stage, root.AppendChild(name), pm, info, mpu, world_to_parent)
 
-    md = {"hirad:metersPerUnit": mpu, "hirad:input": sub}
+    md = {"hirad:metersPerUnit": mpu, "hirad:input": sub, "hirad:solutionRoot": str(root),
+          "hirad:colorSpace": f"{COLOR_SPACE}: linear Rec.709 primaries, D65, scene referred; every colour "
+                              "is a physical value per channel (radiance W/(m^2 sr), irradiance W/m^2)"}
     md.update(metadata or {})
     layer.customLayerData = _to_vt_value(md)
-    layer.comment = "hirad radiosity solution; sublayers the input scene"
+    layer.comment = (f"hirad radiosity solution under {root}; sublayers the input scene; colours are linear "
+                     "Rec.709 (lin_rec709_scene), radiance W/(m^2 sr)")
     del stage  # release the authoring stage so adding the sublayer composes nothing
     # sublayer last so the authoring above never composes (or touches) the input
     layer.subLayerPaths.append(sub)
@@ -285,19 +372,45 @@ def _get_array(prim: Usd.Prim, name: str, time, cols: int) -> np.ndarray | None:
     return np.array(v, dtype=np.float64).reshape(-1, cols)
 
 
+def find_solution_root(stage: Usd.Stage) -> Usd.Prim | None:
+    """The prim holding a solution layer's meshes: the path the layer records, else
+    `<defaultPrim>/HiradSolution`, else `/HiradSolution` (layers written before the solution
+    moved under the defaultPrim); None when there is none."""
+    candidates = []
+    recorded = stage.GetRootLayer().customLayerData.get("hirad:solutionRoot")
+    if isinstance(recorded, str) and Sdf.Path.IsValidPathString(recorded):
+        candidates.append(Sdf.Path(recorded))
+    default = stage.GetDefaultPrim()
+    if default:
+        candidates.append(default.GetPath().AppendChild(SOLUTION_NAME))
+    candidates.append(Sdf.Path(SOLUTION_ROOT))
+    for c in candidates:
+        if not c.IsAbsolutePath() or not c.IsPrimPath():
+            continue
+        prim = stage.GetPrimAtPath(c)
+        if prim and prim.IsValid():
+            return prim
+    return None
+
+
 def read_solution_layer(path: str | Path) -> SolutionData:
-    """Load a layer written by :func:`write_solution_layer` (plus the input's cameras)."""
+    """Load a layer written by :func:`write_solution_layer` (plus the input's cameras); points
+    in world metres."""
     stage = _open_stage(path)
     time = Usd.TimeCode.Default()
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    root = stage.GetPrimAtPath(SOLUTION_ROOT)
+    root = find_solution_root(stage)
     meshes: list[PatchMeshData] = []
-    if root and root.IsValid():
+    if root is not None:
         for prim in root.GetChildren():
             if not prim.IsA(UsdGeom.Mesh):
                 continue
             m = UsdGeom.Mesh(prim)
-            pts = np.array(m.GetPointsAttr().Get(time) or [], dtype=np.float64).reshape(-1, 3) * mpu
+            pts = np.array(m.GetPointsAttr().Get(time) or [], dtype=np.float64).reshape(-1, 3)
+            to_world = _mat(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(time))
+            if not np.array_equal(to_world, np.eye(4)):
+                pts = _transform_points(pts, to_world)
+            pts = pts * mpu
             counts = np.array(m.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int32)
             idx = np.array(m.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int32)
             P, F = len(pts), len(counts)
@@ -331,7 +444,8 @@ def read_solution_layer(path: str | Path) -> SolutionData:
                 )
             )
     if not meshes:
-        raise SceneError(f"{path}: not a hirad solution (no meshes under {SOLUTION_ROOT})")
+        where = root.GetPath() if root is not None else f"<defaultPrim>/{SOLUTION_NAME} or {SOLUTION_ROOT}"
+        raise SceneError(f"{path}: not a hirad solution (no meshes under {where})")
     md = dict(stage.GetRootLayer().customLayerData)
     return SolutionData(
         meshes=meshes,
