@@ -16,7 +16,7 @@ JOBS := $(shell nproc)
 .PHONY: bake test engine cpp-test py-test bench clean
 
 bake: engine
-	$(HIRAD) bake configs/cornell.yaml
+	$(HIRAD) bake configs/cornell_hierarchical.yaml
 
 test: engine cpp-test py-test
 
