@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, _engine, usd
+from . import __version__, _engine, files, interrupts, usd
 from .outputs import images
 from .config import Config, load_config
 from .errors import BakeError  # noqa: F401
@@ -30,15 +30,26 @@ from .solution import Result, SurfaceSolution, load_solution  # noqa: F401  (the
 # --------------------------------------------------------------------------------------
 
 
+class OptionError(BakeError):
+    """An option that does not apply to this config (the CLI exits with 2, a usage error)."""
+
+
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
-    Outputs are assembled in a hidden sibling directory and moved into place at the end, so
-    an interrupted or failed bake never leaves a directory that looks complete. Out of core
-    (solver.method: block_southwell), `resume` continues what a killed bake with the same
-    inputs left in the link store, and `reuse_links` solves on the stored links of the same
-    geometry and refinement settings (new materials) without computing any form factor.
+    Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID/`) and moved into
+    place only when complete, so an interrupted or failed bake never leaves a directory that
+    looks complete, and the previous output stays until the new one is in place. hirad only
+    replaces an output directory it made (hirad.files): an output that is or contains the
+    scene, one of its layers or the config, a link, or a non-empty directory hirad did not make
+    (or to which other files were added) is refused with an UnsafePathError, before anything
+    runs; so is a link store that overlaps the output or the inputs, or that hirad did not make.
+    After a successful bake, staging directories of the same output left by killed bakes are
+    removed. Out of core (method: hierarchical, solver.method: block_southwell), `resume`
+    continues what a killed bake with the same inputs left in the link store, and `reuse_links`
+    solves on the stored links of the same geometry and refinement settings (new materials)
+    without computing any form factor; for any other bake they are an error.
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config)
@@ -46,23 +57,44 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
         cfg.threads = threads
     if snapshots is not None:
         if snapshots > 0 and cfg.solver.method != "progressive":
-            raise BakeError("--snapshots needs solver.method: progressive")
+            raise OptionError("--snapshots needs solver.method: progressive")
         cfg.solver.snapshots = snapshots
-    _engine.set_threads(cfg.threads)
+    out_of_core = cfg.method == "hierarchical" and cfg.solver.method == "block_southwell"
+    if (resume or reuse_links) and not out_of_core:
+        flags = " and ".join(f for f, on in (("--resume", resume), ("--reuse-links", reuse_links)) if on)
+        raise OptionError(f"{flags}: only an out-of-core bake keeps links and state between runs (method: "
+                        f"hierarchical with solver.method: block_southwell); this config bakes method: {cfg.method} "
+                        f"with solver.method: {cfg.solver.method}, so there is nothing to "
+                        f"{'resume' if resume else 'reuse'}")
     out_dir = Path(cfg.output)
-    staging = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
+    store = cfg.link_store() if out_of_core else None
+    # The inputs an output or store must not hold. The scene's layers are looked up only when
+    # there is an existing directory that could hold them; the layers are kept open until the
+    # scene is read, so reading it parses nothing twice.
+    inputs: list[tuple[str, Path]] = [("scene", Path(cfg.scene))] + ([("config", source)] if source else [])
+    scene_layers: list = []
+    if os.path.lexists(out_dir) or (store is not None and os.path.lexists(store)):
+        layer_paths, scene_layers = files.scene_files(cfg.scene)
+        inputs += [("scene layer", p) for p in layer_paths[1:]]
+    files.check_output(out_dir, inputs)
+    if store is not None:
+        files.check_link_store(store, out_dir, inputs)
+    _engine.set_threads(cfg.threads)
+    staging = files.make_staging(out_dir, __version__)
     try:
-        with Reporter(quiet) as rep:
-            result = _run(cfg, staging, rep, source, resume, reuse_links)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(staging, out_dir)
+        with files.removed_on_signal(staging):
+            if store is not None:
+                files.make_link_store(store, __version__)
+            with Reporter(quiet) as rep:
+                result = _run(cfg, staging, rep, source, resume, reuse_links)
+            del scene_layers
+            files.finish_staging(staging, __version__)
+            with interrupts.deferred():
+                files.replace_output(staging, out_dir, inputs)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    files.remove_stale_staging(out_dir)
     result.output_dir = out_dir
     return result
 

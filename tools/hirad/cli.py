@@ -1,40 +1,144 @@
-"""The `hirad` command: a thin layer over the Python API (hirad.bake, hirad.load_solution)."""
+"""The `hirad` command: a thin layer over the Python API (hirad.bake, hirad.load_solution).
+
+Every error is one line on stderr, `hirad: error: <file or option>: <problem>`, and no
+traceback (set HIRAD_DEBUG=1 to see one). Exit codes:
+
+    0    done
+    1    internal error: an exception hirad did not expect (a bug; please report it with the
+         HIRAD_DEBUG=1 traceback)
+    2    usage or config error: a bad option or config value, an option that does not apply,
+         an output or link store hirad refuses to write (an input, a directory it did not make)
+    3    scene error: the USD scene (or a solution layer) cannot be used
+    4    the run failed: the bake could not finish, an output could not be written (disk full,
+         permissions), not enough memory
+    130  interrupted by SIGINT (Ctrl-C); the partial output is removed
+    143  terminated by SIGTERM; the partial output is removed
+
+A link store is kept after 130/143 so that `hirad bake --resume` can continue.
+"""
 
 from __future__ import annotations
 
 import csv
-import json
+import io
+import math
 import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 import typer
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_SCENE, EXIT_FAILED = 0, 1, 2, 3, 4
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
+                  pretty_exceptions_enable=False,
                   help="hirad: radiosity for USD scenes. Units: radiance W/(m^2 sr), irradiance W/m^2.")
 
+IMAGE_SUFFIXES = {".png": "PNG", ".exr": "EXR", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
-def _fail(message: str, code: int = 2) -> None:
-    print(f"hirad: error: {message}", file=sys.stderr)
+
+def _fail(message: str, code: int = EXIT_USAGE) -> None:
+    print(f"hirad: error: {message}", file=sys.stderr, flush=True)
     raise typer.Exit(code)
 
 
+def _one_line(e: BaseException) -> str:
+    """An exception's message on one line (nanobind's TypeError lists every overload: the
+    first line says what was wrong)."""
+    text = str(e).strip()
+    first = text.splitlines()[0].strip() if text else ""
+    if isinstance(e, TypeError) and "incompatible function arguments" in first:
+        first = first.split(" The following argument types", 1)[0].rstrip(".") + \
+            " (a value outside the range the engine takes)"
+    return first or type(e).__name__
+
+
+def _where() -> str:
+    from . import report
+
+    return f" during '{report.current_stage}'" if report.current_stage else ""
+
+
 def _run_guarded(fn):
-    """Turns every expected failure into one clear line on stderr and a non-zero exit."""
-    from .bake import BakeError
+    """Turns every failure into one clear line on stderr and the exit code of its kind (see the
+    module docstring); SIGINT/SIGTERM into 130/143."""
+    from . import interrupts
+    from .bake import BakeError, OptionError
     from .config import ConfigError
+    from .files import UnsafePathError
     from .usd import SceneError
 
     try:
         return fn()
-    except ConfigError as e:
-        _fail(str(e))
-    except (SceneError, BakeError) as e:
-        _fail(str(e))
-    except (ValueError, RuntimeError, OSError) as e:
-        _fail(f"{type(e).__name__}: {e}", 1)
+    except (typer.Exit, SystemExit):
+        raise
+    except interrupts.Interrupted as e:
+        interrupts.finished()
+        print(f"hirad: {e}; partial output removed", file=sys.stderr, flush=True)
+        raise typer.Exit(e.exit_code)
+    except BaseException as e:
+        signum = interrupts.received()
+        if signum is not None:  # the interrupt arrived wrapped (through the engine)
+            interrupts.finished()
+            print(f"hirad: interrupted by signal {signum}; partial output removed", file=sys.stderr, flush=True)
+            raise typer.Exit(128 + signum)
+        if os.environ.get("HIRAD_DEBUG"):
+            traceback.print_exc()
+        if isinstance(e, KeyboardInterrupt):
+            raise typer.Exit(130)
+        if isinstance(e, (ConfigError, UnsafePathError, OptionError)):
+            _fail(str(e), EXIT_USAGE)
+        if isinstance(e, SceneError):
+            _fail(str(e), EXIT_SCENE)
+        if isinstance(e, BakeError):
+            _fail(str(e), EXIT_FAILED)
+        if isinstance(e, MemoryError):
+            _fail(f"out of memory{_where()}", EXIT_FAILED)
+        if isinstance(e, OSError):
+            where = f"{e.filename}: " if e.filename else ""
+            _fail(f"{where}{e.strerror or _one_line(e)}", EXIT_FAILED)
+        if isinstance(e, Exception):
+            _fail(f"internal error{_where()}: {type(e).__name__}: {_one_line(e)} "
+                  "(HIRAD_DEBUG=1 shows the traceback)", EXIT_INTERNAL)
+        raise
+
+
+def _version(value: bool) -> None:
+    if value:
+        from . import __version__
+
+        print(f"hirad {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit")):
+    """hirad: radiosity for USD scenes. Units: radiance W/(m^2 sr), irradiance W/m^2."""
+
+
+def _finite(name: str, value: float | None, positive: bool = True) -> None:
+    if value is None:
+        return
+    if not math.isfinite(value) or (positive and value <= 0):
+        _fail(f"{name} must be a finite number{' above 0' if positive else ''}, got {value!r}")
+
+
+def _solution_inputs(solution: Path) -> list[tuple[str, Path]]:
+    """The solution layer and every file it depends on (layers, assets such as lightmaps)."""
+    out = [("solution", solution)]
+    try:
+        from pxr import UsdUtils
+
+        layers, assets, _ = UsdUtils.ComputeAllDependencies(str(solution))
+        out += [("layer of the solution", Path(layer.realPath)) for layer in layers if layer.realPath]
+        out += [("asset of the solution", Path(a)) for a in assets if a]
+    except Exception:  # an unreadable solution: loading it reports the problem
+        pass
+    return out
 
 
 @app.command()
@@ -50,6 +154,8 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
                                           help="Out of core: solve on the stored links (same geometry and "
                                                "refinement settings; new materials), computing no form factor")):
     """Solve a scene and write its outputs (USD layer, lightmaps, preview, report)."""
+    import json
+
     from .bake import bake as run
 
     result = _run_guarded(lambda: run(config, quiet=quiet or as_json, threads=threads, snapshots=snapshots,
@@ -69,31 +175,43 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
            camera: Optional[str] = typer.Option(None, "--camera", help="USD camera prim path"),
            width: int = typer.Option(512, min=16), height: int = typer.Option(512, min=16),
            samples: int = typer.Option(4, min=1, help="Samples per pixel"),
-           output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG or EXR [render.png beside the solution]"),
-           exposure: Optional[float] = typer.Option(None, help="Fixed exposure for PNG (default: automatic)"),
+           output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                                 help="PNG, JPEG or EXR, by extension [render.png beside the solution]"),
+           exposure: Optional[float] = typer.Option(None, help="Fixed exposure for PNG and JPEG, above 0 "
+                                                               "[automatic]"),
            lightmaps: bool = typer.Option(False, "--lightmaps",
                                           help="Show the baked lightmaps (albedo x lightmap + emission, as a game "
                                                "engine does) instead of the solution's own surface values")):
     """Render a stored solution from any view, without solving again."""
-    from . import _engine
+    from . import _engine, files
     from .outputs import images
-    from .bake import load_solution
+
+    _finite("--exposure", exposure)
+    out = output or solution.parent / "render.png"
+    fmt = IMAGE_SUFFIXES.get(out.suffix.lower())
+    if fmt is None:
+        _fail(f"--output {out}: unknown image type {out.suffix or '(no extension)'!r}; "
+              f"use {', '.join(IMAGE_SUFFIXES)}")
 
     def go():
+        from .bake import BakeError, load_solution
+
+        files.refuse_input(out, _solution_inputs(solution), "--output")
         sol = load_solution(solution)
         if lightmaps:
             from .outputs import lightmap_render
-            from .bake import BakeError
+
             try:
                 img = lightmap_render.render(solution, sol.view(camera), width, height)
             except lightmap_render.LightmapError as e:
                 raise BakeError(str(e)) from None
         else:
             img = sol.render(camera, width, height, samples)
-        out = output or solution.parent / "render.png"
-        if out.suffix.lower() == ".exr":
+        if fmt == "EXR":
             _engine.write_exr(str(out), np.ascontiguousarray(img, dtype=np.float32),
                               [("hirad:units", "exitant radiance W/(m^2 sr)")])
+        elif fmt == "JPEG":
+            images.write_jpeg(out, img, exposure)
         else:
             images.write_png(out, img, exposure)
         print(out)
@@ -135,11 +253,18 @@ def info(scene: Path = typer.Argument(..., help="USD scene")):
 def probe(solution: Path = typer.Argument(..., help="solution.usda written by `hirad bake`"),
           points: Path = typer.Argument(..., help="CSV of x,y,z[,nx,ny,nz] in metres (a header line is allowed)"),
           output: Optional[Path] = typer.Option(None, "--output", "-o", help="CSV to write [stdout]"),
-          max_distance: float = typer.Option(0.05, help="Farthest surface accepted for a point, metres")):
+          max_distance: float = typer.Option(0.05, help="Farthest surface accepted for a point, metres, "
+                                                        "above 0 [0.05]")):
     """Irradiance and exitant radiance at sensor points on the surfaces of a stored solution."""
-    from .bake import BakeError, load_solution
+    from . import files
+
+    _finite("--max-distance", max_distance)
 
     def go():
+        from .bake import BakeError, load_solution
+
+        if output:
+            files.refuse_input(output, _solution_inputs(solution) + [("points file", points)], "--output")
         pts, nrm, lines = _read_points(points)
         sol = load_solution(solution)
         q = sol.query(pts, nrm, max_distance)
@@ -151,10 +276,8 @@ def probe(solution: Path = typer.Argument(..., help="solution.usda written by `h
             rows.append([*map(repr, pts[k].tolist()), *(f"{v:.6g}" for v in q["irradiance"][k]),
                          *(f"{v:.6g}" for v in q["radiance"][k]), f"{q['distance'][k]:.3g}"])
         if output:
-            tmp = output.with_name(output.name + ".partial")
-            with open(tmp, "w", newline="") as f:
+            with files.atomic_file(output, "w", newline="") as f:
                 csv.writer(f).writerows(rows)
-            os.replace(tmp, output)
         else:
             csv.writer(sys.stdout).writerows(rows)
 
@@ -167,11 +290,45 @@ def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML confi
               paths: int = typer.Option(1024, "--paths", min=1, help="Paths per point"),
               seed: int = typer.Option(1, "--seed", min=0, help="Random seed"),
               output: Optional[Path] = typer.Option(None, "--output", "-o", help="CSV to write [stdout]"),
-              max_distance: float = typer.Option(0.05, help="Farthest surface accepted for a point, metres")):
+              max_distance: float = typer.Option(0.05, help="Farthest surface accepted for a point, metres, "
+                                                            "above 0 [0.05]")):
     """Path-traced reference radiance (with standard errors) at sensor points; no radiosity."""
+    from . import files
     from .reference import write_reference_csv
 
-    _run_guarded(lambda: write_reference_csv(scene, points, output, paths, seed, max_distance, sys.stdout))
+    _finite("--max-distance", max_distance)
+
+    def go():
+        if not output:
+            return write_reference_csv(scene, points, None, paths, seed, max_distance, sys.stdout)
+        inputs = [("scene", scene), ("points file", points)]
+        if scene.suffix.lower() not in (".yaml", ".yml"):
+            inputs += _solution_inputs(scene)[1:]
+        files.refuse_input(output, inputs, "--output")
+        buf = io.StringIO(newline="")
+        write_reference_csv(scene, points, None, paths, seed, max_distance, buf)
+        files.write_text(output, buf.getvalue())
+
+    _run_guarded(go)
+
+
+@app.command("config")
+def config_cmd(schema: bool = typer.Option(False, "--schema",
+                                           help="Print every config key with its type, default and meaning")):
+    """About configs: `hirad config --schema` prints every key hirad reads."""
+    if not schema:
+        _fail("hirad config: give --schema (prints every config key with its type, default and meaning)")
+
+    def go():
+        try:
+            from .config.describe import schema_text
+        except ImportError as e:
+            _fail(f"hirad config --schema: the schema description is not available in this build ({e})",
+                  EXIT_INTERNAL)
+        text = schema_text()
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+
+    _run_guarded(go)
 
 
 def _read_points(path: Path):
@@ -181,7 +338,14 @@ def _read_points(path: Path):
 
 
 def main() -> None:
-    app()
+    from . import interrupts
+
+    interrupts.install()
+    try:
+        app()
+    except interrupts.Interrupted as e:  # outside a command (while starting or parsing)
+        interrupts.finished()
+        sys.exit(e.exit_code)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -16,16 +15,13 @@ from .base import Atlas
 
 
 def _atomic(path: Path, write: Callable[[Path], None]) -> None:
-    """Writes through a temporary sibling and renames it into place: a reader never sees a
-    half-written file, and a failure leaves the old file (or none)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    try:
+    """Writes through hirad's one atomic write (hirad.files: an exclusive temporary sibling,
+    fsynced and renamed into place): a reader never sees a half-written file, and a failure
+    leaves the old file (or none)."""
+    from ..files import atomic_path
+
+    with atomic_path(path) as tmp:
         write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def encode_rgbm(image: np.ndarray, max_range: float) -> np.ndarray:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,9 +57,20 @@ def tonemap(radiance: np.ndarray, exposure: float | None = None) -> np.ndarray:
 
 
 def write_png(path: Path, radiance: np.ndarray, exposure: float | None = None) -> None:
+    """8-bit sRGB PNG of exitant radiance (tone mapped as `tonemap`), written atomically."""
+    _write_ldr(path, radiance, exposure, "PNG")
+
+
+def write_jpeg(path: Path, radiance: np.ndarray, exposure: float | None = None, quality: int = 95) -> None:
+    """8-bit sRGB JPEG of exitant radiance (tone mapped as `tonemap`), written atomically."""
+    _write_ldr(path, radiance, exposure, "JPEG", quality=quality)
+
+
+def _write_ldr(path: Path, radiance: np.ndarray, exposure: float | None, fmt: str, **options) -> None:
     from PIL import Image
 
-    path = Path(path)
-    tmp = path.with_name(path.name + ".partial")
-    Image.fromarray(tonemap(radiance, exposure), "RGB").save(tmp, format="PNG")
-    os.replace(tmp, path)
+    from ..files import atomic_file
+
+    image = Image.fromarray(tonemap(radiance, exposure), "RGB")
+    with atomic_file(path) as f:
+        image.save(f, format=fmt, **options)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -337,23 +336,18 @@ def write_solution_layer(
     # sublayer last so the authoring above never composes (or touches) the input
     layer.subLayerPaths.append(sub)
 
+    from ..files import WriteError, atomic_path
+
     suffix = output_path.suffix if output_path.suffix in (".usda", ".usdc", ".usd") else ".usda"
-    fd, tmp = tempfile.mkstemp(prefix=f".{output_path.stem}.", suffix=".tmp" + suffix, dir=str(out_dir))
-    os.close(fd)
     try:
-        if not layer.Export(tmp):
-            raise SceneError(f"{output_path}: could not write the solution layer")
-        # mkstemp makes the file private (0600); give it the permissions any other new file gets.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, output_path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+        with atomic_path(output_path, suffix) as tmp:
+            if not layer.Export(str(tmp)):
+                raise WriteError(f"{output_path}: could not write the solution layer")
+    except Tf.ErrorException as exc:
+        # USD's message: one "Error in ... -- <what>" block per diagnostic; keep the last what
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        what = next((ln.split(" -- ", 1)[1] for ln in reversed(lines) if " -- " in ln), lines[-1] if lines else "")
+        raise WriteError(f"{output_path}: could not write the solution layer: {what}") from None
     return output_path
 
 
