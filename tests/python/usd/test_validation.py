@@ -424,3 +424,27 @@ def test_lit_scene_passes_when_emission_is_required(tmp_path):
     path = write(tmp_path, material("Glow", emissive="(1, 1, 1)") + quad(extra=bound("Glow")))
     scene = hu.read_scene(path, require_emission=True)
     np.testing.assert_allclose(scene.face_emission[0], [math.pi] * 3)
+
+
+def test_light_in_a_point_instancer_prototype_is_named(tmp_path):
+    body = quad() + """
+def PointInstancer "scatter" {
+    rel prototypes = [</scatter/Protos/Lamp>]
+    int[] protoIndices = [0, 0]
+    point3f[] positions = [(0, 0, 1), (1, 0, 1)]
+    def Scope "Protos" {
+        def Xform "Lamp" {
+            def RectLight "bulb" {
+                float inputs:width = 0.1
+                float inputs:height = 0.1
+            }
+        }
+    }
+}
+"""
+    path = write(tmp_path, body)
+    scene = hu.read_scene(path)
+    assert any(w.startswith("/scatter/Protos/Lamp/bulb:") and "PointInstancer prototype" in w
+               for w in scene.warnings), scene.warnings
+    msg = scene_error(path, require_emission=True)
+    assert "/scatter/Protos/Lamp/bulb (RectLight in a PointInstancer prototype)" in msg

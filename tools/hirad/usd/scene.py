@@ -726,6 +726,10 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
             if p.IsA(UsdGeom.Mesh):
                 rel = _mat(xfc.GetLocalToWorldTransform(p)) @ proto_inv
                 lst.append((p, rel, str(p.GetPath().MakeRelativePath(proto_parent))))
+            elif _is_light_prim(p):
+                b.warnings.append(f"{p.GetPath()}: {p.GetTypeName() or 'light'} in a PointInstancer prototype is not "
+                                  "read (only meshes are instanced); ignored, it emits nothing in the bake")
+                b.unread_lights.append(f"{p.GetPath()} ({p.GetTypeName() or 'light'} in a PointInstancer prototype)")
         proto_meshes[j] = lst
 
     for k, j in enumerate(proto_idx):
