@@ -27,7 +27,7 @@ TIME = Usd.TimeCode.Default()
 def _bake(tmp_path, lightmaps: bool):
     out = tmp_path / "out"
     cfg = config_from_dict({
-        "scene": str(CORNELL), "output": str(out),
+        "scene": str(CORNELL), "output": str(out), "method": "flat",
         "meshing": {"max_patch_area": 0.01, "max_edge_length": 0.12},
         "formfactors": {"samples": 4},
         "solver": {"tolerance": 1e-3},
