@@ -267,3 +267,9 @@ def test_schema_text_names_every_key_with_type_default_and_unit():
     assert "default 0.01" in block and "unit: m^2" in block and ">= 1e-08" in block
     assert "method: one of 'flat', 'hierarchical'\n    default \"hierarchical\"" in text
     assert "scene: path\n    default (required)" in text
+
+
+def test_path_with_a_nul_byte_is_an_error():
+    with pytest.raises(ConfigError) as info:
+        load_config("bake\0.yaml")
+    assert "not a usable path" in str(info.value)

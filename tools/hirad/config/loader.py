@@ -272,6 +272,8 @@ def _read_text(file: str) -> str:
         raise ConfigError(file, 0, "", "config file not found") from None
     except OSError as exc:
         raise ConfigError(file, 0, "", f"cannot read config file: {exc.strerror or exc}") from None
+    except ValueError as exc:  # a NUL byte in the path
+        raise ConfigError(repr(file), 0, "", f"not a usable path ({exc})") from None
     if not stat.S_ISREG(mode):
         raise ConfigError(file, 0, "", _not_regular(mode))
     try:
