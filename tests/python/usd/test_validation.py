@@ -448,3 +448,15 @@ def PointInstancer "scatter" {
                for w in scene.warnings), scene.warnings
     msg = scene_error(path, require_emission=True)
     assert "/scatter/Protos/Lamp/bulb (RectLight in a PointInstancer prototype)" in msg
+
+
+def test_non_finite_light_size_is_an_error(tmp_path):
+    path = write(tmp_path, quad() + light(kind="DiskLight", name="disk", attrs="float inputs:radius = nan"))
+    msg = scene_error(path)
+    assert "/disk.inputs:radius" in msg and "nan" in msg
+
+
+def test_light_without_area_is_named(tmp_path):
+    path = write(tmp_path, quad() + light(attrs="float inputs:width = 0\n float inputs:height = 1"))
+    scene = hu.read_scene(path)
+    assert any(w.startswith("/lamp:") and "size 0 x 1 has no area" in w for w in scene.warnings)

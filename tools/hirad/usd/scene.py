@@ -383,15 +383,17 @@ class _Builder:
             local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
             counts = np.array([4])
             idx = np.arange(4)
+            _finite_size(path, "inputs:width", w)
+            _finite_size(path, "inputs:height", h)
             if not (w > 0 and h > 0):
-                self.warnings.append(f"{path}: RectLight with zero size ignored")
+                self.warnings.append(f"{path}: RectLight of size {w:g} x {h:g} has no area; ignored")
                 self.unread_lights.append(f"{path} (RectLight of zero size)")
                 return
         elif prim.IsA(UsdLux.DiskLight):
             lt = UsdLux.DiskLight(prim)
-            r = _number(lt.GetRadiusAttr(), t, path, 0.0)
+            r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
             if not r > 0:
-                self.warnings.append(f"{path}: DiskLight with zero radius ignored")
+                self.warnings.append(f"{path}: DiskLight of radius {r:g} has no area; ignored")
                 self.unread_lights.append(f"{path} (DiskLight of zero radius)")
                 return
             n = max(3, int(segments))
@@ -401,9 +403,9 @@ class _Builder:
             idx = np.arange(n)
         elif prim.IsA(UsdLux.SphereLight):
             lt = UsdLux.SphereLight(prim)
-            r = _number(lt.GetRadiusAttr(), t, path, 0.0)
+            r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
             if not r > 0:
-                self.warnings.append(f"{path}: SphereLight with zero radius (point light) ignored")
+                self.warnings.append(f"{path}: SphereLight of radius {r:g} (a point light) has no area; ignored")
                 self.unread_lights.append(f"{path} (SphereLight of zero radius: a point light)")
                 return
             if lt.GetTreatAsPointAttr().Get(t):
@@ -475,6 +477,12 @@ def _number(attr: Usd.Attribute, time, path: str, default: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise _PrimError(f"{path}.{attr.GetName()}: is {_value_type(value)} {_short(value)}, expected a number")
     return float(value)
+
+
+def _finite_size(path: str, name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise _PrimError(f"{path}.{name}: {value:g} is not a finite size")
+    return value
 
 
 def _same(a, b) -> bool:
