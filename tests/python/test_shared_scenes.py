@@ -39,10 +39,10 @@ def test_bundled_cornell_box_emits_like_the_measured_one():
     np.testing.assert_allclose(hi, mhi, atol=1e-3)
 
 
-@pytest.mark.parametrize("variant", ["usdpreviewsurface", "mtlx-usdshade"])
-def test_material_variants_agree(variant):
+def test_material_variants_agree():
+    # The MaterialX-in-UsdShade variant of the same box reads as the UsdPreviewSurface one.
     base = usd.read_scene(DATA / "cornell_box_usd/cornell-box/usdpreviewsurface/cornell-box.usda")
-    other = usd.read_scene(DATA / f"cornell_box_usd/cornell-box/{variant}/cornell-box.usda")
+    other = usd.read_scene(DATA / "cornell_box_usd/cornell-box/mtlx-usdshade/cornell-box.usda")
     np.testing.assert_allclose(other.face_reflectance, base.face_reflectance)
     np.testing.assert_allclose(other.face_emission, base.face_emission)
     assert np.count_nonzero(other.face_emission.max(axis=1) > 0) == 1

@@ -13,6 +13,11 @@ from .outputs import images
 from .errors import BakeError
 
 
+# The farthest surface a point's value is taken from, metres: `hirad probe --max-distance`'s
+# default, and the API's.
+PROBE_MAX_DISTANCE = 0.05
+
+
 # --------------------------------------------------------------------------------------
 # results
 # --------------------------------------------------------------------------------------
@@ -37,21 +42,46 @@ class SurfaceSolution:
                                                self.corner_radiance, self.corner_irradiance)
         return self._field
 
-    def query(self, points, normals=None, max_distance: float = 1e30) -> dict:
-        """Closest-surface lookup: dict of patch (-1 if none), distance, irradiance, radiance."""
+    def query(self, points, normals=None, max_distance: float = PROBE_MAX_DISTANCE) -> dict:
+        """Values at the surface point nearest to each of `points` (metres), looked for within
+        `max_distance` metres only (default 0.05, as `hirad probe`), among the surfaces facing
+        along `normals` when given (within 60 degrees). Returns a dict of arrays: patch (its
+        index, -1 where no surface is that near), distance (metres, NaN where none),
+        irradiance (W/m^2, RGB) and radiance (exitant, W/(m^2 sr), RGB), both NaN where no
+        surface is within `max_distance`: a point is never given the value of a surface
+        farther away. `max_distance` must be a positive number (math.inf searches
+        everywhere)."""
+        md = float(max_distance)
+        if not md > 0:  # also NaN
+            raise ValueError(f"max_distance must be a positive number of metres, not {max_distance!r}")
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         nrm = np.zeros_like(pts) if normals is None else np.ascontiguousarray(
             np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-        return self.field.probe(pts, nrm, float(max_distance))
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals: {len(nrm)} rows for {len(pts)} points")
+        res = self.field.probe(pts, nrm, min(md, 1e30))
+        q = {k: np.asarray(res[k] if isinstance(res, dict) else getattr(res, k))
+             for k in ("patch", "distance", "irradiance", "radiance")}
+        none = q["patch"] < 0
+        if none.any():
+            for key in ("irradiance", "radiance"):
+                q[key] = np.array(q[key], dtype=np.float64)
+                q[key][none] = np.nan
+            q["distance"] = np.array(q["distance"], dtype=np.float64)
+            q["distance"][none] = np.nan
+        return q
 
-    def irradiance_at(self, points, normals=None) -> np.ndarray:
-        """Irradiance (W/m^2, RGB) at the surface points nearest to `points` (facing along
-        `normals` when given)."""
-        return self.query(points, normals)["irradiance"]
+    def irradiance_at(self, points, normals=None, max_distance: float = PROBE_MAX_DISTANCE) -> np.ndarray:
+        """Irradiance (W/m^2, RGB) at the surface point nearest to each of `points` (facing
+        along `normals` when given); NaN for a point with no surface within `max_distance`
+        metres (default 0.05, as `hirad probe`). See `query`."""
+        return self.query(points, normals, max_distance)["irradiance"]
 
-    def radiance_at(self, points, normals=None) -> np.ndarray:
-        """Exitant radiance (W/(m^2 sr), RGB) at the surface points nearest to `points`."""
-        return self.query(points, normals)["radiance"]
+    def radiance_at(self, points, normals=None, max_distance: float = PROBE_MAX_DISTANCE) -> np.ndarray:
+        """Exitant radiance (W/(m^2 sr), RGB) at the surface point nearest to each of
+        `points`; NaN for a point with no surface within `max_distance` metres (default 0.05,
+        as `hirad probe`). See `query`."""
+        return self.query(points, normals, max_distance)["radiance"]
 
     def render(self, camera: str | None = None, width: int = 512, height: int = 512,
                samples: int = 4) -> np.ndarray:

@@ -48,7 +48,6 @@ def test_leaves_differ_in_size(solution):
     result, _ = solution
     area = result.patches["area"]
     assert area.max() / area.min() >= 16  # at least two levels apart somewhere
-    assert result.report["hierarchy"]["balance_splits"] >= 0
 
 
 def test_every_edge_is_a_boundary_or_shared_by_two_faces(solution):
@@ -102,9 +101,27 @@ def test_values_are_continuous_at_t_vertices():
                 np.testing.assert_allclose(values[faces[f][c]], (values[a] + values[b]) / 2, rtol=1e-12, atol=1e-15)
                 checked += 1
     assert checked > 0
-    # ... and the fine faces on the other side use that very vertex (no duplicate point); a
-    # midpoint used only by the fan itself is a vertex of a face across a crease.
-    shared = Counter(int(faces[f][c]) for f in range(len(faces)) for c in range(display["face_nv"][f]))
-    mids = {int(faces[f][c]) for f in range(len(faces)) for c in range(display["face_nv"][f])
+    # ... and every T-vertex is a vertex of the fine faces on the other side of the edge: the
+    # fan's own faces and at least one more use that very vertex (no duplicate point), unless
+    # the finer neighbour lies across a crease (an edge of the room, sharper than the display
+    # mesh's crease angle of 30 degrees), where vertices are split on purpose: then a vertex of
+    # the other side sits at exactly the same position, on a face turned by more than 30 degrees.
+    users = {}
+    for f in range(len(faces)):
+        for c in range(display["face_nv"][f]):
+            users.setdefault(int(faces[f][c]), []).append(f)
+    normal = pa["normal"][owner]
+    points = display["points"]
+    mids = {int(faces[f][c]): f for f in range(len(faces)) for c in range(display["face_nv"][f])
             if 4 <= int(codes[f][c]) < 8}
-    assert sum(shared[v] >= 3 for v in mids) > len(mids) // 2
+    across_creases = 0
+    for v, fan_face in mids.items():
+        if len(users[v]) >= 3:
+            continue
+        twins = [w for w in np.nonzero(np.linalg.norm(points - points[v], axis=1) == 0)[0] if w != v]
+        turned = [f for w in twins for f in users.get(int(w), [])
+                  if float(normal[f] @ normal[fan_face]) < np.cos(np.radians(30.0))]
+        assert turned, f"T-vertex {v} at {points[v].tolist()} is used by {len(users[v])} faces only, " \
+                       "and no face across a crease meets it: a crack"
+        across_creases += 1
+    assert across_creases < len(mids)  # some T-vertices are inside a face, where the test is strict
