@@ -85,13 +85,16 @@ def _surface_points(corners, nv, rng, owner) -> np.ndarray:
     return c[:, 0] + (c[:, 1] - c[:, 0]) * s[:, None] + (far - c[:, 0]) * t[:, None]
 
 
-def escaped_power(corners, nv, normals, radiosity, area, rays_per_patch: int = 1000, seed: int = 1):
+def escaped_power(corners, nv, normals, radiosity, area, rays_per_patch: int = 1000, seed: int = 1,
+                  occluders=None):
     """Power (W, RGB) that leaves the scene through its openings, by Monte Carlo: from every
     patch, `rays_per_patch` rays from points uniform on the patch, cosine distributed about
     its normal (the directions a diffuse surface's power leaves in); a ray that meets no
     surface carries its share of the patch's outgoing power B A away. Returns (escaped (3,),
     standard error (3,), fraction of rays escaping per patch). Only the geometry and B are
-    used: no form factor, link or coupling of the solver."""
+    used: no form factor, link or coupling of the solver. `occluders` (corners, nv): the
+    geometry the rays are cast against (default: the patches themselves), e.g. the scene's
+    input faces from scene_polygons, so the solver's meshing plays no part in what escapes."""
     corners = np.asarray(corners, dtype=np.float64)
     nv = np.asarray(nv, dtype=np.int32)
     normals = np.asarray(normals, dtype=np.float64)
@@ -108,8 +111,14 @@ def escaped_power(corners, nv, normals, radiosity, area, rays_per_patch: int = 1
     u1, u2 = rng.random(len(owner)), rng.random(len(owner))
     r, phi = np.sqrt(u1), 2 * math.pi * u2
     d = (t1 * (r * np.cos(phi))[:, None] + t2 * (r * np.sin(phi))[:, None] + n * np.sqrt(1 - u1)[:, None])
+    # Start a little off the surface and in from the patch's edges (1e-5 of the scene's size):
+    # Embree takes float32 origins, and one rounded onto a neighbouring wall's plane at a
+    # corner could start outside the scene and leave through a closed box.
     scale = float(np.ptp(corners.reshape(-1, 3), axis=0).max())
-    hit = _ray_cast(corners, nv, pts + n * (1e-7 * scale), d)
+    centre = corners[owner, :3].mean(axis=1)
+    pts = centre + (pts - centre) * (1 - 1e-5) + n * (1e-5 * scale)
+    occ_corners, occ_nv = (corners, nv) if occluders is None else occluders
+    hit = _ray_cast(occ_corners, occ_nv, pts, d)
     miss = (hit < 0).astype(np.float64).reshape(n_p, rays_per_patch)
     frac = miss.mean(axis=1)
     var = miss.var(axis=1, ddof=1) / rays_per_patch  # of each patch's escaping fraction
