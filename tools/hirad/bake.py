@@ -91,6 +91,10 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
             files.finish_staging(staging, __version__)
             with interrupts.deferred():
                 files.replace_output(staging, out_dir, inputs)
+    except files.WriteError as e:
+        shutil.rmtree(staging, ignore_errors=True)
+        # name the file where the user will look for it, not in the hidden staging directory
+        raise files.WriteError(str(e).replace(str(staging), str(out_dir))) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -214,6 +214,7 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
             images.write_jpeg(out, img, exposure)
         else:
             images.write_png(out, img, exposure)
+        files.note_written(out)
         print(out)
 
     _run_guarded(go)
@@ -278,6 +279,7 @@ def probe(solution: Path = typer.Argument(..., help="solution.usda written by `h
         if output:
             with files.atomic_file(output, "w", newline="") as f:
                 csv.writer(f).writerows(rows)
+            files.note_written(output)
         else:
             csv.writer(sys.stdout).writerows(rows)
 
@@ -308,6 +310,7 @@ def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML confi
         buf = io.StringIO(newline="")
         write_reference_csv(scene, points, None, paths, seed, max_distance, buf)
         files.write_text(output, buf.getvalue())
+        files.note_written(output)
 
     _run_guarded(go)
 

@@ -350,6 +350,27 @@ def replace_output(staging: Path, out_dir: str | os.PathLike, inputs: Iterable =
         shutil.rmtree(aside, ignore_errors=True)
 
 
+def note_written(path: str | os.PathLike) -> None:
+    """Records a file hirad wrote into one of its outputs after the bake (`hirad render`'s
+    render.png beside the solution, probe -o there) in that output's marker, so the next bake
+    may replace it. Only files directly in the output or in directories hirad made there."""
+    path = Path(os.path.abspath(path))
+    for root in path.parents:
+        marker = _read_marker(root, OUTPUT_MARKER, _OUTPUT_FORMAT)
+        if marker is None:
+            continue
+        if not marker.get("complete"):
+            return
+        rel = os.path.relpath(path, root)
+        listed = set(marker.get("files") or [])
+        parents = [str(p) for p in Path(rel).parents if str(p) != "."]
+        if rel in listed or any(p not in listed for p in parents):
+            return
+        marker["files"] = sorted(listed | {rel})
+        write_json(root / OUTPUT_MARKER, marker)
+        return
+
+
 def _pid_alive(pid: int) -> bool:
     if pid <= 0:
         return False

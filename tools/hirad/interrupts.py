@@ -95,10 +95,13 @@ def _watchdog(fd: int, grace: float) -> None:
             continue
         if _finished.wait(grace):
             return
+        signum = received() or signums[0]
         try:
             files.run_cleanups()
+            os.write(2, f"hirad: {signal.Signals(signum).name} during an engine call; partial output "
+                        "removed\n".encode())
         finally:
-            os._exit(128 + (received() or signums[0]))
+            os._exit(128 + signum)
 
 
 def install(grace: float = 1.0) -> None:

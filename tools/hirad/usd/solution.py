@@ -344,11 +344,22 @@ def write_solution_layer(
             if not layer.Export(str(tmp)):
                 raise WriteError(f"{output_path}: could not write the solution layer")
     except Tf.ErrorException as exc:
-        # USD's message: one "Error in ... -- <what>" block per diagnostic; keep the last what
-        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-        what = next((ln.split(" -- ", 1)[1] for ln in reversed(lines) if " -- " in ln), lines[-1] if lines else "")
-        raise WriteError(f"{output_path}: could not write the solution layer: {what}") from None
+        raise WriteError(f"{output_path}: could not write the solution layer ({_usd_reason(exc)}; "
+                         "is the disk full?)") from None
     return output_path
+
+
+def _usd_reason(exc: Exception) -> str:
+    """The last diagnostic of a Tf.ErrorException, without USD's source location and with the
+    temporary's path dropped: "Error in '...' at line N in file F : 'Could not close /x/.tmp'"
+    becomes "Could not close"."""
+    import re
+
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    last = lines[-1] if lines else "unknown USD error"
+    m = re.search(r"(?: : | -- )'?(.*?)'?$", last)
+    what = m.group(1) if m else last
+    return re.sub(r"\s*\S*\.tmp\.usd[ac]?\S*", "", what).strip() or what
 
 
 # ----------------------------------------------------------------------------------------------
