@@ -389,6 +389,33 @@ def test_store_hirad_made_is_marked_and_accepted_again(tmp_path):
     assert again.report["links"]["form_factors_computed"] == 0 < first.report["links"]["form_factors_computed"]
 
 
+def test_resume_removes_the_staging_a_killed_bake_left(tmp_path):
+    """A SIGKILLed out-of-core bake leaves its staging directory (no handler runs) and its store;
+    `--resume` accepts the store hirad made and removes the dead bake's staging directory."""
+    scene = copy_scene(tmp_path / "scenes")
+    out = tmp_path / "out"
+    cfg = config(tmp_path / "c.yaml", scene, out, **OUT_OF_CORE)
+    env = {**os.environ, "COLUMNS": "200"}
+    proc = subprocess.Popen([sys.executable, "-m", "hirad.cli", "bake", str(cfg), "-q"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    store = tmp_path / "out.links"
+    end = time.monotonic() + 120
+    while not (store / STORE_MARKER).exists() and proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.01)
+    proc.kill()
+    proc.communicate()
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".out.partial-")]
+    if not left:  # the bake won the race and finished: leave a dead bake's staging by hand
+        stale = tmp_path / f".out.partial-{dead_pid()}"
+        stale.mkdir()
+        (stale / OUTPUT_MARKER).write_text(json.dumps({"format": "hirad-output", "complete": False}))
+        left = [stale]
+    assert all((p / OUTPUT_MARKER).exists() for p in left)
+    proc = run_cli("bake", cfg, "-q", "--resume")
+    assert proc.returncode == 0, proc.stderr
+    assert partials(tmp_path) == [] and (out / "solution.usda").exists()
+
+
 def test_resume_and_reuse_on_a_bake_without_a_store_are_errors(tmp_path):
     scene = copy_scene(tmp_path / "scenes")
     out = tmp_path / "out"

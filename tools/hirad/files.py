@@ -38,8 +38,9 @@ _OUTPUT_FORMAT = "hirad-output"
 _STORE_FORMAT = "hirad-linkstore"
 
 
-class WriteError(BakeError):
-    """A file could not be written (disk full, permissions, a directory in the way...)."""
+class WriteError(BakeError, OSError):
+    """A file could not be written (disk full, permissions, a directory in the way...); an
+    OSError too, so code that catches OSError around a write still does."""
 
 
 class UnsafePathError(BakeError):
