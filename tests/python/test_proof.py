@@ -322,3 +322,76 @@ def test_cornell_box_against_the_path_traced_reference(method, cornell_reference
         sigma = np.sqrt((se[sel] ** 2).sum()) / sel.sum()
         assert abs(mean_got - mean_ref) <= 3 * sigma + SURFACE_ALLOW * mean_ref, (
             scene.meshes[k].name, mean_got / mean_ref - 1, sigma / mean_ref)
+
+
+# ---------------------------------------------------------------------------------------------
+# memory: the peak RSS of an out-of-core bake, measured by the kernel
+# ---------------------------------------------------------------------------------------------
+
+_CHILD = r'''
+import json, sys
+mode, cfg_path = sys.argv[1], sys.argv[2]
+import hirad
+from hirad import usd
+from hirad.config import load_config
+cfg = load_config(cfg_path)
+scene = usd.read_scene(cfg.scene)
+if mode == "bake":
+    r = hirad.bake(cfg, quiet=True)
+    print(json.dumps({"counts": r.report["counts"], "links": r.report["links"]}, default=str))
+'''
+# Runs the child and reports its peak RSS: getrusage(RUSAGE_CHILDREN) of a process that has
+# no other child (pytest's own process has forked others, xatlas among them).
+_WRAPPER = ("import resource, subprocess, sys\n"
+            "p = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
+            "sys.stderr.write(p.stderr)\n"
+            "print(p.returncode)\n"
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n"
+            "sys.stdout.write(p.stdout)\n")
+# What a bake holds beyond reading the scene that neither the budget nor link generation
+# accounts for: the modules a bake imports, the engine's thread pool and Embree device, the
+# hierarchy's few thousand nodes and the result arrays. Measured at about 10 MiB for a bake
+# of this scene with few links (44 k); allowed: 16 MiB.
+BAKE_FIXED = 16 * 2 ** 20
+LINK_BYTES = 24  # a link held whole in memory (pipeline/core/link.h)
+
+
+def _peak_rss(mode: str, config: Path) -> tuple[int, dict]:
+    import json
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", _WRAPPER, sys.executable, "-c", _CHILD, mode, str(config)],
+                       capture_output=True, text=True, timeout=600)
+    lines = p.stdout.splitlines()
+    assert p.returncode == 0 and lines and lines[0] == "0", p.stderr[-3000:]
+    report = json.loads(lines[2]) if mode == "bake" else {}
+    return int(lines[1]) * 1024, report  # ru_maxrss is in KiB on Linux
+
+
+def test_out_of_core_bake_stays_within_its_budget(tmp_path):
+    import yaml
+
+    budget = 2 * 2 ** 20
+    cfg = {"scene": str(CORNELL), "output": str(tmp_path / "out"), "method": "hierarchical", "threads": 1,
+           "hierarchy": {"epsilon": 1e-6, "min_area": 4e-4, "samples": 4, "max_rounds": 6},
+           "solver": {"method": "block_southwell", "tolerance": 1e-4},
+           "links": {"memory_budget": "2MB", "group_faces": 4, "store": str(tmp_path / "links")},
+           "outputs": NO_OUTPUTS}
+    config = tmp_path / "bake.yaml"
+    config.write_text(yaml.safe_dump(cfg))
+    baseline, _ = _peak_rss("baseline", config)
+    peak, report = _peak_rss("bake", config)
+    links = report["links"]
+    assert links["memory_budget_bytes"] == budget
+    n_links = report["counts"]["links"]
+    # The store is larger than the budget, and so are the links held whole: a bake that kept
+    # them in memory would break the bound below.
+    assert links["store_bytes"] > 4 * budget
+    held = LINK_BYTES * links["peak_refine_links"]  # link generation's bounded working set
+    allowed = baseline + budget + held + BAKE_FIXED
+    assert n_links * LINK_BYTES > budget + held + BAKE_FIXED
+    print(f"\nout of core: {n_links:,} links, store {links['store_bytes'] / 2 ** 20:.1f} MiB, budget "
+          f"{budget / 2 ** 20:.0f} MiB; peak RSS {peak / 2 ** 20:.1f} MiB, baseline {baseline / 2 ** 20:.1f} MiB "
+          f"(+{(peak - baseline) / 2 ** 20:.1f}), allowed {allowed / 2 ** 20:.1f} MiB")
+    assert peak <= allowed
