@@ -8,6 +8,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "pipeline/core/checks.h"
+
 namespace hirad {
 
 namespace {
@@ -112,6 +114,7 @@ Solution solve_direct(const RadiositySystem& sys) {
     }
     sol.iterations = 1;
     sol.residual = relative_residual(sys, sol.radiosity);
+    require_finite_residual("the direct solver", sol.residual, 1);
     sol.residual_history.push_back(sol.residual);
     sol.converged = true;
     return sol;
@@ -128,6 +131,7 @@ Solution solve_jacobi(const RadiositySystem& sys, const SolverOptions& opt) {
         tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) { next[i] = sys.emission[i] + mul(sys.reflectance[i], h[i]); });
         // next - b is exactly the residual E - M b of the current iterate.
         double r = std::sqrt(ordered_sum(n, [&](uint32_t i) { return norm2(next[i] - b[i]); })) / enorm;
+        require_finite_residual("Jacobi", r, it);
         sol.residual_history.push_back(r);
         sol.iterations = it;
         sol.residual = r;
@@ -153,6 +157,7 @@ Solution solve_gauss_seidel(const RadiositySystem& sys, const SolverOptions& opt
             b[i] = sys.emission[i] + mul(sys.reflectance[i], acc / sys.area[i]);
         }
         double r = relative_residual(sys, b);
+        require_finite_residual("Gauss-Seidel", r, it);
         sol.residual_history.push_back(r);
         sol.iterations = it;
         sol.residual = r;
@@ -168,7 +173,7 @@ namespace {
 // Southwell's iteration in shooting form. b holds the radiosity already shot, r = E - M b the
 // unshot radiosity. Shooting patch s sends rho_j F_js r_s to every j it is linked with.
 // The couplings of the shooter come from `row`; ambient is used only for display.
-Solution shoot(const RadiositySystem& sys, const CouplingRow& row, const SolverOptions& opt,
+Solution shoot(const char* solver_name, const RadiositySystem& sys, const CouplingRow& row, const SolverOptions& opt,
                uint64_t snapshot_every,
                const std::function<void(uint64_t, const std::vector<RGB>&)>& snapshot) {
     const uint32_t n = sys.size();
@@ -207,6 +212,9 @@ Solution shoot(const RadiositySystem& sys, const CouplingRow& row, const SolverO
             since_exact = 0;
         }
         const double res = std::sqrt(std::max(r2_total, 0.0)) / enorm;
+        // A NaN unshot power is never the largest: without this a NaN would never be shot and
+        // the solve would run to max_iterations.
+        require_finite_residual(solver_name, res, shot, "shot");
         sol.residual_history.push_back(res);
         sol.iterations = shot;
         sol.residual = res;
@@ -243,7 +251,7 @@ Solution solve_southwell(const RadiositySystem& sys, const SolverOptions& opt) {
     CouplingRow row = [&](uint32_t i, std::vector<std::pair<uint32_t, float>>& out) {
         for (uint64_t k = L.offsets[i]; k < L.offsets[i + 1]; ++k) out.emplace_back(L.columns[k], L.coupling[k]);
     };
-    return shoot(sys, row, opt, 0, nullptr);
+    return shoot("Southwell", sys, row, opt, 0, nullptr);
 }
 
 Solution solve_progressive(const RadiositySystem& sys, const CouplingRow& couplings_of, const ProgressiveOptions& opt,
@@ -261,7 +269,7 @@ Solution solve_progressive(const RadiositySystem& sys, const CouplingRow& coupli
         }
         out.insert(out.end(), cache[i].begin(), cache[i].end());
     };
-    Solution sol = shoot(sys, row, opt, opt.snapshot_every, opt.snapshot);
+    Solution sol = shoot("progressive refinement", sys, row, opt, opt.snapshot_every, opt.snapshot);
     if (rows_computed) *rows_computed = computed;
     return sol;
 }

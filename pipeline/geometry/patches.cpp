@@ -2,7 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <climits>
+#include <cstdint>
 #include <cstring>
+#include <string>
+#include <sstream>
+#include <stdexcept>
 #include <unordered_map>
 
 namespace hirad {
@@ -111,11 +116,64 @@ struct Welder {
 
 }  // namespace
 
+double estimate_face_patches(const Face& f, const MeshingOptions& options) {
+    const double area = f.area();
+    double grid;
+    if (f.nv == 4) {
+        const double lu = std::max(length(f.p[1] - f.p[0]), length(f.p[2] - f.p[3]));
+        const double lv = std::max(length(f.p[3] - f.p[0]), length(f.p[2] - f.p[1]));
+        grid = std::max(1.0, std::ceil(lu / options.max_edge_length)) * std::max(1.0, std::ceil(lv / options.max_edge_length));
+    } else {
+        const double longest = std::max({length(f.p[1] - f.p[0]), length(f.p[2] - f.p[1]), length(f.p[0] - f.p[2])});
+        const double k = std::max(1.0, std::ceil(longest / options.max_edge_length));
+        grid = k * k;
+    }
+    return std::max(grid, std::ceil(area / options.max_area));
+}
+
+namespace {
+
+[[noreturn]] void too_many_patches(const Scene& scene, const MeshingOptions& options, double total, uint32_t worst,
+                                   double worst_count) {
+    Vec3 lo, hi;
+    scene.bounds(lo, hi);
+    std::ostringstream msg;
+    msg.precision(3);
+    msg << "meshing would make at least " << total << " patches, more than the limit of " << options.max_patches
+        << " (meshing.max_patches); the largest share, " << worst_count << ", is face " << worst << " (mesh "
+        << scene.faces[worst].mesh << ", area " << scene.faces[worst].area() << " m^2); the scene spans "
+        << length(hi - lo) << " m. Raise meshing.max_patch_area (" << options.max_area
+        << " m^2) or max_edge_length (" << options.max_edge_length
+        << " m), or check the scene's units (metersPerUnit) and coordinates";
+    throw std::length_error(msg.str());
+}
+
+}  // namespace
+
 PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
-    PatchSet out;
-    Welder welder{{}, out};
     const double max_edge = options.max_edge_length;
     const double max_area = options.max_area;
+    if (!(std::isfinite(max_edge) && max_edge > 0) || !(std::isfinite(max_area) && max_area > 0)) {
+        std::ostringstream msg;
+        msg << "meshing: max_edge_length (" << max_edge << ") and max_patch_area (" << max_area
+            << ") must be positive finite numbers";
+        throw std::invalid_argument(msg.str());
+    }
+    if (options.max_patches > uint64_t(INT32_MAX))  // a face's grid is counted in int
+        throw std::invalid_argument("meshing: max_patches " + std::to_string(options.max_patches) +
+                                    " is above the most patches the engine indexes, " + std::to_string(INT32_MAX));
+    // How much will be built, before building it.
+    double total = 0, worst_count = 0;
+    uint32_t worst = 0;
+    for (uint32_t fi = 0; fi < scene.faces.size(); ++fi) {
+        const double n = estimate_face_patches(scene.faces[fi], options);
+        if (!(n <= double(options.max_patches))) too_many_patches(scene, options, n, fi, n);  // also NaN
+        total += n;
+        if (n > worst_count) worst_count = n, worst = fi;
+        if (total > double(options.max_patches)) too_many_patches(scene, options, total, worst, worst_count);
+    }
+    PatchSet out;
+    Welder welder{{}, out};
     for (uint32_t fi = 0; fi < scene.faces.size(); ++fi) {
         const Face& f = scene.faces[fi];
         const double area = f.area();
@@ -148,6 +206,9 @@ PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options) {
             };
             while (largest_cell() > max_area) {
                 if (lu / nu >= lv / nv) ++nu; else ++nv;
+                // A skewed quad's corner cells may need more than the estimate.
+                if (out.patches.size() + uint64_t(nu) * uint64_t(nv) > options.max_patches)
+                    too_many_patches(scene, options, double(out.patches.size()) + double(nu) * nv, fi, double(nu) * nv);
             }
             auto grid_point = [&](int i, int j) -> Vec3 {
                 double s = double(i) / nu, t = double(j) / nv;

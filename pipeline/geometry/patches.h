@@ -13,6 +13,10 @@ namespace hirad {
 struct MeshingOptions {
     double max_area = 0.01;        // m^2
     double max_edge_length = 0.1;  // m
+    // The most patches meshing may make: the count is estimated from the faces before
+    // anything is built, and a larger one refused with the numbers (a 1e30 coordinate, a
+    // wrong metersPerUnit or a tiny max_area would otherwise allocate without end).
+    uint64_t max_patches = 50000000;
 };
 
 struct Patch {
@@ -61,7 +65,14 @@ inline RGB interpolate_corners(int nv, const std::array<RGB, 4>& c, double u, do
     return c[0] * ((1 - u) * (1 - v)) + c[1] * (u * (1 - v)) + c[2] * (u * v) + c[3] * ((1 - u) * v);
 }
 
+// Throws std::invalid_argument for limits that are not positive finite numbers and
+// std::length_error when the patches would be more than options.max_patches.
 PatchSet mesh_patches(const Scene& scene, const MeshingOptions& options);
+
+// A lower bound on the patches mesh_patches makes of one face (the grid its edge limit
+// asks for, or its area over max_area if more), as a double: it may exceed every integer
+// type for a face of absurd size.
+double estimate_face_patches(const Face& face, const MeshingOptions& options);
 
 // A patch set over given patches (the leaves of a hierarchy), their corners welded per mesh
 // where the points are bit-identical.

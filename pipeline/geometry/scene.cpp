@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <sstream>
+#include <stdexcept>
 #include <unordered_map>
 
 namespace hirad {
@@ -80,7 +82,41 @@ std::vector<std::array<int, 3>> triangulate_polygon(const std::vector<Vec3>& pol
     return tris;
 }
 
+namespace {
+
+// Materials the solve cannot take: every face's reflectance must be finite and in [0, 1],
+// its emission finite and not negative. Throws std::invalid_argument with the count and the
+// first such face.
+void check_materials(const SceneInput& in) {
+    uint64_t bad = 0;
+    size_t first = 0;
+    for (size_t f = 0; f < in.num_faces; ++f) {
+        bool ok = true;
+        for (int c = 0; c < 3; ++c) {
+            const double r = in.face_reflectance[3 * f + c], e = in.face_emission[3 * f + c];
+            ok = ok && std::isfinite(r) && r >= 0 && r <= 1 && std::isfinite(e) && e >= 0;
+        }
+        if (!ok && bad++ == 0) first = f;
+    }
+    if (bad == 0) return;
+    auto rgb = [](const double* v) {
+        std::ostringstream o;
+        o << "(" << v[0] << ", " << v[1] << ", " << v[2] << ")";
+        return o.str();
+    };
+    std::ostringstream msg;
+    msg << "scene: " << bad << " of " << in.num_faces
+        << " faces have a reflectance outside [0, 1] or an emission that is negative or not finite; the first is face "
+        << first << " (mesh " << in.face_mesh[first] << ", authored face "
+        << (in.face_source ? in.face_source[first] : int32_t(first)) << "): reflectance "
+        << rgb(in.face_reflectance + 3 * first) << ", emission " << rgb(in.face_emission + 3 * first);
+    throw std::invalid_argument(msg.str());
+}
+
+}  // namespace
+
 Scene Scene::build(const SceneInput& in) {
+    check_materials(in);
     Scene scene;
     scene.has_uv = in.corner_uv != nullptr;
     scene.stats.input_faces = in.num_faces;

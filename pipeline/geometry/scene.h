@@ -1,6 +1,6 @@
 // The scene as the engine sees it: world-space planar faces (triangles and planar convex
 // quads) in metres, each with a diffuse reflectance and an emitted exitance. Built from the
-// flat arrays the USD reader produces; everything it cannot use is counted, never fatal.
+// flat arrays the USD reader produces; geometry it cannot use is counted, never fatal.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -53,6 +53,9 @@ struct Scene {
 
     // Splits polygons into triangles and planar convex quads (ear clipping in the polygon's
     // plane, so concave polygons come out right) and drops what has no area or is not finite.
+    // Materials are not dropped but refused: a reflectance outside [0, 1] or a negative or
+    // non-finite emission on any face throws std::invalid_argument with the number of such
+    // faces and the first one (the USD reader reports them by prim before they get here).
     static Scene build(const SceneInput& in);
 
     // Axis-aligned bounds of all faces.

@@ -7,6 +7,8 @@
 #include <queue>
 #include <stdexcept>
 
+#include "pipeline/core/checks.h"
+
 namespace hirad {
 
 void sort_links(std::vector<Link>& links) {
@@ -120,6 +122,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             r2 += h.nodes[i].area * dot(d, d);
         }
         const double res = std::sqrt(r2) / enorm;
+        require_finite_residual("hierarchical Jacobi", res, it);
         sol.residual_history.push_back(res);
         sol.iterations = it;
         sol.residual = res;
@@ -239,6 +242,7 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
         std::vector<RGB> diff(n);
         for (uint32_t i : leaves) diff[i] = tb[i] - b[i];
         const double res = leaf_norm(h, leaves, diff) / enorm;
+        require_finite_residual("hierarchical Gauss-Seidel", res, it);
         sol.residual_history.push_back(res);
         sol.iterations = it;
         sol.residual = res;
@@ -371,6 +375,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
             for (uint32_t i : leaves) r2 += h.nodes[i].area * dot(r[i], r[i]);
             res = std::sqrt(r2) / enorm;
         }
+        require_finite_residual("hierarchical Southwell", res, shot, "shot");
         sol.residual_history.push_back(res);
         sol.iterations = shot;
         sol.residual = res;

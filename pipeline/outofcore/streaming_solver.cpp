@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "formats/statefile.h"
+#include "pipeline/core/checks.h"
 
 namespace hirad {
 
@@ -292,6 +293,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                 r2 += a * dot(d, d);
             }
         const double residual = std::sqrt(r2) / enorm;
+        require_finite_residual("the streaming solver (block Southwell)", residual, round, "round");
         sol.residual = residual;
         if (residual <= opt.tolerance) { sol.converged = true; break; }
         if (round >= opt.max_rounds) break;

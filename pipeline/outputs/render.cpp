@@ -3,6 +3,8 @@
 #include <tbb/parallel_for.h>
 
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 namespace hirad {
 
@@ -10,6 +12,13 @@ std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visi
                                    const std::vector<std::array<RGB, 4>>& corner_radiance, const Camera& cam,
                                    int samples) {
     const int w = cam.width, h = cam.height;
+    if (w <= 0 || h <= 0)
+        throw std::invalid_argument("render: image size " + std::to_string(w) + " x " + std::to_string(h) +
+                                    " pixels: width and height must be positive");
+    if (uint64_t(w) * uint64_t(h) > kMaxRenderPixels)
+        throw std::length_error("render: image size " + std::to_string(w) + " x " + std::to_string(h) + " = " +
+                                std::to_string(uint64_t(w) * uint64_t(h)) + " pixels, more than the " +
+                                std::to_string(kMaxRenderPixels) + " (8192 x 8192) an image may have");
     std::vector<float> image(size_t(w) * h * 3, 0.0f);
     const Vec3 forward = normalize(cam.forward);
     const Vec3 right = normalize(cross(forward, cam.up));

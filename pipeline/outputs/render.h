@@ -2,6 +2,7 @@
 // radiance B/pi interpolated bilinearly from the patch corners at the hit point.
 #pragma once
 #include <array>
+#include <cstdint>
 #include <vector>
 
 #include "pipeline/geometry/patches.h"
@@ -17,8 +18,14 @@ struct Camera {
     int width = 512, height = 512;
 };
 
+// The largest image rendered: 8192 x 8192 pixels (805 MB of float RGB). A larger one is
+// refused with the numbers before anything is allocated.
+constexpr uint64_t kMaxRenderPixels = uint64_t(8192) * 8192;
+
 // Returns height*width*3 floats, row 0 at the top. Pixels that see nothing are zero.
-// `samples` per pixel on a stratified grid (rounded down to a square).
+// `samples` per pixel on a stratified grid (rounded down to a square). Throws
+// std::invalid_argument for a size that is not positive, std::length_error for one above
+// kMaxRenderPixels.
 std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
                                    const std::vector<std::array<RGB, 4>>& corner_radiance,
                                    const Camera& camera, int samples);

@@ -9,6 +9,7 @@
 #include <utility>
 #include <vector>
 
+#include "pipeline/core/checks.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
 #include "pipeline/geometry/visibility.h"
@@ -154,6 +155,37 @@ TEST_P(HierarchicalFurnace, RadiosityIsEmissionOverOneMinusRho) {
     EXPECT_TRUE(sol.converged);
     for (uint32_t i : h.leaves())
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(sol.radiosity[i][c], 2.0, 0.02) << "leaf " << i;
+}
+
+
+// A NaN emission on one face: all three stop with an error at the first residual.
+TEST_P(HierarchicalFurnace, NonFiniteResidualStopsAtOnce) {
+    Scene scene = cube_scene(0.5, 1.0);
+    scene.faces[2].emission.x = std::nan("");
+    Hierarchy h(scene);
+    Visibility vis(h.faces);
+    Refiner refiner(h, vis, {1e-3, 0.2, 16, 1});
+    RefineStats stats;
+    std::vector<RGB> judge = node_emission(h);
+    for (RGB& b : judge) b.x = std::isfinite(b.x) ? b.x : 1.0;  // refine as if it were lit
+    std::vector<Link> links = refiner.initial_links(judge, stats);
+    sort_links(links);
+    SolverOptions opt;
+    opt.tolerance = 1e-12;
+    opt.max_iterations = 1000000;
+    uint64_t calls = 0;
+    opt.on_iteration = [&](const IterationReport&) { return ++calls, true; };
+    const char* names[3] = {"hierarchical Jacobi", "hierarchical Gauss-Seidel", "hierarchical Southwell"};
+    try {
+        if (GetParam() == 0) solve_push_pull(h, links, {}, opt);
+        if (GetParam() == 1) solve_gauss_seidel_push_pull(h, links, {}, opt);
+        if (GetParam() == 2) solve_southwell_push_pull(h, links, {}, opt);
+        ADD_FAILURE() << "no error";
+    } catch (const NonFiniteError& e) {
+        EXPECT_EQ(std::string(e.what()).rfind(std::string(names[GetParam()]) + ": the residual is nan", 0), 0u)
+            << e.what();
+    }
+    EXPECT_EQ(calls, 0u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Solvers, HierarchicalFurnace, ::testing::Values(0, 1, 2));

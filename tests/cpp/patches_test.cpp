@@ -361,3 +361,61 @@ TEST(FinishPatch, TriangleRepeatsItsLastCornerAndFacesItsWinding) {
 
 }  // namespace
 }  // namespace hirad
+
+namespace hirad {
+namespace {
+
+// What meshing will build is estimated before it builds, and refused with the numbers when
+// it exceeds max_patches: a 1e30 coordinate used to overflow ceil(len / max_edge) into an
+// int and loop for ever; a tiny max_area allocated until bad_alloc.
+TEST(MeshPatches, AbsurdSizesAreRefusedBeforeAnythingIsBuilt) {
+    const Scene huge = scene_of({make_face({{0, 0, 0}, {1e30, 0, 0}, {1e30, 1, 0}, {0, 1, 0}})});
+    try {
+        mesh_patches(huge, {0.01, 0.1});
+        ADD_FAILURE() << "no error";
+    } catch (const std::length_error& e) {
+        const std::string msg = e.what();
+        EXPECT_NE(msg.find("meshing would make at least 1e+32 patches, more than the limit of 50000000"),
+                  std::string::npos) << msg;
+        EXPECT_NE(msg.find("metersPerUnit"), std::string::npos) << msg;
+    }
+    const Scene huge_triangle = scene_of({make_face({{0, 0, 0}, {1e30, 0, 0}, {0, 1e30, 0}})});
+    EXPECT_THROW(mesh_patches(huge_triangle, {0.01, 0.1}), std::length_error);
+    // max_patch_area 1e-9 on one square metre: 1e9 patches.
+    const Scene unit = scene_of({make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}})});
+    EXPECT_THROW(mesh_patches(unit, {1e-9, 0.1}), std::length_error);
+    // The limit is exact: the unit square at 0.0101 m^2 / 0.1 m is a 10 x 10 grid.
+    MeshingOptions at_limit{0.0101, 0.1, 100};
+    EXPECT_EQ(mesh_patches(unit, at_limit).patches.size(), 100u);
+    at_limit.max_patches = 99;
+    EXPECT_THROW(mesh_patches(unit, at_limit), std::length_error);
+    // Many faces add up: 3 squares of 100 patches under a limit of 250.
+    const Scene three = scene_of({unit.faces[0], unit.faces[0], unit.faces[0]});
+    EXPECT_THROW(mesh_patches(three, {0.0101, 0.1, 250}), std::length_error);
+    EXPECT_EQ(mesh_patches(three, {0.0101, 0.1, 300}).patches.size(), 300u);
+}
+
+TEST(MeshPatches, LimitsThatAreNotPositiveNumbersAreRefused) {
+    const Scene unit = scene_of({make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}})});
+    for (const MeshingOptions& bad : {MeshingOptions{0, 0.1}, MeshingOptions{0.01, -1}, MeshingOptions{std::nan(""), 0.1},
+                                      MeshingOptions{0.01, INFINITY}})
+        EXPECT_THROW(mesh_patches(unit, bad), std::invalid_argument);
+}
+
+// The estimate is a lower bound of what is built, and exact for the regular grids.
+TEST(MeshPatches, EstimateIsALowerBoundAndExactForGrids) {
+    for (const Case& c : cases()) {
+        SCOPED_TRACE(c.name);
+        const double estimate = estimate_face_patches(c.face, c.options);
+        const size_t built = mesh_patches(scene_of({c.face}), c.options).patches.size();
+        EXPECT_LE(estimate, double(built));
+    }
+    const Face square = make_face({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}});
+    EXPECT_EQ(estimate_face_patches(square, {0.0101, 0.1}), 100.0);  // 10 x 10 cells of 0.01 m^2
+    EXPECT_EQ(estimate_face_patches(square, {0.001, 0.1}), 1000.0);  // the area decides
+    const Face triangle = make_face({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}});
+    EXPECT_EQ(estimate_face_patches(triangle, {1.0, 0.3}), 25.0);  // longest edge sqrt 2: k = 5
+}
+
+}  // namespace
+}  // namespace hirad

@@ -91,3 +91,34 @@ TEST(Render, RadianceIsInterpolatedAtTheHitPointWithRowZeroAtTheTop) {
 
 }  // namespace
 }  // namespace hirad
+
+namespace hirad {
+namespace {
+
+// An image too large to allocate is refused with its numbers, before anything is allocated
+// (100000 x 100000 float RGB would be 120 GB); a size that is not positive is an error too.
+TEST(Render, ImpossibleSizesAreRefusedWithTheNumbers) {
+    std::vector<Patch> patches = square(true);
+    Visibility vis(patches);
+    std::vector<std::array<RGB, 4>> radiance(1);
+    Camera cam = camera();
+    cam.width = 100000;
+    cam.height = 100000;
+    try {
+        render_radiance(patches, vis, radiance, cam, 1);
+        ADD_FAILURE() << "no error";
+    } catch (const std::length_error& e) {
+        EXPECT_NE(std::string(e.what()).find("100000 x 100000 = 10000000000 pixels"), std::string::npos) << e.what();
+    }
+    cam.width = 8192;
+    cam.height = 8193;  // one row over the bound
+    EXPECT_THROW(render_radiance(patches, vis, radiance, cam, 1), std::length_error);
+    cam.width = 0;
+    cam.height = 16;
+    EXPECT_THROW(render_radiance(patches, vis, radiance, cam, 1), std::invalid_argument);
+    cam.width = -3;
+    EXPECT_THROW(render_radiance(patches, vis, radiance, cam, 1), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace hirad

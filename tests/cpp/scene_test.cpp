@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <limits>
+#include <string>
 #include <vector>
 
 namespace hirad {
@@ -229,6 +230,40 @@ TEST(SceneBuild, NonFiniteCornerDropsTheFace) {
     EXPECT_EQ(scene.faces[0].source_face, 0u);
     for (const Face& f : scene.faces)
         for (int k = 0; k < f.nv; ++k) EXPECT_TRUE(isfinite(f.p[k]));
+}
+
+// A material the solve cannot take is refused, with the count and the first face: a NaN or
+// infinite emission or reflectance, a negative one, or a reflectance above 1 (it would make
+// light).
+TEST(SceneBuild, InvalidMaterialsAreRefusedWithTheCountAndTheFirstFace) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    struct Case {
+        int channel;
+        bool emission;
+        double value;
+    };
+    for (const Case& c : {Case{1, true, nan}, Case{0, true, -1.0}, Case{2, true, INFINITY}, Case{0, false, nan},
+                          Case{1, false, -0.5}, Case{2, false, 1.5}}) {
+        SCOPED_TRACE(testing::Message() << (c.emission ? "emission " : "reflectance ") << c.value);
+        Soup soup;
+        for (int k = 0; k < 4; ++k) soup.face({{double(k), 0, 0}, {k + 1.0, 0, 0}, {double(k), 1, 0}});
+        (c.emission ? soup.emission : soup.reflectance)[3 * 2 + c.channel] = c.value;
+        (c.emission ? soup.emission : soup.reflectance)[3 * 3 + c.channel] = c.value;
+        try {
+            soup.build();
+            ADD_FAILURE() << "accepted";
+        } catch (const std::invalid_argument& e) {
+            const std::string msg = e.what();
+            EXPECT_NE(msg.find("scene: 2 of 4 faces have a reflectance outside [0, 1] or an emission"), std::string::npos)
+                << msg;
+            EXPECT_NE(msg.find("the first is face 2 (mesh 0, authored face 2)"), std::string::npos) << msg;
+        }
+    }
+    // The edges of the valid range are valid: black, reflectance 1, no emission.
+    Soup soup;
+    soup.face({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}});
+    soup.reflectance = {0.0, 1.0, 0.0};
+    EXPECT_EQ(soup.build().faces.size(), 1u);
 }
 
 TEST(SceneBuild, ZeroAreaAndRepeatedCornerFacesAreDegenerate) {

@@ -7,10 +7,13 @@
 #include <atomic>
 #include <cmath>
 #include <functional>
+#include <map>
+#include <string>
 #include <memory>
 #include <stdexcept>
 #include <vector>
 
+#include "pipeline/core/checks.h"
 #include "pipeline/geometry/formfactors.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/visibility.h"
@@ -113,6 +116,51 @@ TEST(Solvers, FurnaceGivesEOverOneMinusRho) {
             EXPECT_NEAR(b.z, want.z, 1e-6 * want.z);  // no reflection: B = E to the tolerance
         }
     }
+}
+
+// A NaN emission (a bad input that got through) or a reflectance above 1 (the solve
+// diverges): every solver stops at once with an error naming it, instead of handing on NaN
+// (or, for the shooting methods, never shooting the NaN and running to max_iterations).
+TEST(Solvers, NonFiniteResidualStopsEverySolverAtOnce) {
+    std::array<RGB, 6> refl;
+    refl.fill(RGB{0.5, 0.5, 0.5});
+    std::vector<Patch> patches = inward_cube(2, refl);
+    for (Patch& p : patches) p.emission = {1, 1, 1};
+    patches[3].emission.y = std::nan("");
+    Box box(std::move(patches), 16);
+    SolverOptions opt;
+    opt.tolerance = 1e-12;
+    opt.max_iterations = 1000000;
+    const std::map<std::string, std::string> names = {{"direct", "the direct solver"}, {"jacobi", "Jacobi"},
+                                                      {"gauss_seidel", "Gauss-Seidel"}, {"southwell", "Southwell"},
+                                                      {"progressive", "progressive refinement"}};
+    for (const auto& [name, solve] : solvers(box)) {
+        SCOPED_TRACE(name);
+        uint64_t calls = 0;
+        SolverOptions counted = opt;
+        counted.on_iteration = [&](const IterationReport&) { return ++calls, true; };
+        try {
+            solve(box.sys, counted);
+            ADD_FAILURE() << "no error";
+        } catch (const NonFiniteError& e) {
+            const std::string msg = e.what();
+            EXPECT_EQ(msg.rfind(names.at(name) + ": the residual is nan at ", 0), 0u) << msg;
+            EXPECT_NE(msg.find("no longer finite"), std::string::npos) << msg;
+        }
+        EXPECT_EQ(calls, 0u);  // stopped before reporting a single non-finite iteration
+    }
+
+    // Reflectance 1.5 in a closed box: B grows by half every sweep until it overflows.
+    std::array<RGB, 6> over;
+    over.fill(RGB{1.5, 1.5, 1.5});
+    std::vector<Patch> diverging = inward_cube(1, over);
+    for (Patch& p : diverging) p.emission = {1, 1, 1};
+    Box box2(std::move(diverging), 16);
+    uint64_t sweeps = 0;
+    SolverOptions counted = opt;
+    counted.on_iteration = [&](const IterationReport&) { return ++sweeps, true; };
+    EXPECT_THROW(solve_jacobi(box2.sys, counted), NonFiniteError);
+    EXPECT_LT(sweeps, 3000u);  // 1.5^k overflows a double near k = 1750, far below the limit
 }
 
 TEST(Solvers, ProgressiveComputesEveryRowOnceInTheFurnace) {

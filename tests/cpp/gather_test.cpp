@@ -1,0 +1,113 @@
+// The final gather (pipeline/hierarchy/gather.h) against the closed form of a point under a
+// parallel emitting rectangle: with one source of uniform radiosity and nothing reflecting,
+// the irradiance at x is B F(dx -> source) exactly, wherever x is on the receiver and however
+// refinement split the source.
+#include "pipeline/hierarchy/gather.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "pipeline/hierarchy/hierarchical_solver.h"
+#include "pipeline/hierarchy/refine.h"
+
+namespace hirad {
+namespace {
+
+// Form factor from a differential area to a parallel rectangle a x b at distance c, the
+// area's normal through one corner of the rectangle (Howell's catalogue, B-4).
+double corner_rectangle(double a, double b, double c) {
+    const double A = a / c, B = b / c;
+    return (A / std::sqrt(1 + A * A) * std::atan(B / std::sqrt(1 + A * A)) +
+            B / std::sqrt(1 + B * B) * std::atan(A / std::sqrt(1 + B * B))) /
+           (2 * kPi);
+}
+
+// The same for a point (x, y) under the rectangle [0, w] x [0, d]: the four rectangles that
+// meet above it (x, y inside).
+double under_rectangle(double x, double y, double w, double d, double c) {
+    return corner_rectangle(x, y, c) + corner_rectangle(w - x, y, c) + corner_rectangle(x, d - y, c) +
+           corner_rectangle(w - x, d - y, c);
+}
+
+Face quad(const std::vector<Vec3>& c, double rho, double emission) {
+    Face f;
+    f.nv = 4;
+    for (int k = 0; k < 4; ++k) f.p[k] = c[k];
+    f.reflectance = {rho, rho, rho};
+    f.emission = {emission, emission, emission};
+    return f;
+}
+
+TEST(Gather, PointUnderAnEmittingRectangleIsBTimesTheClosedForm) {
+    // Floor [0, 2] x [0, 1] at z = 0 facing up, light of the same size at z = 0.8 facing
+    // down; neither reflects, so B = E on the light and H = E F on the floor.
+    const double E = 3.0, c = 0.8;
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {2, 0, 0}, {2, 1, 0}, {0, 1, 0}}, 0.0, 0.0));
+    scene.faces.push_back(quad({{0, 0, c}, {0, 1, c}, {2, 1, c}, {2, 0, c}}, 0.0, E));
+    for (const double epsilon : {1e-2, 1e-4}) {  // coarse and fine links
+        SCOPED_TRACE(epsilon);
+        Hierarchy h(scene);
+        Visibility vis(h.faces);
+        Refiner refiner(h, vis, {epsilon * 2 * E, 1e-3, 16, 1});
+        RefineStats stats;
+        std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
+        sort_links(links);
+        SolverOptions opt;
+        opt.tolerance = 1e-12;
+        const HierarchicalSolution sol = solve_push_pull(h, links, {}, opt);
+        ASSERT_TRUE(sol.converged);
+        Gatherer gatherer(h, links, sol.radiosity, vis, GatherOptions{});
+        const uint32_t floor = h.face_node[0];
+        std::vector<uint32_t> leaf;
+        std::vector<Vec3> x;
+        std::vector<uint64_t> key;
+        for (const auto& st : std::vector<std::pair<double, double>>{{0.5, 0.5}, {0.05, 0.1}, {0.9, 0.85}, {0.3, 0.77}}) {
+            leaf.push_back(h.leaf_at(floor, st.first, st.second));
+            x.push_back(h.faces[0].point(st.first, st.second));
+            key.push_back(leaf.size());
+        }
+        std::vector<RGB> got(x.size());
+        gatherer.irradiance(leaf.data(), x.data(), key.data(), x.size(), got.data());
+        for (size_t k = 0; k < x.size(); ++k) {
+            const double want = E * under_rectangle(x[k].x, x[k].y, 2.0, 1.0, c);
+            for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(got[k][ch], want, 1e-9 * want) << "point " << k;
+        }
+        // radiance(): the floor reflects nothing and emits nothing.
+        std::vector<RGB> radiance(x.size());
+        gatherer.radiance(leaf.data(), x.data(), key.data(), x.size(), radiance.data());
+        for (const RGB& l : radiance) EXPECT_EQ(l.x, 0.0);
+    }
+}
+
+TEST(Gather, RadianceIsEmissionPlusReflectedOverPi) {
+    // The same with a reflecting floor: L = (E_floor + rho H) / pi at the point, H the
+    // light's direct irradiance plus nothing else (the light reflects nothing, and the floor
+    // cannot see itself).
+    const double E = 2.0, c = 0.5, rho = 0.4, Ef = 0.25;
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, rho, Ef));
+    scene.faces.push_back(quad({{0, 0, c}, {0, 1, c}, {1, 1, c}, {1, 0, c}}, 0.0, E));
+    Hierarchy h(scene);
+    Visibility vis(h.faces);
+    Refiner refiner(h, vis, {1e-4, 1e-3, 16, 1});
+    RefineStats stats;
+    std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
+    sort_links(links);
+    SolverOptions opt;
+    opt.tolerance = 1e-12;
+    const HierarchicalSolution sol = solve_push_pull(h, links, {}, opt);
+    Gatherer gatherer(h, links, sol.radiosity, vis, GatherOptions{});
+    const uint32_t leaf = h.leaf_at(h.face_node[0], 0.25, 0.6);
+    const Vec3 x = h.faces[0].point(0.25, 0.6);
+    const uint64_t key = 7;
+    RGB l;
+    gatherer.radiance(&leaf, &x, &key, 1, &l);
+    const double want = (Ef + rho * E * under_rectangle(x.x, x.y, 1.0, 1.0, c)) / kPi;
+    EXPECT_NEAR(l.y, want, 1e-9 * want);
+}
+
+}  // namespace
+}  // namespace hirad

@@ -1,0 +1,257 @@
+// The out-of-core solve (pipeline/outofcore/streaming_solver.h): block Southwell streaming
+// the links from memory or from the on-disk store, against the furnace's closed form
+// B = E / (1 - rho) and against the in-memory hierarchical Jacobi solve of the same links;
+// the same bits from memory and from disk, whatever the budget, and after a resume.
+#include "pipeline/outofcore/streaming_solver.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <type_traits>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/checks.h"
+#include "pipeline/hierarchy/hierarchical_solver.h"
+#include "pipeline/hierarchy/refine.h"
+
+namespace hirad {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A closed unit cube of six inward faces, every one emitting E and reflecting rho.
+Scene cube(double rho, double emission) {
+    const std::vector<std::vector<Vec3>> quads = {
+        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
+        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
+        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
+    };
+    Scene scene;
+    for (const auto& q : quads) {
+        Face f;
+        f.nv = 4;
+        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
+        f.reflectance = {rho, rho, rho};
+        f.emission = {emission, emission, emission};
+        scene.faces.push_back(f);
+    }
+    return scene;
+}
+
+// Everything a streaming solve takes, from links made by refinement.
+struct Problem {
+    Scene scene;
+    Hierarchy h;
+    std::unique_ptr<Visibility> vis;
+    std::vector<Link> links;        // sorted by receiver (for the in-memory solvers)
+    SourceGroups groups;
+    std::vector<std::vector<Link>> by_group;  // per group, sorted by sort_part
+    std::vector<uint8_t> is_source;
+    std::vector<double> outgoing;
+
+    // The furnace's refinement of the in-memory test (hierarchy_test.cpp): its couplings sum
+    // to the areas within about 2 %.
+    Problem(Scene s, uint32_t group_faces, RefineOptions ro = {1e-5 * 6, 0.02, 256, 1}) : scene(std::move(s)), h(scene) {
+        vis = std::make_unique<Visibility>(h.faces);
+        Refiner refiner(h, *vis, ro);
+        RefineStats stats;
+        groups = SourceGroups::cut(h, group_faces);
+        by_group.assign(groups.count(), {});
+        // As the out-of-core rounds link: each group from the root's link to the group's root,
+        // so that every source lies in its group.
+        refiner.set_radiosity(node_emission(h));
+        for (uint32_t g = 0; g < groups.count(); ++g) {
+            Link seed;
+            seed.receiver = h.root;
+            seed.source = groups.roots[g];
+            by_group[g] = refiner.run_group({seed}, {0}, stats);
+        }
+        is_source.assign(h.nodes.size(), 0);
+        outgoing.assign(h.nodes.size(), 0.0);
+        for (uint32_t g = 0; g < groups.count(); ++g) {
+            for (const Link& l : by_group[g]) {
+                EXPECT_EQ(groups.of(h, l.source), g);
+                links.push_back(l);
+                is_source[l.source] = 1;
+                outgoing[l.source] += double(l.coupling) / h.nodes[l.source].area;
+            }
+            sort_part(by_group[g]);
+        }
+        sort_links(links);
+    }
+    // The store holding the same links: one chunk per part of kChunkLinks.
+    void write_store(const std::string& dir) const {
+        LinkStoreWriter writer(dir, {1, 2, uint32_t(h.nodes.size()), uint32_t(h.nodes.size())});
+        for (uint32_t g = 0; g < by_group.size(); ++g)
+            for (uint32_t p = 0; p * kChunkLinks < by_group[g].size(); ++p) {
+                const auto begin = by_group[g].begin() + p * kChunkLinks;
+                const auto end = by_group[g].begin() + std::min<size_t>(by_group[g].size(), (p + 1) * kChunkLinks);
+                write_part(writer, g, p, std::vector<Link>(begin, end));
+            }
+        writer.commit();
+    }
+};
+
+std::string temp_dir(const char* name) {
+    const fs::path d = fs::temp_directory_path() / ("hirad_streaming_" + std::to_string(::getpid()) + "_" + name);
+    fs::remove_all(d);
+    return d.string();
+}
+
+bool same_bits(const std::vector<RGB>& a, const std::vector<RGB>& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(RGB)) == 0;
+}
+
+TEST(StreamingSolver, FurnaceFromMemoryAndFromTheStoreGivesEOverOneMinusRho) {
+    const double rho = 0.5, E = 1.0;
+    Problem pb(cube(rho, E), 2);
+    ASSERT_GT(pb.groups.count(), 1u);  // several groups: the blocks are really blocks
+    StreamingOptions opt;
+    opt.tolerance = 1e-10;
+    StreamingStats mem_stats, disk_stats;
+    const MemoryChunks memory(pb.by_group);
+    const HierarchicalSolution mem =
+        solve_streaming(pb.h, pb.groups, memory, pb.is_source, pb.outgoing, {}, opt, mem_stats);
+    ASSERT_TRUE(mem.converged);
+    for (uint32_t i : pb.h.leaves())
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(mem.radiosity[i][c], E / (1 - rho), 0.02 * E / (1 - rho)) << i;
+
+    const std::string dir = temp_dir("furnace");
+    pb.write_store(dir);
+    const StoreChunks store(dir, pb.groups.count());
+    EXPECT_EQ(store.total_links(), pb.links.size());
+    const HierarchicalSolution disk =
+        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, opt, disk_stats);
+    EXPECT_TRUE(same_bits(mem.radiosity, disk.radiosity));  // the store changes nothing
+    EXPECT_EQ(mem.iterations, disk.iterations);
+    EXPECT_GT(disk_stats.chunk_reads, 0u);
+
+    // The budget decides only what stays decoded: the least the solver takes, the same bits.
+    StreamingOptions tight = opt;
+    tight.memory_budget = disk_stats.minimum_budget;
+    StreamingStats tight_stats;
+    const HierarchicalSolution small =
+        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats);
+    EXPECT_TRUE(same_bits(disk.radiosity, small.radiosity));
+    tight.memory_budget = disk_stats.minimum_budget - 1;
+    EXPECT_THROW(solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats),
+                 std::runtime_error);
+    fs::remove_all(dir);
+}
+
+TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
+    // Uneven: one emitting face, the others grey: not a furnace, so the solution has shape.
+    Scene scene = cube(0.6, 0.0);
+    scene.faces[1].emission = {5.0, 2.5, 1.0};
+    scene.faces[3].reflectance = {0.2, 0.7, 0.4};
+    Problem pb(std::move(scene), 1);
+    SolverOptions jopt;
+    jopt.tolerance = 1e-11;
+    jopt.max_iterations = 100000;
+    const HierarchicalSolution jacobi = solve_push_pull(pb.h, pb.links, {}, jopt);
+    ASSERT_TRUE(jacobi.converged);
+    StreamingOptions opt;
+    opt.tolerance = 1e-11;
+    StreamingStats stats;
+    const HierarchicalSolution streamed =
+        solve_streaming(pb.h, pb.groups, MemoryChunks(pb.by_group), pb.is_source, pb.outgoing, {}, opt, stats);
+    ASSERT_TRUE(streamed.converged);
+    double largest = 0;
+    for (uint32_t i : pb.h.leaves()) largest = std::max(largest, jacobi.radiosity[i].x);
+    for (uint32_t i : pb.h.leaves())
+        for (int c = 0; c < 3; ++c)
+            EXPECT_NEAR(streamed.radiosity[i][c], jacobi.radiosity[i][c], 1e-8 * largest) << "leaf " << i;
+    // The irradiance handed out goes with the radiosity: B = E + rho H at every leaf.
+    for (uint32_t i : pb.h.leaves()) {
+        const Node& n = pb.h.nodes[i];
+        const RGB b = n.shape.emission + mul(n.shape.reflectance, streamed.irradiance[i]);
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(streamed.radiosity[i][c], b[c], 1e-9 * largest);
+    }
+}
+
+TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
+    Scene scene = cube(0.7, 0.0);
+    scene.faces[0].emission = {3, 3, 3};
+    Problem pb(std::move(scene), 2);
+    const MemoryChunks chunks(pb.by_group);
+    StreamingOptions opt;
+    opt.tolerance = 1e-10;
+    StreamingStats whole_stats;
+    const HierarchicalSolution whole =
+        solve_streaming(pb.h, pb.groups, chunks, pb.is_source, pb.outgoing, {}, opt, whole_stats);
+    ASSERT_GT(whole.iterations, 3u);
+
+    const std::string dir = temp_dir("resume");
+    fs::create_directories(dir);
+    StreamingOptions killed = opt;
+    killed.checkpoint_path = dir + "/checkpoint";
+    killed.checkpoint_seconds = 1e-9;  // every round
+    killed.checkpoint_fingerprint = 42;
+    killed.on_round = [](uint64_t round, double) { return round < 3; };  // "killed" after round 3
+    StreamingStats killed_stats;
+    solve_streaming(pb.h, pb.groups, chunks, pb.is_source, pb.outgoing, {}, killed, killed_stats);
+    ASSERT_TRUE(fs::exists(killed.checkpoint_path));
+    StreamingOptions resumed = killed;
+    resumed.on_round = nullptr;
+    StreamingStats resumed_stats;
+    const HierarchicalSolution again =
+        solve_streaming(pb.h, pb.groups, chunks, pb.is_source, pb.outgoing, {}, resumed, resumed_stats);
+    EXPECT_TRUE(resumed_stats.resumed);
+    EXPECT_TRUE(same_bits(whole.radiosity, again.radiosity));
+    EXPECT_EQ(whole.iterations, again.iterations);
+    // A checkpoint of something else (another fingerprint) is not resumed from.
+    StreamingOptions other = resumed;
+    other.checkpoint_fingerprint = 43;
+    StreamingStats other_stats;
+    const HierarchicalSolution fresh =
+        solve_streaming(pb.h, pb.groups, chunks, pb.is_source, pb.outgoing, {}, other, other_stats);
+    EXPECT_FALSE(other_stats.resumed);
+    EXPECT_TRUE(same_bits(whole.radiosity, fresh.radiosity));
+    fs::remove_all(dir);
+}
+
+TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
+    Scene scene = cube(0.5, 1.0);
+    Problem pb(std::move(scene), 2);
+    // A NaN that got past the scene's checks (they refuse it in Scene::build).
+    for (Node& n : pb.h.nodes)
+        if (!n.cluster && n.shape.face == 4) n.shape.emission.z = std::nan("");
+    StreamingOptions opt;
+    opt.tolerance = 1e-12;
+    uint64_t rounds = 0;
+    opt.on_round = [&](uint64_t, double) { return ++rounds, true; };
+    StreamingStats stats;
+    try {
+        solve_streaming(pb.h, pb.groups, MemoryChunks(pb.by_group), pb.is_source, pb.outgoing, {}, opt, stats);
+        ADD_FAILURE() << "no error";
+    } catch (const NonFiniteError& e) {
+        EXPECT_NE(std::string(e.what()).find("streaming solver (block Southwell): the residual is nan at round 0"),
+                  std::string::npos) << e.what();
+    }
+    EXPECT_EQ(rounds, 0u);
+}
+
+// The one link record: the links refinement makes go into the store and come back as the
+// same records, bit for bit, without a copy field by field.
+TEST(StreamingSolver, RefinementsLinksAreTheStoresRecords) {
+    static_assert(std::is_same_v<LinkRecord, Link>, "one record");
+    Problem pb(cube(0.5, 1.0), 3);
+    const std::string dir = temp_dir("records");
+    pb.write_store(dir);
+    const StoreChunks store(dir, pb.groups.count());
+    for (size_t g = 0; g < pb.by_group.size(); ++g) {
+        std::vector<Link> back;
+        store.read(g, back);
+        ASSERT_EQ(back.size(), pb.by_group[g].size());
+        EXPECT_EQ(std::memcmp(back.data(), pb.by_group[g].data(), back.size() * sizeof(Link)), 0) << "group " << g;
+    }
+    fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace hirad
