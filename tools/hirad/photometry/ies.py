@@ -392,7 +392,8 @@ class _Tokens:
                     self.tok.append(t)
                     self.line.append(first_line + k)
         self.pos = 0
-        self.last_line = first_line + max(len(lines) - 1, 0)
+        # where the file ends: its last line with text (the TILT line when none follows)
+        self.last_line = self.line[-1] if self.line else first_line - 1
         self.context = ""
 
     def _line_now(self) -> int:
@@ -401,7 +402,8 @@ class _Tokens:
     def number(self, what: str) -> float:
         if self.pos >= len(self.tok):
             raise IesError(self.path, self.last_line,
-                           f"the file ends while reading {what}{self.context}")
+                           f"the file ends (after line {self.last_line}) while reading "
+                           f"{what}{self.context}")
         t, ln = self.tok[self.pos], self.line[self.pos]
         if not _NUMBER.match(t):
             raise IesError(self.path, ln, f"'{t}' is not a number (reading {what}){self.context}")
@@ -802,6 +804,42 @@ class _Grid2D:
                                 np.clip(w[k], self.w_lo, self.w_hi))
         return np.maximum(out, 0.0)
 
+    def evaluate_grid(self, uq, wq):
+        """The same interpolant on the tensor grid uq x wq, (len(uq), len(wq)), by two 1-D
+        passes (along u for every node column, then along w): identical values, far less
+        work than point by point."""
+        uq = np.asarray(uq, dtype=float)
+        wq = np.asarray(wq, dtype=float)
+        out = np.zeros((uq.size, wq.size))
+        ui = (uq >= self.u_lo - 1e-9) & (uq <= self.u_hi + 1e-9)
+        if self.w_periodic:
+            wq = self.w_lo + np.mod(wq - self.w_lo, 360.0)
+            wi = np.ones(wq.shape, dtype=bool)
+        else:
+            wi = (wq >= self.w_lo - 1e-9) & (wq <= self.w_hi + 1e-9)
+        if not ui.any() or not wi.any():
+            return out
+        u = np.clip(uq[ui], self.u_lo, self.u_hi)
+        w = np.clip(wq[wi], self.w_lo, self.w_hi)
+        ureal = self.up[1:self.nu + 1]
+        i = np.clip(np.searchsorted(ureal, u, side="right") - 1, 0, self.nu - 2)
+        r = i[:, None] + np.arange(4)[None, :]
+        cols = _hermite4(self.up[r], self.vals[r], u)  # (nuq, all padded columns)
+        if self.w_periodic:
+            wreal = self.wp[1:self.nw + 2]
+            j = np.clip(np.searchsorted(wreal, w, side="right") - 1, 0, self.nw - 1)
+        else:
+            wreal = self.wp[1:self.nw + 1]
+            j = np.clip(np.searchsorted(wreal, w, side="right") - 1, 0, self.nw - 2)
+        c = j[:, None] + np.arange(4)[None, :]  # (nwq, 4)
+        y = cols[:, c]  # (nuq, nwq, 4)
+        nuq, nwq = y.shape[0], y.shape[1]
+        x4 = np.broadcast_to(self.wp[c][None], (nuq, nwq, 4)).reshape(-1, 4)
+        xw = np.broadcast_to(w[None, :], (nuq, nwq)).ravel()
+        res = _hermite4(x4, y.reshape(-1, 4), xw).reshape(nuq, nwq)
+        out[np.ix_(ui, wi)] = np.maximum(res, 0.0)
+        return out
+
     def _eval(self, u, w):
         ureal = self.up[1:self.nu + 1]
         i = np.clip(np.searchsorted(ureal, u, side="right") - 1, 0, self.nu - 2)
@@ -950,8 +988,7 @@ def lumens(p: Photometry, ballast: bool = True) -> float:
         wn = g.wp[1:g.nw + 1]
     xu, wu = _cells(u)
     xw, ww = _cells(wn)
-    uu, wwg = np.meshgrid(xu, xw, indexing="ij")
-    vals = g.evaluate(uu.ravel(), wwg.ravel()).reshape(uu.shape)
+    vals = g.evaluate_grid(xu, xw)
     if p.photometric_type == "C":
         jac_u = np.sin(np.radians(xu))  # sin(gamma)
         jac_w = np.ones_like(xw)
@@ -1051,9 +1088,18 @@ def polar_plot(p: Photometry, out_path, title: str | None = None) -> Path:
     for plane, style in (("C0-C180", "-"), ("C90-C270", "--")):
         theta, vals = plane_curve(p, plane, step=0.25)
         ax.plot(np.radians(theta), vals, style, label=plane)
+    ticks = np.arange(0, 360, 30)
+    ax.set_thetagrids(ticks, [f"{t if t <= 180 else 360 - t}\u00b0" for t in ticks])
+    from matplotlib.ticker import MaxNLocator
+    ax.yaxis.set_major_locator(MaxNLocator(4))
+    ax.set_rlabel_position(100)
     ax.set_title(title or Path(p.path).name, pad=18)
     ax.legend(loc="upper right", bbox_to_anchor=(1.12, 1.1))
-    ax.text(0.5, -0.08, "candela; 0 deg = nadir (-Z)", transform=ax.transAxes, ha="center")
+    ax.text(1.0, 0.0, "right: C0 / C90 \u2192", transform=ax.transAxes, ha="right")
+    ax.text(0.0, 0.0, "\u2190 left: C180 / C270", transform=ax.transAxes, ha="left")
+    ax.text(0.5, -0.1, "candela (cd); 0\u00b0 = nadir (local -Z)", transform=ax.transAxes,
+            ha="center")
+    fig.tight_layout()
     fig.savefig(out, format="png")
     plt.close(fig)
     return out
@@ -1082,7 +1128,7 @@ def ies_command(path, plot: Path | None = None) -> str:
         f"angles: vertical {p.vertical_angles[0]:g}..{p.vertical_angles[-1]:g} "
         f"({len(p.vertical_angles)}), horizontal {p.horizontal_angles[0]:g}.."
         f"{p.horizontal_angles[-1]:g} ({len(p.horizontal_angles)})",
-        f"photometry: " + ("absolute (lumens per lamp -1)" if p.absolute else
+        "photometry: " + ("absolute (lumens per lamp -1)" if p.absolute else
                            f"relative, {p.n_lamps} lamp(s) x {p.lumens_per_lamp:g} lm"),
         f"candela multiplier: {p.multiplier:g}; ballast factor: {p.ballast_factor:g}; "
         f"{p.second_field_meaning}: {p.second_field:g}"
@@ -1113,12 +1159,18 @@ def ies_command(path, plot: Path | None = None) -> str:
 
 
 def _flux_part(p: Photometry, g0: float, g1: float) -> float:
-    """Flux into the zone gamma in [g0, g1] (local frame), by quadrature over directions."""
-    gn = np.linspace(g0, g1, 361)
-    cn = np.linspace(0.0, 360.0, 181)
-    xg, wg = _cells(gn)
-    xc, wc = _cells(cn)
-    G, Cc = np.meshgrid(xg, xc, indexing="ij")
-    vals = np.asarray(p.candela_at(G.ravel(), Cc.ravel())).reshape(G.shape)
-    return float(np.einsum("i,ij,j->", wg * np.sin(np.radians(xg)), vals, wc)
-                 * (math.pi / 180.0) ** 2)
+    """Flux into the zone gamma in [g0, g1] of the local frame (with the ballast factors).
+    Types A and B span V and H of at most +-90 degrees, which is the lower hemisphere
+    (d_z = -cos H cos V <= 0): there the zone 0-90 holds all the flux and 90-180 none."""
+    if p.photometric_type != "C":
+        return lumens(p) if (g0, g1) == (0.0, 90.0) else 0.0 if (g0, g1) == (90.0, 180.0) \
+            else float("nan")
+    g = p._grid()
+    u = p.vertical_angles.astype(float)
+    u = np.unique(np.clip(np.concatenate([u, [g0, g1]]), g0, g1))
+    wn = np.concatenate([g.wp[1:g.nw + 1], [g.wp[1] + 360.0]])
+    xu, wu = _cells(u)
+    xw, ww = _cells(wn)
+    vals = g.evaluate_grid(xu, xw)
+    return float(np.einsum("i,ij,j->", wu * np.sin(np.radians(xu)), vals, ww)
+                 * (math.pi / 180.0) ** 2) * p.output_factor
