@@ -260,6 +260,23 @@ def test_info_on_cornell():
     assert "camera: /World/Camera" in text
 
 
+def test_info_with_a_config_estimates_before_running(tmp_path):
+    """`info SCENE CONFIG` and `info CONFIG` (its scene) add the estimate; nothing is written."""
+    scene_dir = tmp_path / "s"
+    scene_dir.mkdir()
+    scene = scene_dir / "cornell_box.usda"
+    shutil.copyfile(CORNELL, scene)
+    cfg = write_config(tmp_path / "c.yaml", scene, tmp_path / "out", method="flat", meshing=COARSE)
+    with_both = run_cli("info", scene, cfg)
+    config_only = run_cli("info", cfg)
+    for proc in (with_both, config_only):
+        assert proc.returncode == 0, proc.stderr
+        assert f"scene: {scene}" in proc.stdout and "estimate for method flat" in proc.stdout
+        assert re.search(r"patches: about [\d,]+", proc.stdout)
+    assert not (tmp_path / "out").exists()
+    assert "estimate" not in run_cli("info", scene).stdout
+
+
 # ---------------------------------------------------------------------------------------------
 # render and probe a stored solution
 # ---------------------------------------------------------------------------------------------

@@ -221,11 +221,22 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
 
 
 @app.command()
-def info(scene: Path = typer.Argument(..., help="USD scene")):
-    """Meshes, faces, patches-to-be, emitters, bounds and units of a scene."""
+def info(scene: Path = typer.Argument(..., help="USD scene, or a YAML config (its scene)"),
+         config: Optional[Path] = typer.Argument(None, help="YAML config whose cost on the scene to estimate")):
+    """Meshes, faces, emitters, bounds and units of a scene; with a config, the patches or
+    elements, links, memory, disk and time a bake will take, estimated before anything runs."""
     from . import usd
 
     def go():
+        nonlocal scene, config
+        cfg = None
+        if config is None and scene.suffix.lower() in (".yaml", ".yml"):
+            scene, config = None, scene
+        if config is not None:
+            from .config import load_config
+
+            cfg = load_config(config)
+            scene = scene or Path(cfg.scene)
         s = usd.read_scene(scene)
         pts = s.points[np.isfinite(s.points).all(axis=1)]
         emit_faces = int(np.count_nonzero(s.face_emission.max(axis=1) > 0))
@@ -246,6 +257,12 @@ def info(scene: Path = typer.Argument(..., help="USD scene")):
             print(f"camera: {c.path} fov {c.vertical_fov_degrees:.2f} deg")
         for w in s.warnings:
             print(f"warning: {w}")
+        if cfg is not None:
+            from . import estimate
+
+            print(f"config: {config}")
+            for line in estimate.describe(estimate.estimate(s, cfg)):
+                print(line)
 
     _run_guarded(go)
 
