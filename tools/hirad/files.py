@@ -338,7 +338,10 @@ def replace_output(staging: Path, out_dir: str | os.PathLike, inputs: Iterable =
     aside = None
     if os.path.lexists(out):
         aside = out.parent / f".{out.name}.old-{os.getpid()}-{secrets.token_hex(3)}"
-        os.rename(out, aside)
+        try:
+            os.rename(out, aside)
+        except OSError as e:
+            raise WriteError(f"output {out}: cannot move the previous output aside: {_describe(e)}") from None
     try:
         os.rename(staging, out)
     except OSError as e:
