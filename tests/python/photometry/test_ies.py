@@ -530,10 +530,13 @@ def test_version_tags_and_second_field(tmp_path):
 
 def test_relative_photometry_multiplier_and_units(tmp_path):
     p = _simple(tmp_path, "rel.ies", lumens_per_lamp=1500, n_lamps=2, mult=2.5, units=1,
-                dims=(-0.5, -0.5, 0))
+                dims=(-0.5, -0.5, 0), ballast=0.8)
     assert not p.absolute and p.lamp_lumens == 3000
     assert np.allclose(p.candela, 2.5 * p.candela_raw)
-    assert lumens(p) == pytest.approx(2.5 * math.pi * 1000, rel=1e-3)
+    assert lumens(p) == pytest.approx(0.8 * 2.5 * math.pi * 1000, rel=1e-3)
+    assert p.intensity([0, 0, -1]) == pytest.approx(0.8 * 2.5 * 1000)
+    assert p.intensity([0, 0, -1], ballast=False) == pytest.approx(2.5 * 1000)
+    # light output ratio: the optics' share of the rated lamp flux, without the ballast factor
     assert p.efficiency() == pytest.approx(2.5 * math.pi * 1000 / 3000, rel=1e-3)
     assert p.opening.shape == "circular" and p.opening.width_m == pytest.approx(0.1524)
 

@@ -265,9 +265,10 @@ class Photometry:
         return self.ballast_factor * self.ballast_lamp_factor
 
     def efficiency(self) -> float | None:
-        """Luminaire flux / rated lamp flux for relative photometry, None for absolute."""
+        """Luminaire flux / rated lamp flux (light output ratio) for relative photometry,
+        None for absolute; the ballast factors are left out (they scale the lamps)."""
         lamp = self.lamp_lumens
-        return None if not lamp else lumens(self) / lamp
+        return None if not lamp else lumens(self, ballast=False) / lamp
 
     @property
     def vertical_range(self) -> tuple[float, float]:
@@ -1142,8 +1143,8 @@ def ies_command(path, plot: Path | None = None) -> str:
         f"  downward (gamma 0-90): {down:.2f} lm, upward: {phi - down:.2f} lm",
     ]
     if not p.absolute and p.lamp_lumens:
-        lines.append(f"  luminaire efficiency: {100.0 * phi / p.lamp_lumens:.1f} % of "
-                     f"{p.lamp_lumens:g} lamp lumens")
+        lines.append(f"  luminaire efficiency: {100.0 * phi_nb / p.lamp_lumens:.1f} % of "
+                     f"{p.lamp_lumens:g} rated lamp lumens")
     lines.append(f"peak candela: {pk:.1f} cd at gamma {pg:.1f}, C {pc:.1f} (local frame)")
     for a in beam_field_angles(p):
         lines.append(f"{a.plane} plane: peak {a.peak_cd:.1f} cd, beam angle (50 %) "
