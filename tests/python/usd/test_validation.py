@@ -460,3 +460,11 @@ def test_light_without_area_is_named(tmp_path):
     path = write(tmp_path, quad() + light(attrs="float inputs:width = 0\n float inputs:height = 1"))
     scene = hu.read_scene(path)
     assert any(w.startswith("/lamp:") and "size 0 x 1 has no area" in w for w in scene.warnings)
+
+
+def test_scene_that_is_a_fifo_is_refused_unopened(tmp_path):
+    import os
+
+    fifo = tmp_path / "scene.usda"
+    os.mkfifo(fifo)
+    assert scene_error(fifo) == f"{fifo}: not a regular file (a USD file is expected)"

@@ -41,7 +41,7 @@ def _value_type(value) -> str:
 def _open_stage(path: str | Path) -> Usd.Stage:
     p = Path(path)
     if not p.is_file():
-        raise SceneError(f"{p}: file not found")
+        raise SceneError(f"{p}: " + ("not a regular file (a USD file is expected)" if p.exists() else "file not found"))
     try:
         stage = Usd.Stage.Open(str(p))
     except Tf.ErrorException as exc:  # pragma: no cover - message depends on USD version
