@@ -62,15 +62,18 @@ def write_box_scene(path: Path, size=(1.0, 1.5, 0.8), omit=(), reflectance=None,
     return path
 
 
-def _ray_cast(corners, nv, origins, directions) -> np.ndarray:
-    """Patch hit by each ray (-1: none), from the engine's ray casting."""
+def _ray_cast(corners, nv, origins, directions) -> tuple[np.ndarray, np.ndarray]:
+    """Patch hit by each ray (-1: none) and whether its back face was hit, from the engine's
+    ray casting."""
     corners = np.ascontiguousarray(corners, dtype=np.float64)
     nv = np.ascontiguousarray(nv, dtype=np.int32)
     o = np.ascontiguousarray(origins, dtype=np.float64)
     d = np.ascontiguousarray(directions, dtype=np.float64)
     if hasattr(_engine, "ray_cast"):  # the engine's free function (before one scene object)
-        return np.asarray(_engine.ray_cast(corners, nv, o, d)["patch"])
-    return np.asarray(_engine.SurfaceField(corners, nv).ray_cast(o, d).patch)
+        r = _engine.ray_cast(corners, nv, o, d)
+        return np.asarray(r["patch"]), np.asarray(r["back"]).astype(bool)
+    r = _engine.SurfaceField(corners, nv).ray_cast(o, d)
+    return np.asarray(r.patch), np.asarray(r.back).astype(bool)
 
 
 def _surface_points(corners, nv, rng, owner) -> np.ndarray:
@@ -86,15 +89,18 @@ def _surface_points(corners, nv, rng, owner) -> np.ndarray:
 
 
 def escaped_power(corners, nv, normals, radiosity, area, rays_per_patch: int = 1000, seed: int = 1,
-                  occluders=None):
+                  occluders=None, with_back: bool = False):
     """Power (W, RGB) that leaves the scene through its openings, by Monte Carlo: from every
     patch, `rays_per_patch` rays from points uniform on the patch, cosine distributed about
     its normal (the directions a diffuse surface's power leaves in); a ray that meets no
     surface carries its share of the patch's outgoing power B A away. Returns (escaped (3,),
-    standard error (3,), fraction of rays escaping per patch). Only the geometry and B are
-    used: no form factor, link or coupling of the solver. `occluders` (corners, nv): the
-    geometry the rays are cast against (default: the patches themselves), e.g. the scene's
-    input faces from scene_polygons, so the solver's meshing plays no part in what escapes."""
+    standard error (3,), fraction of rays escaping per patch); with `with_back`, also the
+    power that meets the back of a one-sided surface (which no front side receives: the
+    radiosity system loses it, as it loses what escapes) and its standard error. Only the
+    geometry and B are used: no form factor, link or coupling of the solver. `occluders`
+    (corners, nv): the geometry the rays are cast against (default: the patches themselves),
+    e.g. the scene's input faces from scene_polygons, so the solver's meshing plays no part
+    in what escapes."""
     corners = np.asarray(corners, dtype=np.float64)
     nv = np.asarray(nv, dtype=np.int32)
     normals = np.asarray(normals, dtype=np.float64)
@@ -118,14 +124,20 @@ def escaped_power(corners, nv, normals, radiosity, area, rays_per_patch: int = 1
     centre = corners[owner, :3].mean(axis=1)
     pts = centre + (pts - centre) * (1 - 1e-5) + n * (1e-5 * scale)
     occ_corners, occ_nv = (corners, nv) if occluders is None else occluders
-    hit = _ray_cast(occ_corners, occ_nv, pts, d)
-    miss = (hit < 0).astype(np.float64).reshape(n_p, rays_per_patch)
-    frac = miss.mean(axis=1)
-    var = miss.var(axis=1, ddof=1) / rays_per_patch  # of each patch's escaping fraction
+    hit, back = _ray_cast(occ_corners, occ_nv, pts, d)
     power = np.asarray(radiosity, dtype=np.float64) * np.asarray(area, dtype=np.float64)[:, None]
-    escaped = (power * frac[:, None]).sum(axis=0)
-    se = np.sqrt((power ** 2 * var[:, None]).sum(axis=0))
-    return escaped, se, frac
+
+    def share(indicator):
+        x = indicator.astype(np.float64).reshape(n_p, rays_per_patch)
+        frac = x.mean(axis=1)
+        var = x.var(axis=1, ddof=1) / rays_per_patch  # of each patch's fraction
+        return (power * frac[:, None]).sum(axis=0), np.sqrt((power ** 2 * var[:, None]).sum(axis=0)), frac
+
+    escaped, se, frac = share(hit < 0)
+    if not with_back:
+        return escaped, se, frac
+    lost, lost_se, _ = share((hit >= 0) & back)
+    return escaped, se, frac, lost, lost_se
 
 
 def scene_polygons(scene) -> tuple[np.ndarray, np.ndarray]:

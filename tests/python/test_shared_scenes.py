@@ -67,7 +67,29 @@ def test_shared_cornell_box_bakes_with_energy_balance(tmp_path):
 
     result = hirad.bake(cfg)
     balance = result.report["energy_balance"]
-    assert balance["max_relative_error"] < 0.01
+    # emitted - absorbed against the power that leaves through the open front, measured by
+    # rays against the scene as authored (proof_helpers.escaped_power: no coupling used),
+    # within 3 sigma, the residual's bound and the couplings' quadrature allowance at 16
+    # samples (0.2 %, see test_proof.QUADRATURE)
+    from proof_helpers import escaped_power, scene_polygons
+
+    p = result.patches
+    area = p["area"][:, None]
+    emitted = (p["emission"] * area).sum(axis=0)
+    absorbed = ((1 - p["reflectance"]) * result.patch_irradiance * area).sum(axis=0)
+    # The boxes have no bottoms and the light sits at the ceiling's height: the floor under
+    # the boxes and the ceiling over the light send part of their power onto back faces,
+    # which the system loses as it loses what escapes (the report counts both as escaped).
+    escaped, sigma, _, back, back_sigma = escaped_power(
+        p["corners"], p["nv"], p["normal"], result.patch_radiosity, p["area"], 1000, 1,
+        occluders=scene_polygons(usd.read_scene(scene)), with_back=True)
+    residual = result.report["solver"]["residual"] * np.linalg.norm(p["emission"]) * np.linalg.norm(p["area"])
+    allowed = 3 * np.hypot(sigma, back_sigma) + residual + 2e-3 * emitted
+    gap = emitted - absorbed - escaped - back
+    assert np.all(np.abs(gap) <= allowed), (gap, allowed)
+    print(f"\nshared Cornell box: emitted {emitted.round(3)}, absorbed {absorbed.round(3)}, escaped {escaped.round(3)}"
+          f" +- {sigma.round(3)}, onto back faces {back.round(3)} +- {back_sigma.round(3)}")
+    np.testing.assert_allclose(balance["absorbed_W"], absorbed, rtol=1e-9)
     # Light leaves through the open front: a real share, not a rounding error.
-    assert min(balance["escaped_W"][c] / balance["emitted_W"][c] for c in range(3)) > 0.05
+    assert np.all(escaped > 0.05 * emitted)
     assert (result.output_dir / "solution.usda").is_file()

@@ -273,12 +273,33 @@ def cornell(tmp_path_factory):
 
 
 def test_cornell_energy_balance(cornell):
-    _, res = cornell
+    # emitted - absorbed against the power that leaves through the open front, measured by
+    # rays against the scene as authored (proof_helpers.escaped_power: no coupling used).
+    from proof_helpers import escaped_power, scene_polygons
+
+    from hirad import usd
+
+    cfg, res = cornell
     eb = res.report["energy_balance"]
     assert res.report["solver"]["converged"]
-    assert eb["max_relative_error"] < 0.01
+    p = res.patches
+    area = p["area"][:, None]
+    emitted = (p["emission"] * area).sum(axis=0)
+    absorbed = ((1 - p["reflectance"]) * res.patch_irradiance * area).sum(axis=0)
+    np.testing.assert_allclose(eb["emitted_W"], emitted, rtol=1e-9)
+    # The blocks have no bottoms: floor patches reaching under them send power onto back
+    # faces, which the system loses as it loses what escapes (the report counts both).
+    escaped, sigma, _, back, back_sigma = escaped_power(
+        p["corners"], p["nv"], p["normal"], res.patch_radiosity, p["area"], 1000, 1,
+        occluders=scene_polygons(usd.read_scene(cfg.scene)), with_back=True)
+    # 3 sigma, the residual's bound, and the couplings' quadrature error at 4 samples a patch
+    # (a closed box absorbs 1.3 % more or less than it emits at 4; see test_proof): 2 %.
+    residual = res.report["solver"]["residual"] * np.linalg.norm(p["emission"]) * np.linalg.norm(p["area"])
+    allowed = 3 * np.hypot(sigma, back_sigma) + residual + 0.02 * emitted
+    gap = emitted - absorbed - escaped - back
+    assert np.all(np.abs(gap) <= allowed), (gap, allowed)
+    assert np.all(np.abs(np.array(eb["escaped_W"]) - escaped - back) <= allowed)
     # The box is open at the front: some light escapes, most is absorbed.
-    emitted, escaped = np.array(eb["emitted_W"]), np.array(eb["escaped_W"])
     assert np.all(escaped > 0.05 * emitted) and np.all(escaped < 0.6 * emitted)
 
 
