@@ -436,10 +436,12 @@ def test_resume_and_reuse_on_a_bake_without_a_store_are_errors(tmp_path):
 
 
 def _slow_config(tmp_path: Path) -> tuple[Path, Path]:
-    """A flat Cornell bake of ~3,000 patches: its form factors take several seconds."""
+    """A flat Cornell bake of ~3,000 patches on one thread: its form factors (68 M rays) take
+    well over ten seconds on any machine."""
     scene = copy_scene(tmp_path / "scenes")
     out = tmp_path / "out"
-    cfg = config(tmp_path / "slow.yaml", scene, out, meshing={"max_patch_area": 0.0009, "max_edge_length": 0.038})
+    cfg = config(tmp_path / "slow.yaml", scene, out, threads=1,
+                 meshing={"max_patch_area": 0.0009, "max_edge_length": 0.038})
     return cfg, out
 
 
@@ -493,12 +495,11 @@ def test_signal_while_python_runs_is_handled_in_the_main_thread(tmp_path):
                             text=True)
     assert proc.stdout.readline().strip() == "started"
     assert partials(tmp_path) != []
-    t = time.monotonic()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130, err
-    assert "interrupted by SIGINT" in err and "Traceback" not in err
-    assert time.monotonic() - t < 0.9  # before the watchdog's grace: the main thread did it
+    # the main thread's message (the watchdog's says "during an engine call")
+    assert "interrupted by SIGINT; partial output removed" in err and "Traceback" not in err
     assert partials(tmp_path) == [] and not out.exists()
 
 

@@ -82,7 +82,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     _engine.set_threads(cfg.threads)
     staging = files.make_staging(out_dir, __version__)
     try:
-        with files.removed_on_signal(staging):
+        with files.removed_on_failure(staging):
             if store is not None:
                 files.make_link_store(store, __version__)
             with Reporter(quiet) as rep:
@@ -92,12 +92,8 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
             with interrupts.deferred():
                 files.replace_output(staging, out_dir, inputs)
     except files.WriteError as e:
-        shutil.rmtree(staging, ignore_errors=True)
         # name the file where the user will look for it, not in the hidden staging directory
         raise files.WriteError(str(e).replace(str(staging), str(out_dir))) from None
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     files.remove_stale_staging(out_dir)
     result.output_dir = out_dir
     return result

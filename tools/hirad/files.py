@@ -468,14 +468,20 @@ _cleanups: dict[int, Path] = {}
 
 
 @contextlib.contextmanager
-def removed_on_signal(directory: Path) -> Iterator[None]:
-    """Registers a directory that hirad.interrupts removes if a signal ends the process while
-    the block runs (the engine may hold the main thread in C++ for minutes)."""
+def removed_on_failure(directory: Path) -> Iterator[None]:
+    """A directory that is removed if the block raises (anything, KeyboardInterrupt and
+    hirad.interrupts.Interrupted included) and, while the block runs, by hirad.interrupts'
+    watchdog if a signal ends the process (the engine may hold the main thread in C++ for
+    minutes). It stays registered until it is removed, so the watchdog never exits half way
+    through the main thread's removal."""
     key = id(directory)
     with _cleanup_lock:
         _cleanups[key] = directory
     try:
         yield
+    except BaseException:
+        shutil.rmtree(directory, ignore_errors=True)
+        raise
     finally:
         with _cleanup_lock:
             _cleanups.pop(key, None)

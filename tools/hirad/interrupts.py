@@ -9,7 +9,7 @@ handlers only when the main thread is back in the interpreter:
   thread runs Python (between stages, in a progress callback, while writing outputs).
 - a watchdog thread wakes on the signal at once (signal.set_wakeup_fd); if the main thread
   has not finished after `grace` seconds (it is inside a long engine call), the watchdog
-  removes every directory registered with `hirad.files.removed_on_signal` and ends the
+  removes every directory registered with `hirad.files.removed_on_failure` and ends the
   process with os._exit(128 + signum). The engine's own files in the link store are left as
   they are, for `--resume`.
 
