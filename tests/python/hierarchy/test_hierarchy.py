@@ -124,11 +124,21 @@ def test_furnace_energy_balance_with_escaped(furnace):
     # gives some leaves an outgoing fraction above 1 and others below, which cancel; clamping
     # keeps only the positive side, 0.23 W "escaping" from this closed box. The unclamped sum
     # balances to 1e-10; see test_links_conserve_power_in_a_closed_box.)
+    # What escapes is also measured without the links: rays from every leaf, cosine
+    # distributed, against the box's six faces: not one may leave (exactly zero), so the
+    # box must absorb what it emits, to the couplings' estimation error (144 samples).
+    from proof_helpers import escaped_power
+
     rho, r, p = furnace
     emitted = p["area"].sum() * 1.0
     absorbed = ((1 - rho) * r["irradiance"] * p["area"][:, None]).sum(axis=0)
     escaped = r["escaped"].sum(axis=0)
+    faces = (np.array(box_faces(), dtype=np.float64), np.full(6, 4, dtype=np.int32))
+    measured, sigma, frac = escaped_power(p["corners"], p["nv"], p["normal"], r["radiosity"], p["area"], 200, 1,
+                                          occluders=faces)
+    assert np.all(frac == 0) and np.all(measured == 0) and np.all(sigma == 0)
     assert np.all(np.abs(escaped) < 0.01 * emitted), f"closed box, escaped {escaped} of {emitted} W"
+    np.testing.assert_allclose(absorbed, emitted, rtol=0.01)
     np.testing.assert_allclose(absorbed + escaped, emitted, rtol=0.01)
 
 
