@@ -311,6 +311,13 @@ def test_files_hirad_writes_into_its_output_do_not_block_the_next_bake(tmp_path)
     assert not (out / "render.png").exists() and not (out / "p.csv").exists()
 
 
+def test_two_bakes_of_one_process_never_share_a_staging_directory(tmp_path):
+    a, b = files.make_staging(tmp_path / "out"), files.make_staging(tmp_path / "out")
+    assert a != b and a.name.startswith(f".out.partial-{os.getpid()}-")
+    assert (a / OUTPUT_MARKER).is_file() and (b / OUTPUT_MARKER).is_file()
+    assert files.remove_stale_staging(tmp_path / "out") == []  # this process is alive
+
+
 def test_failed_bake_keeps_the_previous_output_whole(tmp_path):
     scene = copy_scene(tmp_path / "scenes")
     out = tmp_path / "out"

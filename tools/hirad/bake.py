@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, _engine, files, interrupts, usd
+from .engine import build_engine, display_dict, patch_dict, streaming_dict
 from .outputs import images
 from .config import Config, load_config
 from .errors import BakeError  # noqa: F401
@@ -38,7 +39,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
-    Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID/`) and moved into
+    Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID-X/`) and moved into
     place only when complete, so an interrupted or failed bake never leaves a directory that
     looks complete, and the previous output stays until the new one is in place. hirad only
     replaces an output directory it made (hirad.files): an output that is or contains the
@@ -109,22 +110,15 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
 
     with rep.stage("build scene"):
-        model = _engine.Model(
-            np.ascontiguousarray(scene.points, dtype=np.float64),
-            np.ascontiguousarray(scene.face_vertex_counts, dtype=np.int32),
-            np.ascontiguousarray(scene.face_vertex_indices, dtype=np.int32),
-            np.ascontiguousarray(scene.face_mesh, dtype=np.int32),
-            np.ascontiguousarray(scene.face_source, dtype=np.int32),
-            np.ascontiguousarray(scene.face_reflectance, dtype=np.float64),
-            np.ascontiguousarray(scene.face_emission, dtype=np.float64),
-            None if scene.corner_uv is None else np.ascontiguousarray(scene.corner_uv, dtype=np.float64))
+        model = build_engine(scene)
         stats = model.stats()
-    skipped = {k: stats[k] for k in ("degenerate_faces", "nonfinite_faces", "nonmanifold_edges") if stats[k]}
+    skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "nonmanifold_edges")
+               if getattr(stats, k)}
     if skipped:
         rep.warn(f"{cfg.scene}: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in skipped.items())
                  + " (degenerate and non-finite faces skipped; non-manifold edges kept)")
-    if stats["faces"] == 0:
-        raise BakeError(f"{cfg.scene}: no usable faces (all {stats['input_faces']} were degenerate or not finite)")
+    if stats.faces == 0:
+        raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate or not finite)")
 
     if not np.any(scene.face_emission > 0):
         rep.warn(f"{cfg.scene}: nothing emits light (no emissiveColor, MeshLightAPI or UsdLux area "
@@ -132,20 +126,20 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
 
     if cfg.method == "hierarchical":
         solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links)
-        b, h, escaped = solved["radiosity"], solved["irradiance"], solved["escaped"]
+        b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
+        snapshot_cb = None
     else:
-        solved, patches, b, h, escaped = _solve_flat(cfg, model, scene, staging, rep)
+        solved, patches, b, h, escaped, snapshot_cb = _solve_flat(cfg, model, scene, staging, rep)
     n = model.num_patches
     method = cfg.solver.method
     ff = cfg.formfactors
-    snapshot_cb = solved.pop("snapshots_written", None)
-    if not solved["converged"]:
-        rep.warn(f"solver stopped after {solved['iterations']} iterations at residual "
-                 f"{solved['residual']:.3e}, above the tolerance {cfg.solver.tolerance:g}")
+    if not solved.converged:
+        rep.warn(f"solver stopped after {solved.iterations} iterations at residual "
+                 f"{solved.residual:.3e}, above the tolerance {cfg.solver.tolerance:g}")
     balance = energy_balance(patches, b, h, escaped)
 
     with rep.stage("reconstruct"):
-        display = model.display_mesh(cfg.reconstruction.crease_angle)
+        display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
         vertex_radiance = model.vertex_values(b) / np.pi
         vertex_irradiance = model.vertex_values(h)
     faces = display["faces"]
@@ -185,6 +179,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         outputs["snapshots"] = "snapshots/"
 
     stats = model.stats()
+    hierarchical = cfg.method == "hierarchical"
     report = {
         "hirad_version": __version__,
         "method": cfg.method,
@@ -195,48 +190,48 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "timings_s": {**rep.timings, "total": round(time.perf_counter() - wall, 4)},
         "counts": {
             "meshes": len(scene.meshes),
-            "input_faces": stats["input_faces"],
-            "faces": stats["faces"],
+            "input_faces": stats.input_faces,
+            "faces": stats.faces,
             "patches": n,
             "emitter_patches": int(np.count_nonzero(patches["emission"].max(axis=1) > 0)),
             "emitter_meshes": sum(1 for m in scene.meshes if m.is_light) + len({
                 int(scene.face_mesh[f]) for f in np.nonzero(scene.face_emission.max(axis=1) > 0)[0]
                 if not scene.meshes[int(scene.face_mesh[f])].is_light}),
-            "links": solved.get("links", stats["links"]),
-            "link_bytes": stats["link_bytes"],
-            "rays": stats["rays"] + solved.get("rays", 0),
-            "skipped": {k: stats[k] for k in ("degenerate_faces", "nonfinite_faces")},
-            "nonmanifold_edges": stats["nonmanifold_edges"],
+            "links": solved.links if hierarchical else stats.links,
+            "link_bytes": stats.link_bytes,
+            "rays": stats.rays + (solved.rays if hierarchical else 0),
+            "skipped": {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces")},
+            "nonmanifold_edges": stats.nonmanifold_edges,
         },
         "solver": {
             "method": method,
             "form_factors": ("hierarchical links" if cfg.method == "hierarchical"
                              else ff.method if method != "progressive" else "raycast, on the fly"),
-            "iterations": solved["iterations"],
-            "residual": solved["residual"],
+            "iterations": solved.iterations,
+            "residual": solved.residual,
             "tolerance": cfg.solver.tolerance,
-            "converged": solved["converged"],
-            "rows_computed": solved.get("rows_computed", 0),
+            "converged": solved.converged,
+            "rows_computed": 0 if hierarchical else solved.rows_computed,
             # The relative residual per iteration, thinned to at most 200 (iteration, residual)
             # pairs so long shooting runs stay readable; the last iteration is always kept.
-            "residual_history": _thin(solved["residual_history"], 200),
+            "residual_history": _thin(solved.residual_history, 200),
         },
         "hierarchy": None if cfg.method != "hierarchical" else {
-            k: solved[k] for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
+            k: getattr(solved, k) for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                    "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
                                    "epsilon_watts", "balance_splits")},
-        "links": None if "store" not in solved else {
-            "store": solved["store"],
-            "reused": solved["reused_links"],
-            "form_factors_computed": solved["link_estimates"],
-            "resumed_from_round": solved["resumed_from_round"],
-            "source_groups": solved["source_groups"],
+        "links": None if not (hierarchical and solved.out_of_core) else {
+            "store": str(cfg.link_store()),
+            "reused": solved.reused_links,
+            "form_factors_computed": solved.link_estimates,
+            "resumed_from_round": solved.resumed_from_round,
+            "source_groups": solved.source_groups,
             "memory_budget_bytes": cfg.links.memory_budget,
-            "store_bytes": solved["store_bytes"],
-            "bytes_per_link": solved["store_bytes"] / max(1, solved["links"]),
-            "transport_bytes": solved["transport_bytes"],
-            "peak_refine_links": solved["peak_refine_links"],
-            "last_solve": solved["streaming"],
+            "store_bytes": solved.store_bytes,
+            "bytes_per_link": solved.store_bytes / max(1, solved.links),
+            "transport_bytes": solved.transport_bytes,
+            "peak_refine_links": solved.peak_refine_links,
+            "last_solve": streaming_dict(solved.streaming),
         },
         "energy_balance": balance,
         "outputs": outputs,
@@ -258,21 +253,24 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
     """The classic method: patches from `meshing`, links between every pair that can exchange
     light, the configured solver, then irradiance and escaped power per patch."""
     with rep.stage("mesh patches"):
-        model.mesh(cfg.meshing.max_patch_area, cfg.meshing.max_edge_length)
-        patches = model.patch_arrays()
+        model.mesh(_engine.MeshOptions(max_patch_area=cfg.meshing.max_patch_area,
+                                       max_edge_length=cfg.meshing.max_edge_length))
+        patches = patch_dict(model.patch_arrays())
     n = model.num_patches
     method = cfg.solver.method
     ff = cfg.formfactors
+    ff_options = _engine.FormFactorOptions(method=ff.method, samples=ff.samples,
+                                           hemicube_resolution=ff.hemicube_resolution,
+                                           hemicube_points=ff.hemicube_points, seed=cfg.seed)
     if method != "progressive":
         with rep.stage("form factors", total=n) as update:
-            model.compute_links(ff.method, ff.samples, ff.hemicube_resolution, ff.hemicube_points, cfg.seed,
-                                lambda done: update(done, f"{done}/{n} patches"))
+            model.compute_links(ff_options, lambda done: update(done, f"{done}/{n} patches"))
 
     snapshot_cb = None
     if method == "progressive" and cfg.solver.snapshots > 0:
         snapshot_dir = staging / "snapshots"
         snapshot_dir.mkdir()
-        snap_corners = model.display_mesh(cfg.reconstruction.crease_angle)["corners"]
+        snap_corners = model.display_mesh(cfg.reconstruction.crease_angle).corners
 
         def snapshot_cb(shot: int, display: np.ndarray) -> None:
             # The image displayed at each iteration: B + rho * ambient, as Cohen et al. show it.
@@ -283,13 +281,14 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
             images.write_png(snapshot_dir / f"shot_{shot:08d}.png", img)
 
     with rep.stage("solve", total=1.0) as update:
-        solved = model.solve(method, cfg.solver.tolerance, cfg.solver.max_iterations, ff.samples, cfg.seed,
-                             cfg.solver.snapshots, snapshot_cb, _solve_progress(cfg, update))
-    b = solved["radiosity"]
+        solved = model.solve(_engine.SolveOptions(method=method, tolerance=cfg.solver.tolerance,
+                                                  max_iterations=cfg.solver.max_iterations,
+                                                  snapshot_every=cfg.solver.snapshots),
+                             ff_options, snapshot_cb, _solve_progress(cfg, update))
+    b = solved.radiosity
     with rep.stage("irradiance"):
-        transport = model.transport(b, ff.samples, cfg.seed)
-    solved["snapshots_written"] = snapshot_cb
-    return solved, patches, b, transport["irradiance"], transport["escaped"]
+        transport = model.transport(b, ff_options)
+    return solved, patches, b, transport.irradiance, transport.escaped, snapshot_cb
 
 
 def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False):
@@ -301,27 +300,32 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
             _solve_progress(cfg, update)(iteration, residual)
             update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
 
+        hierarchy = _engine.HierarchyOptions(epsilon=hc.epsilon, min_area=hc.min_area, samples=hc.samples,
+                                             seed=cfg.seed, max_rounds=hc.max_rounds)
+        solve = _engine.SolveOptions(method=cfg.solver.method, tolerance=cfg.solver.tolerance,
+                                     max_iterations=cfg.solver.max_iterations)
         if cfg.solver.method == "block_southwell":
             lc = cfg.links
             store = cfg.link_store()
+            out_of_core = _engine.OutOfCoreOptions(store=str(store), memory_budget=lc.memory_budget,
+                                                   group_faces=lc.group_faces,
+                                                   checkpoint_seconds=lc.checkpoint_seconds, resume=resume,
+                                                   reuse_links=reuse_links)
             try:
-                solved = model.solve_out_of_core(
-                    hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance, cfg.solver.max_iterations,
-                    hc.max_rounds, on_progress, str(store), lc.memory_budget, lc.group_faces, lc.checkpoint_seconds,
-                    resume, reuse_links)
+                solved = model.solve_out_of_core(hierarchy, solve, out_of_core, on_progress)
             except RuntimeError as e:
                 raise BakeError(f"link store {store}: {e}") from None
-            solved["store"] = str(store)
         else:
             if resume or reuse_links:
                 raise BakeError("--resume and --reuse-links need the out-of-core solver (solver.method: block_southwell)")
-            solved = model.solve_hierarchical(hc.epsilon, hc.min_area, hc.samples, cfg.seed, cfg.solver.tolerance,
-                                              cfg.solver.max_iterations, hc.max_rounds, on_progress, cfg.solver.method)
-    if solved.get("reused_links"):
-        rep.warn(f"links reused from {solved['store']}: {solved['links']} links, no form factor computed")
-    if not solved["settled"] and solved["rounds"] >= hc.max_rounds:
+            solved = model.solve_hierarchical(hierarchy, solve, on_progress)
+    if solved.reused_links:
+        rep.warn(f"links reused from {cfg.link_store()}: {solved.links} links, no form factor computed")
+    if not solved.settled and solved.rounds >= hc.max_rounds:
         rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
-    return solved, model.patch_arrays()
+    # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
+    model.use_leaves_as_patches()
+    return solved, patch_dict(model.patch_arrays())
 
 
 def _solve_progress(cfg: Config, update):

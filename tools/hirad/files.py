@@ -234,7 +234,7 @@ def _read_marker(directory: Path, name: str, fmt: str) -> dict | None:
     p = directory / name
     try:
         st = os.lstat(p)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > 1 << 20:
+        if not stat.S_ISREG(st.st_mode) or st.st_size > 64 << 20:  # a listing, never this large
             return None
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -300,23 +300,25 @@ def staging_prefix(out_dir: Path) -> str:
 
 
 def make_staging(out_dir: str | os.PathLike, version: str = "") -> Path:
-    """The hidden sibling `.NAME.partial-PID/` where a bake assembles its outputs, with the
+    """The hidden sibling `.NAME.partial-PID-X/` where a bake assembles its outputs, with the
     marker in it from the start (so a later bake knows it may remove it)."""
     out = Path(out_dir)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise WriteError(f"output {out}: cannot make its parent directory: {_describe(e)}") from None
-    staging = out.parent / f"{staging_prefix(out)}{os.getpid()}"
-    if os.path.lexists(staging):
-        # ours from an earlier bake in this process (same pid): only if hirad's
-        if staging.is_symlink() or _read_marker(staging, OUTPUT_MARKER, _OUTPUT_FORMAT) is None:
-            raise UnsafePathError(f"{staging} exists and is not hirad's; move it away")
-        shutil.rmtree(staging)
-    try:
-        staging.mkdir()
-    except OSError as e:
-        raise WriteError(f"{staging}: cannot make the staging directory: {_describe(e)}") from None
+    # the pid (for the stale check) and a token (two bakes of one process never share one)
+    for _ in range(100):
+        staging = out.parent / f"{staging_prefix(out)}{os.getpid()}-{secrets.token_hex(3)}"
+        try:
+            staging.mkdir()
+            break
+        except FileExistsError:
+            continue
+        except OSError as e:
+            raise WriteError(f"{staging}: cannot make the staging directory: {_describe(e)}") from None
+    else:
+        raise WriteError(f"output {out}: no free staging directory name in {out.parent}")
     write_json(staging / OUTPUT_MARKER, {"format": _OUTPUT_FORMAT, "version": 1, "hirad_version": version,
                                          "complete": False, "pid": os.getpid()})
     return staging
@@ -388,7 +390,7 @@ def _pid_alive(pid: int) -> bool:
 
 
 def remove_stale_staging(out_dir: str | os.PathLike) -> list[Path]:
-    """Removes what killed bakes of this output left beside it: `.NAME.partial-PID/` staging
+    """Removes what killed bakes of this output left beside it: `.NAME.partial-PID[-X]/` staging
     directories and `.NAME.old-PID-X/` previous outputs (a kill during the swap), only those
     that carry hirad's marker and whose process is gone. Returns what was removed."""
     out = Path(out_dir)
