@@ -740,6 +740,18 @@ def test_progress_lines_are_rate_limited_and_never_cut():
     lines = buf.getvalue().splitlines()
     assert len(lines) == 3 and lines[1].endswith("solve 25% iteration 7, residual " + "9" * 200)
     assert Reporter(quiet=True, stream=buf)._log is False
+    from hirad import report
+
+    buf = io.StringIO()
+    rep = Reporter(stream=buf, interval=0)
+    with pytest.raises(ValueError):
+        with rep.stage("lightmaps"):
+            raise ValueError("x")
+    assert buf.getvalue().splitlines()[-1].endswith("lightmaps stopped after 0.0 s")
+    assert report.current_stage == "lightmaps"  # what the CLI names in an unexpected error
+    with rep.stage("preview"):
+        pass
+    assert report.current_stage is None
 
 
 def test_version():

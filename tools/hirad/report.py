@@ -92,14 +92,17 @@ class Reporter:
                     parts.append(detail)
                 self._line(" ".join(parts))
 
+        ok = False
         try:
             yield update
+            ok = True
+            current_stage = None  # (kept when the stage raises: the CLI names it)
         finally:
             self.timings[name] = round(time.perf_counter() - start, 4)
             if task is not None:
                 self._progress.update(task, total=total or 1, completed=total or 1)
             elif self._log:
-                self._line(f"{name} done in {time.perf_counter() - start:.1f} s")
+                self._line(f"{name} {'done in' if ok else 'stopped after'} {time.perf_counter() - start:.1f} s")
 
     def warn(self, message: str) -> None:
         self.warnings.append(message)
