@@ -1,0 +1,325 @@
+"""The study report: one self-contained HTML page (and a PDF of it) per study.
+
+The page holds the luminaire schedule, every grid's statistics (Em, Emin, Emax, U0, Ud and the
+maintained Em, Emin, Emax) with its false-colour picture, further pictures (a luminance view),
+the units, the maintenance factor, hirad's version and the solver's figures (residual, energy
+balance). Pictures are embedded as base64 ``data:`` URIs and the style sheet is inline: the file
+needs nothing else, offline or mailed to a client. Every text from the caller is HTML-escaped.
+No clock is read: the same study gives the same bytes (a date, if wanted, is the caller's
+``subtitle`` or a ``solver`` entry).
+
+PDF (:func:`write_report_pdf`): WeasyPrint renders the very same HTML (engine "weasyprint",
+the default when it imports; it fetches no URL but ``data:``; the font subsets' timestamps are
+pinned by SOURCE_DATE_EPOCH=0 for the call, so the bytes are reproducible). Without it, engine
+"matplotlib" draws the same tables and pictures on pages with matplotlib's PdfPages.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Optional, Sequence
+
+from hirad import __version__
+from hirad.files import atomic_path, write_text
+
+from .evaluate import GridResult
+from .pictures import grid_picture
+from .spec import StudyError
+
+LUMINAIRE_COLUMNS = (("type", "Type"), ("count", "Count"), ("lumens", "Lumens per luminaire (lm)"),
+                     ("ies", "IES file"))
+UNITS_TEXT = ("Illuminance E in lux (lx = lm/m²), luminance in cd/m², luminous flux in lumens (lm), "
+              "lengths in metres (m). Maintained values are the maintenance factor × the values of the new "
+              "installation; U0 = Emin/Em and Ud = Emin/Emax are ratios.")
+STAT_ROWS = (("em", "Em (lx)"), ("emin", "Emin (lx)"), ("emax", "Emax (lx)"), ("u0", "U0 = Emin/Em"),
+             ("ud", "Ud = Emin/Emax"), ("em_maintained", "maintained Em (lx)"),
+             ("emin_maintained", "maintained Emin (lx)"), ("emax_maintained", "maintained Emax (lx)"))
+
+
+@dataclass
+class Study:
+    """What a report shows. `luminaires`: dicts with type, count, lumens, ies (other keys
+    become further columns); `solver`: the solver's figures (residual, energy_balance, and
+    anything else to show), values numbers or text; `pictures`: extra (caption, PNG bytes)."""
+
+    results: Sequence[GridResult]
+    maintenance_factor: float
+    luminaires: Sequence[Mapping[str, Any]] = ()
+    solver: Mapping[str, Any] = field(default_factory=dict)
+    title: str = "Lighting study"
+    subtitle: str = ""
+    units: str = UNITS_TEXT
+    pictures: Sequence[tuple[str, bytes]] = ()
+    version: str = __version__
+    grid_pictures: Optional[Mapping[str, bytes]] = None  # name -> PNG; drawn when absent
+
+    def picture_of(self, result: GridResult) -> bytes:
+        if self.grid_pictures and result.name in self.grid_pictures:
+            return self.grid_pictures[result.name]
+        return grid_picture(result)
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return f"{v:,}".replace(",", " ")
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return str(v)
+        if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e7):
+            return f"{v:.4g}"
+        return f"{v:.4g}" if abs(v) < 1 else f"{v:.2f}" if abs(v) < 1e4 else f"{v:.0f}"
+    return str(v)
+
+
+def _esc(v: Any) -> str:
+    return html.escape(_fmt(v), quote=True)
+
+
+def _data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _luminaire_columns(luminaires) -> list[tuple[str, str]]:
+    cols = list(LUMINAIRE_COLUMNS)
+    known = {k for k, _ in cols}
+    for row in luminaires:
+        for k in row:
+            if k not in known:
+                known.add(k)
+                cols.append((k, str(k)))
+    return cols
+
+
+def _check(study: Study) -> None:
+    if not (0 < study.maintenance_factor <= 1):
+        raise StudyError(f"report: maintenance factor {study.maintenance_factor} is not in (0, 1]")
+    for r in study.results:
+        if abs(r.stats.maintenance_factor - study.maintenance_factor) > 1e-12:
+            raise StudyError(f"report: grid {r.name} was evaluated with maintenance factor "
+                             f"{r.stats.maintenance_factor}, the report states {study.maintenance_factor}")
+    for i, row in enumerate(study.luminaires):
+        if not isinstance(row, Mapping):
+            raise StudyError(f"report: luminaire {i} is not a mapping of type, count, lumens, ies")
+
+
+def grid_summary(result: GridResult) -> list[tuple[str, str]]:
+    """(label, value) lines describing a grid (kind, measure, points, spacing, area)."""
+    g = result.grid
+    m = g.measure
+    measure = m.type.replace("_", "-")
+    if m.azimuth is not None:
+        measure += f", facing azimuth {m.azimuth:g}°"
+    if m.type in ("cylindrical", "semi_cylindrical"):
+        measure += f", {m.azimuths} azimuths"
+    rows = [("kind", g.kind), ("measure", measure), ("points", _fmt(len(g.points)))]
+    if g.spacing:
+        rows.append(("spacing (m)", f"{g.spacing[0]:.4g} × {g.spacing[1]:.4g}"))
+    if g.rule:
+        rows.append(("EN 12464-1 rule", f"d = {g.rule['d']:.4g} m, p = {g.rule['p']:.4g} m"))
+    if g.area is not None:
+        rows.append(("evaluation area (m²)", f"{g.area:.4g}"))
+    if g.source:
+        rows.append(("points from", g.source))
+    return rows
+
+
+_CSS = """
+body{font-family:DejaVu Sans,Helvetica,Arial,sans-serif;font-size:10pt;margin:2em;color:#222}
+h1{font-size:18pt;margin-bottom:0.2em} h2{font-size:13pt;margin-top:1.6em;border-bottom:1px solid #999}
+h3{font-size:11pt} table{border-collapse:collapse;margin:0.5em 0} th,td{border:1px solid #bbb;padding:3px 8px}
+th{background:#eee;text-align:left} td.n{text-align:right;font-variant-numeric:tabular-nums}
+img{max-width:100%} .grid{page-break-inside:avoid} .sub{color:#555}
+@page{size:A4;margin:15mm}
+"""
+
+
+def render_html(study: Study) -> str:
+    """The report as one self-contained HTML document."""
+    _check(study)
+    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           f"<title>{html.escape(study.title)}</title>", f"<style>{_CSS}</style></head><body>",
+           f"<h1>{html.escape(study.title)}</h1>"]
+    if study.subtitle:
+        out.append(f'<p class="sub">{html.escape(study.subtitle)}</p>')
+    out.append("<table>")
+    out.append(f'<tr><th>maintenance factor</th><td class="n" id="maintenance-factor">{_esc(study.maintenance_factor)}</td></tr>')
+    out.append(f'<tr><th>hirad version</th><td id="hirad-version">{html.escape(study.version)}</td></tr>')
+    out.append(f"<tr><th>grids</th><td class=\"n\">{len(study.results)}</td></tr></table>")
+    out.append(f'<h2>Units</h2><p id="units">{html.escape(study.units)}</p>')
+
+    out.append("<h2>Luminaire schedule</h2>")
+    if study.luminaires:
+        cols = _luminaire_columns(study.luminaires)
+        out.append('<table id="luminaires"><tr>' + "".join(f"<th>{html.escape(t)}</th>" for _, t in cols) + "</tr>")
+        total = 0.0
+        for row in study.luminaires:
+            out.append("<tr>" + "".join(
+                f'<td{" class=n" if isinstance(row.get(k), (int, float)) else ""}>{_esc(row.get(k))}</td>' for k, _ in cols) + "</tr>")
+            c, lm = row.get("count"), row.get("lumens")
+            if isinstance(c, (int, float)) and isinstance(lm, (int, float)):
+                total += c * lm
+        out.append("</table>")
+        out.append(f'<p>Total luminous flux of the luminaires: <span id="total-lumens">{_esc(total)}</span> lm.</p>')
+    else:
+        out.append("<p>No luminaires given.</p>")
+
+    out.append("<h2>Solver</h2>")
+    solver = dict(study.solver)
+    out.append('<table id="solver">')
+    for key, label in (("residual", "relative residual"), ("energy_balance", "energy balance")):
+        out.append(f"<tr><th>{label}</th><td class=\"n\">{_esc(solver.pop(key)) if key in solver else 'not given'}</td></tr>")
+    for k, v in solver.items():
+        out.append(f"<tr><th>{html.escape(str(k))}</th><td>{_esc(v)}</td></tr>")
+    out.append("</table>")
+
+    out.append("<h2>Grids</h2>")
+    out.append('<table id="grid-summary"><tr><th>grid</th>' + "".join(f"<th>{t}</th>" for _, t in STAT_ROWS) + "</tr>")
+    for r in study.results:
+        st = r.stats.as_dict()
+        out.append(f"<tr><td>{html.escape(r.name)}</td>" + "".join(f'<td class="n">{_esc(st[k])}</td>' for k, _ in STAT_ROWS) + "</tr>")
+    out.append("</table>")
+    for r in study.results:
+        st = r.stats.as_dict()
+        gid = html.escape(r.name, quote=True)
+        out.append(f'<div class="grid" id="grid-{gid}"><h3>{html.escape(r.name)}</h3><table>')
+        for label, value in grid_summary(r):
+            out.append(f"<tr><th>{html.escape(label)}</th><td>{html.escape(value)}</td></tr>")
+        for k, label in STAT_ROWS:
+            out.append(f'<tr><th>{label}</th><td class="n" data-key="{k}">{_esc(st[k])}</td></tr>')
+        out.append("</table>")
+        out.append(f'<img alt="false-colour illuminance of {gid}" src="{_data_uri(study.picture_of(r))}">')
+        out.append("</div>")
+    for caption, png in study.pictures:
+        out.append(f'<div class="grid"><h3>{html.escape(caption)}</h3>'
+                   f'<img alt="{html.escape(caption, quote=True)}" src="{_data_uri(png)}"></div>')
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def write_report_html(study: Study, path) -> str:
+    """Writes the HTML report atomically; returns its text."""
+    text = render_html(study)
+    write_text(path, text)
+    return text
+
+
+def pdf_engine(engine: str = "auto") -> str:
+    """The PDF engine that `engine` names: "weasyprint", "matplotlib", or "auto" (WeasyPrint
+    when it imports and finds its Pango library, else matplotlib)."""
+    if engine not in ("auto", "weasyprint", "matplotlib"):
+        raise StudyError(f"report PDF engine {engine!r}: auto, weasyprint or matplotlib")
+    if engine != "auto":
+        return engine
+    try:
+        import weasyprint  # noqa: F401
+    except (ImportError, OSError):  # not installed, or its Pango library missing
+        return "matplotlib"
+    return "weasyprint"
+
+
+def write_report_pdf(study: Study, path, engine: str = "auto") -> str:
+    """Writes the PDF report atomically; returns the engine used."""
+    engine = pdf_engine(engine)
+    if engine == "weasyprint":
+        data = _pdf_weasyprint(render_html(study))
+    else:
+        data = _pdf_matplotlib(study)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return engine
+
+
+def _pdf_weasyprint(text: str) -> bytes:
+    try:
+        import weasyprint
+    except (ImportError, OSError) as e:
+        raise StudyError(f"report PDF: WeasyPrint cannot be used here ({e}); use engine 'matplotlib'") from None
+    kwargs = {}
+    try:
+        from weasyprint.urls import URLFetcher
+
+        kwargs["url_fetcher"] = URLFetcher(allowed_protocols={"data"}, fail_on_errors=True)
+    except (ImportError, TypeError):
+        pass
+    # fontTools stamps the embedded font subsets with the clock unless SOURCE_DATE_EPOCH is set:
+    # set it (to 0) for the call when the caller has not, so the same study gives the same bytes
+    import os
+
+    had = "SOURCE_DATE_EPOCH" in os.environ
+    if not had:
+        os.environ["SOURCE_DATE_EPOCH"] = "0"
+    try:
+        return weasyprint.HTML(string=text, **kwargs).write_pdf()
+    finally:
+        if not had:
+            os.environ.pop("SOURCE_DATE_EPOCH", None)
+
+
+def _pdf_matplotlib(study: Study) -> bytes:
+    _check(study)
+    from matplotlib.backends.backend_pdf import PdfPages
+    from matplotlib.figure import Figure
+    from matplotlib.image import imread
+
+    buf = io.BytesIO()
+    a4 = (8.27, 11.69)
+
+    def table(ax, rows, cols=None, fontsize=8):
+        ax.axis("off")
+        if not rows:
+            return
+        t = ax.table(cellText=rows, colLabels=cols, loc="upper left", cellLoc="left")
+        t.auto_set_font_size(False)
+        t.set_fontsize(fontsize)
+        t.scale(1.0, 1.3)
+
+    with PdfPages(buf, metadata={"Creator": f"hirad {study.version}", "CreationDate": None}) as pdf:
+        fig = Figure(figsize=a4)
+        fig.text(0.08, 0.95, study.title, fontsize=16, weight="bold")
+        if study.subtitle:
+            fig.text(0.08, 0.925, study.subtitle, fontsize=9, color="#555")
+        fig.text(0.08, 0.895, f"maintenance factor {_fmt(study.maintenance_factor)}    hirad {study.version}", fontsize=9)
+        fig.text(0.08, 0.87, "Units: " + study.units, fontsize=7, wrap=True)
+        cols = _luminaire_columns(study.luminaires)
+        ax = fig.add_axes((0.08, 0.62, 0.84, 0.2))
+        ax.set_title("Luminaire schedule", loc="left", fontsize=11)
+        table(ax, [[_fmt(r.get(k)) for k, _ in cols] for r in study.luminaires] or [["no luminaires given"]],
+              [t for _, t in cols] if study.luminaires else None)
+        solver = dict(study.solver)
+        srows = [["relative residual", _fmt(solver.pop("residual")) if "residual" in solver else "not given"],
+                 ["energy balance", _fmt(solver.pop("energy_balance")) if "energy_balance" in solver else "not given"]]
+        srows += [[str(k), _fmt(v)] for k, v in solver.items()]
+        ax = fig.add_axes((0.08, 0.38, 0.84, 0.2))
+        ax.set_title("Solver", loc="left", fontsize=11)
+        table(ax, srows)
+        ax = fig.add_axes((0.08, 0.05, 0.84, 0.28))
+        ax.set_title("Grids", loc="left", fontsize=11)
+        table(ax, [[r.name] + [_fmt(r.stats.as_dict()[k]) for k, _ in STAT_ROWS] for r in study.results],
+              ["grid"] + [t for _, t in STAT_ROWS], fontsize=6)
+        pdf.savefig(fig)
+        for r in study.results:
+            fig = Figure(figsize=a4)
+            fig.text(0.08, 0.95, f"Grid {r.name}", fontsize=14, weight="bold")
+            st = r.stats.as_dict()
+            ax = fig.add_axes((0.08, 0.62, 0.84, 0.3))
+            table(ax, [[a, b] for a, b in grid_summary(r)] + [[t, _fmt(st[k])] for k, t in STAT_ROWS])
+            ax = fig.add_axes((0.05, 0.04, 0.9, 0.55))
+            ax.imshow(imread(io.BytesIO(study.picture_of(r)), format="png"))
+            ax.axis("off")
+            pdf.savefig(fig)
+        for caption, png in study.pictures:
+            fig = Figure(figsize=a4)
+            fig.text(0.08, 0.95, caption, fontsize=14, weight="bold")
+            ax = fig.add_axes((0.05, 0.3, 0.9, 0.6))
+            ax.imshow(imread(io.BytesIO(png), format="png"))
+            ax.axis("off")
+            pdf.savefig(fig)
+    return buf.getvalue()
