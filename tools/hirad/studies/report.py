@@ -131,6 +131,8 @@ def grid_summary(result: GridResult) -> list[tuple[str, str]]:
     return rows
 
 
+_SHORT_LABELS = ("Em", "Emin", "Emax", "U0", "Ud", "Em maint.", "Emin maint.", "Emax maint.")
+
 _CSS = """
 body{font-family:DejaVu Sans,Helvetica,Arial,sans-serif;font-size:10pt;margin:2em;color:#222}
 h1{font-size:18pt;margin-bottom:0.2em} h2{font-size:13pt;margin-top:1.6em;border-bottom:1px solid #999}
@@ -303,7 +305,9 @@ def _pdf_matplotlib(study: Study) -> bytes:
         ax = fig.add_axes((0.08, 0.05, 0.84, 0.28))
         ax.set_title("Grids", loc="left", fontsize=11)
         table(ax, [[r.name] + [_fmt(r.stats.as_dict()[k]) for k, _ in STAT_ROWS] for r in study.results],
-              ["grid"] + [t for _, t in STAT_ROWS], fontsize=6)
+              ["grid"] + list(_SHORT_LABELS), fontsize=6)
+        ax.text(0.0, -0.02, "Em, Emin, Emax in lx; maint. = maintained (MF x the new installation's value)",
+                transform=ax.transAxes, fontsize=6, va="top")
         pdf.savefig(fig)
         for r in study.results:
             fig = Figure(figsize=a4)
@@ -323,3 +327,37 @@ def _pdf_matplotlib(study: Study) -> bytes:
             ax.axis("off")
             pdf.savefig(fig)
     return buf.getvalue()
+
+
+def write_study(study: Study, out_dir, *, pdf: bool = True, engine: str = "auto") -> dict:
+    """Writes every output of a study into the directory `out_dir` (made if missing), each
+    file atomically: per grid NAME.csv, NAME.json and NAME.png; report.html and (if `pdf`)
+    report.pdf. Returns {"files": [paths], "pdf_engine": name or None}."""
+    from pathlib import Path
+
+    from .outputs import write_grid_csv, write_grid_json
+    from .pictures import write_png
+
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise StudyError(f"{out}: cannot make the directory: {e.strerror or e}") from None
+    pictures = dict(study.grid_pictures or {})
+    files = []
+    for r in study.results:
+        png = pictures.get(r.name) or grid_picture(r)
+        pictures[r.name] = png
+        for suffix, write in (("csv", write_grid_csv), ("json", write_grid_json)):
+            write(r, out / f"{r.name}.{suffix}")
+            files.append(out / f"{r.name}.{suffix}")
+        write_png(out / f"{r.name}.png", png)
+        files.append(out / f"{r.name}.png")
+    drawn = Study(**{**study.__dict__, "grid_pictures": pictures})
+    write_report_html(drawn, out / "report.html")
+    files.append(out / "report.html")
+    used = None
+    if pdf:
+        used = write_report_pdf(drawn, out / "report.pdf", engine)
+        files.append(out / "report.pdf")
+    return {"files": files, "pdf_engine": used}
