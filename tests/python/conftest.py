@@ -1,4 +1,4 @@
-"""Shared scene builders for the engine tests: polygons in, hirad._engine.Model out.
+"""Shared scene builders for the engine tests: polygons in, hirad._engine.Engine out.
 
 Polygons are lists of 3D corners, counter-clockwise seen from their front (emitting) side.
 Reflectance and emission are a scalar, an RGB triple, or one of those per polygon.
@@ -32,17 +32,17 @@ def _per_face(value, n: int) -> np.ndarray:
 
 def make_model(polys, reflectance=0.5, emission=0.0, max_area: float | None = None,
                max_edge: float | None = None):
-    """An engine Model of the polygons (one mesh); meshed when max_area/max_edge are given
+    """An engine of the polygons (one mesh); meshed when max_area/max_edge are given
     (either one alone: the other is unlimited)."""
     polys = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in polys]
     n = len(polys)
     points = np.ascontiguousarray(np.concatenate(polys))
     counts = np.array([len(p) for p in polys], dtype=np.int32)
     indices = np.arange(points.shape[0], dtype=np.int32)
-    m = _engine.Model(points, counts, indices, np.zeros(n, np.int32), np.arange(n, dtype=np.int32),
-                      _per_face(reflectance, n), _per_face(emission, n), None)
+    m = _engine.Engine(points, counts, indices, np.zeros(n, np.int32), np.arange(n, dtype=np.int32),
+                       _per_face(reflectance, n), _per_face(emission, n))
     if max_area is not None or max_edge is not None:
-        m.mesh(max_area or BIG, max_edge or BIG)
+        m.mesh(_engine.MeshOptions(max_patch_area=max_area or BIG, max_edge_length=max_edge or BIG))
     return m
 
 

@@ -2,7 +2,7 @@
 
 The scene's faces are used as they are (no meshing into patches), and the exitant radiance at
 the surface point closest to each query point is estimated by path tracing
-(`Model.reference_at`), with its standard error. This is the ground truth that flat and
+(`Engine.reference_at`), with its standard error. This is the ground truth that flat and
 hierarchical bakes can be compared with (`hirad reference` on the command line).
 """
 
@@ -18,6 +18,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from . import _engine, usd
+from .engine import build_engine
 from .bake import BakeError
 from .config import load_config
 
@@ -86,19 +87,11 @@ def scene_of(path: str | os.PathLike) -> usd.SceneArrays:
 
 
 def unsplit_model(scene: usd.SceneArrays):
-    """An engine Model of the scene's faces, each face one patch."""
-    model = _engine.Model(
-        np.ascontiguousarray(scene.points, dtype=np.float64),
-        np.ascontiguousarray(scene.face_vertex_counts, dtype=np.int32),
-        np.ascontiguousarray(scene.face_vertex_indices, dtype=np.int32),
-        np.ascontiguousarray(scene.face_mesh, dtype=np.int32),
-        np.ascontiguousarray(scene.face_source, dtype=np.int32),
-        np.ascontiguousarray(scene.face_reflectance, dtype=np.float64),
-        np.ascontiguousarray(scene.face_emission, dtype=np.float64),
-        None)
-    if model.stats()["faces"] == 0:
+    """An engine of the scene's faces, each face one patch."""
+    model = build_engine(scene, with_uv=False)
+    if model.stats().faces == 0:
         raise BakeError(f"{scene.source_path or 'scene'}: no usable faces")
-    model.mesh(UNSPLIT, UNSPLIT)
+    model.mesh(_engine.MeshOptions(max_patch_area=UNSPLIT, max_edge_length=UNSPLIT))
     return model
 
 
@@ -117,7 +110,8 @@ def reference_at(scene_path: str | os.PathLike, points, normals=None, paths: int
         raise ValueError(f"paths must be >= 1, got {paths}")
     model = unsplit_model(scene_of(scene_path))
     try:
-        ref = model.reference_at(pts, nrm, int(paths), MIN_BOUNCES, int(seed), float(max_distance))
+        ref = model.reference_at(pts, nrm, _engine.ReferenceOptions(paths=int(paths), min_bounces=MIN_BOUNCES,
+                                                                    seed=int(seed)), float(max_distance))
     except ValueError as e:
         m = re.match(r"point (\d+): (.*)", str(e))
         if not m:
@@ -125,7 +119,7 @@ def reference_at(scene_path: str | os.PathLike, points, normals=None, paths: int
         k = int(m.group(1))
         where = f"{points_file}:{lines[k]}" if points_file and lines else f"point {k}"
         raise BakeError(f"{where}: {m.group(2)} ({pts[k].tolist()})") from None
-    return {"radiance": np.asarray(ref["radiance"]), "standard_error": np.asarray(ref["standard_error"])}
+    return {"radiance": ref.radiance, "standard_error": ref.standard_error}
 
 
 def write_reference_csv(scene_path: Path, points_path: Path, output: Optional[Path], paths: int, seed: int,

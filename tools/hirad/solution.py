@@ -60,8 +60,7 @@ class SurfaceSolution:
         if nrm.shape != pts.shape:
             raise ValueError(f"normals: {len(nrm)} rows for {len(pts)} points")
         res = self.field.probe(pts, nrm, min(md, 1e30))
-        q = {k: np.asarray(res[k] if isinstance(res, dict) else getattr(res, k))
-             for k in ("patch", "distance", "irradiance", "radiance")}
+        q = {k: np.asarray(getattr(res, k)) for k in ("patch", "distance", "irradiance", "radiance")}
         none = q["patch"] < 0
         if none.any():
             for key in ("irradiance", "radiance"):
@@ -124,8 +123,11 @@ class Result(SurfaceSolution):
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
         if self.hierarchical:
-            return self._model.gather(pts, nrm, rays, cluster_samples, seed)
-        return self._model.gather_flat(pts, nrm, np.ascontiguousarray(self.patch_radiosity), rays, seed)
+            g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
+                                                                   seed=seed))
+        else:
+            g = self._model.gather_flat(pts, nrm, np.ascontiguousarray(self.patch_radiosity), rays, seed)
+        return {k: getattr(g, k) for k in ("patch", "irradiance", "radiance")}
 
 
 def load_solution(path: str | os.PathLike) -> SurfaceSolution:

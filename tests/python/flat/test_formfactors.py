@@ -200,10 +200,10 @@ def test_raycast_unit_squares(pair):
             assert m.form_factor(0, 1, samples, seed) == pytest.approx(exact, rel=0.01)
             assert m.form_factor(1, 0, samples, seed) == pytest.approx(exact, rel=0.01)
     # Through the stored links: H_0 with B = 1 on patch 1 only is F_01.
-    m.compute_links("raycast", 1024, 0, 0, 1, None)
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=1024, seed=1))
     b = np.zeros((2, 3))
     b[1] = 1.0
-    h = m.transport(b, 1024, 1)["irradiance"]
+    h = m.transport(b, _engine.FormFactorOptions(samples=1024, seed=1)).irradiance
     assert h[0] == pytest.approx([exact] * 3, rel=0.01)
     assert h[1] == pytest.approx([0.0] * 3, abs=0)
 
@@ -233,15 +233,16 @@ def test_subdivided_parallel_squares():
     m = make_model(parallel_squares(), max_area=BIG, max_edge=0.25)
     pa = m.patch_arrays()
     assert m.num_patches == 32
-    target = pa["centroid"][:, 2] > 0.5
+    target = pa.centroid[:, 2] > 0.5
     source = ~target
-    area = pa["area"]
+    area = pa.area
     b = np.zeros((m.num_patches, 3))
     b[target] = 1.0
     exact = _engine.parallel_rectangles_form_factor(1, 1, 1)
     for method in ("raycast", "hemicube"):
-        m.compute_links(method, 16, 128, 16, 3, None)
-        h = m.transport(b, 16, 3)["irradiance"][:, 0]
+        m.compute_links(_engine.FormFactorOptions(method=method, samples=16, hemicube_resolution=128,
+                                                  hemicube_points=16, seed=3))
+        h = m.transport(b, _engine.FormFactorOptions(samples=16, seed=3)).irradiance[:, 0]
         mean = np.sum(h[source] * area[source]) / area[source].sum()
         assert mean == pytest.approx(exact, rel=0.01), method
         # By symmetry every source patch sees the target from its own position: the corner
@@ -264,12 +265,13 @@ def test_row_sums_in_closed_box(box, method):
     m = make_model(box_faces(*dims), max_area=BIG, max_edge=edge)
     n = m.num_patches
     assert n == count
-    m.compute_links(method, 256, 128, 16, 1, None)
-    tr = m.transport(np.ones((n, 3)), 256, 1)
-    rows = tr["irradiance"][:, 0]
+    m.compute_links(_engine.FormFactorOptions(method=method, samples=256, hemicube_resolution=128,
+                                              hemicube_points=16, seed=1))
+    tr = m.transport(np.ones((n, 3)), _engine.FormFactorOptions(samples=256, seed=1))
+    rows = tr.irradiance[:, 0]
     np.testing.assert_allclose(rows, 1.0, rtol=0, atol=0.01)
-    total_area = m.patch_arrays()["area"].sum()
-    assert tr["escaped"].sum() <= 0.01 * 3 * total_area
+    total_area = m.patch_arrays().area.sum()
+    assert tr.escaped.sum() <= 0.01 * 3 * total_area
     if method == "hemicube":
         # Each raw hemicube row (not yet symmetrised) covers the whole hemisphere.
         for i in range(0, n, 5):
@@ -280,22 +282,22 @@ def test_row_sums_drop_below_one_in_open_box():
     # The same cube without its top: the enclosure rule must notice the missing face.
     m = make_model(box_faces(omit=("z1",)), max_area=BIG, max_edge=1 / 3)
     n = m.num_patches
-    m.compute_links("raycast", 256, 0, 0, 1, None)
-    tr = m.transport(np.ones((n, 3)), 256, 1)
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=256, seed=1))
+    tr = m.transport(np.ones((n, 3)), _engine.FormFactorOptions(samples=256, seed=1))
     pa = m.patch_arrays()
-    floor = pa["normal"][:, 2] > 0.5
-    rows = tr["irradiance"][:, 0]
+    floor = pa.normal[:, 2] > 0.5
+    rows = tr.irradiance[:, 0]
     # Each floor patch sees the missing unit square at distance 1 with F ~ 0.2 (0.12 to 0.28
     # over the 3 x 3 patches), so its row sum is about 0.8.
     assert np.all(rows[floor] < 0.9) and np.all(rows[floor] > 0.7)
-    assert tr["escaped"].sum() > 0.1
+    assert tr.escaped.sum() > 0.1
 
 
 def test_reciprocity_unequal_patches():
     # 1 x 1 at z = 0 facing up; 2 x 1 at z = 0.7 facing down, offset in x and y.
     polys = [quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0.5, 0.3, 0.7], [0, 1, 0], [2, 0, 0])]
     m = one_patch_each(polys)
-    a = m.patch_arrays()["area"]
+    a = m.patch_arrays().area
     assert a == pytest.approx([1.0, 2.0])
     f01, f10 = m.form_factor(0, 1, 1024, 5), m.form_factor(1, 0, 1024, 5)
     assert f01 > 0.1 and f10 > 0.05
@@ -306,8 +308,8 @@ def test_reciprocity_unequal_patches():
     assert h01 == pytest.approx(f01, rel=0.02)
     assert h10 == pytest.approx(f10, rel=0.02)
     # The stored coupling is symmetric by construction and close to both estimates.
-    m.compute_links("raycast", 1024, 0, 0, 5, None)
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=1024, seed=5))
     b = np.zeros((2, 3))
     b[1] = 1.0
-    g01 = m.transport(b, 1024, 5)["irradiance"][0, 0] * a[0]
+    g01 = m.transport(b, _engine.FormFactorOptions(samples=1024, seed=5)).irradiance[0, 0] * a[0]
     assert g01 == pytest.approx(a[0] * f01, rel=0.02)

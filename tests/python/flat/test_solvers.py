@@ -21,7 +21,8 @@ MAX_IT = 10**7
 
 
 def solve(m, method, tolerance=1e-7, samples=16, seed=1, max_iterations=MAX_IT):
-    return m.solve(method, tolerance, max_iterations, samples, seed, 0, None, None)
+    return m.solve(_engine.SolveOptions(method=method, tolerance=tolerance, max_iterations=max_iterations),
+                   _engine.FormFactorOptions(samples=samples, seed=seed))
 
 
 def rel_diff(b, ref):
@@ -47,8 +48,8 @@ def small_box():
     """~230 patches, raycast links at 16 samples, and the direct solution."""
     m = lit_box(1 / 6)
     assert 200 <= m.num_patches <= 260
-    m.compute_links("raycast", 16, 0, 0, 7, None)
-    return m, solve(m, "direct")["radiosity"]
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=16, seed=7))
+    return m, solve(m, "direct").radiosity
 
 
 # --------------------------------------------------------------------------------------
@@ -64,7 +65,7 @@ def furnace_links():
         assert m.num_patches == 54
         # 256 samples: row sums within 0.3 %, so B within 1 % even at rho = 0.9, where
         # a row-sum error s shifts B by about rho s / (1 - rho) = 9 s.
-        m.compute_links("raycast", 256, 0, 0, 1, None)
+        m.compute_links(_engine.FormFactorOptions(method="raycast", samples=256, seed=1))
         models[rho] = m
     return models
 
@@ -75,10 +76,10 @@ def test_furnace(furnace_links, rho, method):
     m = furnace_links[rho]
     e = np.array([1.0, 2.0, 0.5])
     sol = solve(m, method, samples=256)
-    assert sol["converged"]
-    b = sol["radiosity"]
+    assert sol.converged
+    b = sol.radiosity
     np.testing.assert_allclose(b, np.broadcast_to(e / (1 - rho), b.shape), rtol=0.01)
-    h = m.transport(b, 256, 1)["irradiance"]
+    h = m.transport(b, _engine.FormFactorOptions(samples=256, seed=1)).irradiance
     np.testing.assert_allclose(h, b, rtol=0.01)
 
 
@@ -91,12 +92,12 @@ def test_direct_solves_the_system(small_box):
     m, b = small_box
     # Independently of the solvers' own bookkeeping: B = E + rho H with H from transport.
     pa = m.patch_arrays()
-    h = m.transport(b, 16, 7)["irradiance"]
-    np.testing.assert_allclose(b, pa["emission"] + pa["reflectance"] * h, rtol=1e-9, atol=1e-12)
+    h = m.transport(b, _engine.FormFactorOptions(samples=16, seed=7)).irradiance
+    np.testing.assert_allclose(b, pa.emission + pa.reflectance * h, rtol=1e-9, atol=1e-12)
     assert m.residual_of(b) < 1e-12
     # The light is brighter than what it emits, and non-emitters are lit.
-    light = pa["emission"][:, 0] > 0
-    assert np.all(b[light] > pa["emission"][light])
+    light = pa.emission[:, 0] > 0
+    assert np.all(b[light] > pa.emission[light])
     assert np.all(b[~light] > 0)
 
 
@@ -104,8 +105,8 @@ def test_direct_solves_the_system(small_box):
 def test_iterative_agrees_with_direct(small_box, method):
     m, b_direct = small_box
     sol = solve(m, method, samples=16, seed=7)
-    assert sol["converged"]
-    assert rel_diff(sol["radiosity"], b_direct) < 1e-4
+    assert sol.converged
+    assert rel_diff(sol.radiosity, b_direct) < 1e-4
 
 
 def test_progressive_uses_the_same_couplings_as_southwell(small_box):
@@ -114,12 +115,12 @@ def test_progressive_uses_the_same_couplings_as_southwell(small_box):
     m, _ = small_box
     sw = solve(m, "southwell", samples=16, seed=7)
     pr = solve(m, "progressive", samples=16, seed=7)
-    assert pr["iterations"] == sw["iterations"]
-    np.testing.assert_allclose(pr["radiosity"], sw["radiosity"], rtol=1e-12, atol=0)
-    assert pr["rows_computed"] <= m.num_patches
+    assert pr.iterations == sw.iterations
+    np.testing.assert_allclose(pr.radiosity, sw.radiosity, rtol=1e-12, atol=0)
+    assert pr.rows_computed <= m.num_patches
     # With another seed the couplings differ, and so does the solution (slightly).
     other = solve(m, "progressive", samples=16, seed=8)
-    assert not np.array_equal(other["radiosity"], sw["radiosity"])
+    assert not np.array_equal(other.radiosity, sw.radiosity)
 
 
 @pytest.fixture(scope="module")
@@ -128,8 +129,8 @@ def big_box():
     links, whatever their accuracy."""
     m = lit_box(1 / 18)
     assert 1900 <= m.num_patches <= 2100
-    m.compute_links("raycast", 1, 0, 0, 3, None)
-    return m, solve(m, "direct")["radiosity"]
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=1, seed=3))
+    return m, solve(m, "direct").radiosity
 
 
 def test_iterative_agree_with_direct_2000_patches(big_box):
@@ -137,9 +138,9 @@ def test_iterative_agree_with_direct_2000_patches(big_box):
     assert m.residual_of(b_direct) < 1e-10
     for method in ITERATIVE:
         sol = solve(m, method, samples=1, seed=3)
-        assert sol["converged"], method
-        assert sol["residual"] <= 1e-7, method
-        assert rel_diff(sol["radiosity"], b_direct) < 1e-4, method
+        assert sol.converged, method
+        assert sol.residual <= 1e-7, method
+        assert rel_diff(sol.radiosity, b_direct) < 1e-4, method
 
 
 # --------------------------------------------------------------------------------------
@@ -152,9 +153,9 @@ def test_residual_history(small_box, method):
     m, _ = small_box
     tol = 1e-7
     sol = solve(m, method, tolerance=tol, samples=16, seed=7)
-    hist = np.asarray(sol["residual_history"])
-    assert len(hist) == sol["iterations"] > 1
-    assert hist[-1] == sol["residual"]
+    hist = np.asarray(sol.residual_history)
+    assert len(hist) == sol.iterations > 1
+    assert hist[-1] == sol.residual
     assert hist[-1] <= tol < hist[0]
     if method in ("jacobi", "gauss_seidel"):
         # Sweeps contract the error: no sweep may increase the residual.
@@ -165,17 +166,17 @@ def test_residual_history(small_box, method):
         maxima = [blk.max() for blk in blocks]
         assert all(b <= a for a, b in zip(maxima, maxima[1:]))
     # The reported residual is that of the returned B.
-    assert m.residual_of(sol["radiosity"]) == pytest.approx(sol["residual"], rel=1e-6)
+    assert m.residual_of(sol.radiosity) == pytest.approx(sol.residual, rel=1e-6)
 
 
 @pytest.mark.parametrize("method", ["jacobi", "gauss_seidel", "southwell", "progressive"])
 def test_residual_reported_when_stopped_early(small_box, method):
     m, _ = small_box
     sol = solve(m, method, tolerance=1e-12, samples=16, seed=7, max_iterations=3)
-    assert not sol["converged"]
-    assert sol["iterations"] == 3
-    assert sol["residual"] > 1e-12
-    assert m.residual_of(sol["radiosity"]) == pytest.approx(sol["residual"], rel=1e-6)
+    assert not sol.converged
+    assert sol.iterations == 3
+    assert sol.residual > 1e-12
+    assert m.residual_of(sol.radiosity) == pytest.approx(sol.residual, rel=1e-6)
 
 
 # --------------------------------------------------------------------------------------
@@ -196,22 +197,22 @@ def test_energy_balance_open_box(method):
     emit = np.zeros((5, 3))
     emit[4] = (5.0, 4.0, 3.0)  # the floor glows
     m = make_model(polys, rho, emit, max_area=BIG, max_edge=0.2)
-    m.compute_links("raycast", 16, 0, 0, 1, None)
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=16, seed=1))
     sol = solve(m, method, tolerance=1e-6)
-    assert sol["converged"]
-    b = sol["radiosity"]
-    tr = m.transport(b, 16, 1)
+    assert sol.converged
+    b = sol.radiosity
+    tr = m.transport(b, _engine.FormFactorOptions(samples=16, seed=1))
     pa = m.patch_arrays()
-    area = pa["area"][:, None]
-    emitted = (pa["emission"] * area).sum(axis=0)
+    area = pa.area[:, None]
+    emitted = (pa.emission * area).sum(axis=0)
     np.testing.assert_allclose(emitted, 1.5 * np.array([5.0, 4.0, 3.0]), rtol=1e-9)  # 1 x 1.5 m floor
-    absorbed = ((1 - pa["reflectance"]) * tr["irradiance"] * area).sum(axis=0)
+    absorbed = ((1 - pa.reflectance) * tr.irradiance * area).sum(axis=0)
     faces = (np.array(polys, dtype=np.float64), np.full(len(polys), 4, dtype=np.int32))
-    escaped, sigma, _ = escaped_power(pa["corners"], pa["nv"], pa["normal"], b, pa["area"], 2000, 1,
+    escaped, sigma, _ = escaped_power(pa.corners, pa.nv, pa.normal, b, pa.area, 2000, 1,
                                       occluders=faces)
     # 3 sigma, the solve's residual (1e-6 of ||E||, times ||A||) and the couplings' quadrature
     # error at 16 samples (0.2 % of the emitted power; see test_proof.QUADRATURE)
-    allowed = 3 * sigma + 1e-6 * np.linalg.norm(pa["emission"]) * np.linalg.norm(pa["area"]) + 2e-3 * emitted
+    allowed = 3 * sigma + 1e-6 * np.linalg.norm(pa.emission) * np.linalg.norm(pa.area) + 2e-3 * emitted
     assert np.all(np.abs(emitted - absorbed - escaped) <= allowed), (emitted - absorbed - escaped, allowed)
     # Not trivially balanced: a good part leaves through the top, and walls absorb.
     assert np.all(escaped > 0.2 * emitted)
@@ -232,17 +233,17 @@ def test_threads_bit_identical():
             _engine.set_threads(threads)
             m = lit_box(1 / 12)
             assert m.num_patches > 700
-            m.compute_links("raycast", 4, 0, 0, 11, None)
+            m.compute_links(_engine.FormFactorOptions(method="raycast", samples=4, seed=11))
             results[threads] = {meth: solve(m, meth, tolerance=1e-6, samples=4, seed=11)
                                 for meth in ("southwell", "progressive")}
     finally:
         _engine.set_threads(0)
     for meth in ("southwell", "progressive"):
         one, two = results[1][meth], results[2][meth]
-        assert one["converged"] and two["converged"]
-        assert one["iterations"] == two["iterations"]
-        assert np.array_equal(one["radiosity"], two["radiosity"]), meth
-        assert one["residual_history"] == two["residual_history"], meth
+        assert one.converged and two.converged
+        assert one.iterations == two.iterations
+        assert np.array_equal(one.radiosity, two.radiosity), meth
+        assert one.residual_history == two.residual_history, meth
 
 
 # --------------------------------------------------------------------------------------
@@ -355,17 +356,12 @@ def test_cornell_ceiling_indirect_and_light(cornell):
 
     scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
                            uv_primvars=tuple(cfg.materials.uv_primvars))
-    m = _engine.Model(
-        np.ascontiguousarray(scene.points, dtype=np.float64),
-        np.ascontiguousarray(scene.face_vertex_counts, dtype=np.int32),
-        np.ascontiguousarray(scene.face_vertex_indices, dtype=np.int32),
-        np.ascontiguousarray(scene.face_mesh, dtype=np.int32),
-        np.ascontiguousarray(scene.face_source, dtype=np.int32),
-        np.ascontiguousarray(scene.face_reflectance, dtype=np.float64),
-        np.ascontiguousarray(scene.face_emission, dtype=np.float64), None)
-    m.mesh(0.01, 0.1)
-    q = m.patch_arrays()
-    direct = m.transport(np.ascontiguousarray(q["emission"]), 4, 1)["irradiance"]
+    from hirad.engine import build_engine, patch_dict
+
+    m = build_engine(scene, with_uv=False)
+    m.mesh(_engine.MeshOptions(max_patch_area=0.01, max_edge_length=0.1))
+    q = patch_dict(m.patch_arrays())
+    direct = m.transport(np.ascontiguousarray(q["emission"]), _engine.FormFactorOptions(samples=4, seed=1)).irradiance
     c2 = _select(q, 1, -1, 0.5488) & (q["emission"].max(axis=1) == 0)
     f2 = _select(q, 1, +1, 0.0)
     assert c2.sum() > 4 and f2.sum() > 4

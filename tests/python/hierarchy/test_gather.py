@@ -1,4 +1,4 @@
-"""The final gather (Model.gather after a hierarchical solve) against physics: closed-form
+"""The final gather (Engine.gather after a hierarchical solve) against physics: closed-form
 point form factors, the furnace (the links that reach a point must cover its hemisphere exactly
 once), an umbra, the Monte Carlo reference, and determinism."""
 
@@ -10,6 +10,7 @@ import pytest
 from conftest import box_faces, make_model, parallel_squares, quad
 
 from hirad import _engine
+from hirad.engine import patch_dict
 
 
 def corner_form_factor(a, b, c):
@@ -31,7 +32,11 @@ def point_to_square(x, y, d, size=1.0):
 
 
 def solve(m, epsilon, min_area, samples=16, max_rounds=6):
-    return m.solve_hierarchical(epsilon, min_area, samples, 1, 1e-10, 100000, max_rounds, None, "jacobi")
+    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=min_area, samples=samples, seed=1,
+                                                      max_rounds=max_rounds),
+                             _engine.SolveOptions(method="jacobi", tolerance=1e-10, max_iterations=100000))
+    m.use_leaves_as_patches()
+    return r
 
 
 def test_gather_under_a_square_emitter_is_the_closed_form_point_form_factor():
@@ -44,11 +49,11 @@ def test_gather_under_a_square_emitter_is_the_closed_form_point_form_factor():
     nrm = np.ascontiguousarray(np.tile([0.0, 0.0, 1.0], (len(xy), 1)))
     g = m.gather(pts, nrm)
     expected = np.array([np.pi * point_to_square(x, y, 1.0) for x, y in xy])
-    assert np.all(g["patch"] >= 0)
-    np.testing.assert_allclose(g["irradiance"][:, 0], expected, rtol=2e-3)
-    np.testing.assert_allclose(g["radiance"][:, 1], 0.5 * expected / np.pi, rtol=2e-3)
+    assert np.all(g.patch >= 0)
+    np.testing.assert_allclose(g.irradiance[:, 0], expected, rtol=2e-3)
+    np.testing.assert_allclose(g.radiance[:, 1], 0.5 * expected / np.pi, rtol=2e-3)
     # The element values do not resolve the fall-off from centre to corner (the test's point).
-    p = m.patch_arrays()
+    p = patch_dict(m.patch_arrays())
     assert len(p["area"]) < 64
 
 
@@ -59,7 +64,7 @@ def test_gather_in_a_furnace_sees_every_direction_once(rho):
     # and its ancestors') cover the hemisphere exactly once.
     m = make_model(box_faces(), rho, 1.0)
     r = solve(m, {0.5: 2e-5, 0.9: 1e-4}[rho], 0.0155, samples=144)   # test_hierarchy's furnace
-    b = r["radiosity"]
+    b = r.radiosity
     rng = np.random.default_rng(7)
     pts, nrm = [], []
     for face in box_faces():
@@ -68,13 +73,13 @@ def test_gather_in_a_furnace_sees_every_direction_once(rho):
         for s, t in rng.random((10, 2)) * 0.96 + 0.02:
             pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
             nrm.append(n)
-    g = m.gather(np.ascontiguousarray(pts), np.ascontiguousarray(nrm), rays=16)
-    assert np.all(g["patch"] >= 0)
+    g = m.gather(np.ascontiguousarray(pts), np.ascontiguousarray(nrm), _engine.GatherOptions(rays=16))
+    assert np.all(g.patch >= 0)
     # H(x) carries the solved B's own error (under 0.6 % here, test_hierarchy's furnace) once.
     assert np.abs(b * (1 - rho) - 1).max() < 0.006
-    err = np.abs(g["irradiance"] * (1 - rho) - 1)
+    err = np.abs(g.irradiance * (1 - rho) - 1)
     assert err.max() < 0.01, f"rho {rho}: max relative error {err.max():.4f}"
-    np.testing.assert_allclose(g["radiance"], (1 + rho * g["irradiance"]) / np.pi, rtol=1e-12)
+    np.testing.assert_allclose(g.radiance, (1 + rho * g.irradiance) / np.pi, rtol=1e-12)
 
 
 def test_gather_in_an_umbra_is_zero_and_beside_it_the_closed_form():
@@ -90,11 +95,11 @@ def test_gather_in_an_umbra_is_zero_and_beside_it_the_closed_form():
     solve(m, 1e-3, 0.01)
     pts = np.array([[0.5, 0.5, 0.0], [-0.9, 0.5, 0.0]])
     nrm = np.array([[0.0, 0.0, 1.0]] * 2)
-    g = m.gather(pts, nrm, rays=16)
-    assert g["irradiance"][0].max() == 0.0
+    g = m.gather(pts, nrm, _engine.GatherOptions(rays=16))
+    assert g.irradiance[0].max() == 0.0
     # Beside it: the emitter seen from (-0.9, 0.5): rectangles of the plane shifted by x.
     far = np.pi * (corner_form_factor(1.9, 0.5, 1.0) - corner_form_factor(0.9, 0.5, 1.0)) * 2
-    np.testing.assert_allclose(g["irradiance"][1], far, rtol=5e-3)
+    np.testing.assert_allclose(g.irradiance[1], far, rtol=5e-3)
 
 
 def test_gather_agrees_with_the_monte_carlo_reference_in_an_open_room():
@@ -111,11 +116,11 @@ def test_gather_agrees_with_the_monte_carlo_reference_in_an_open_room():
     pts = np.r_[pts, np.c_[np.zeros(6), rng.uniform(0.1, 0.9, (6, 2))]]  # wall x = 0
     nrm = np.r_[np.tile([0.0, 0, 1], (8, 1)), np.tile([1.0, 0, 0], (6, 1))]
     pts, nrm = np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
-    g = m.gather(pts, nrm, rays=16)
-    ref = m.reference_at(pts, nrm, 20000, 3, 5, 1e-4)
+    g = m.gather(pts, nrm, _engine.GatherOptions(rays=16))
+    ref = m.reference_at(pts, nrm, _engine.ReferenceOptions(paths=20000, min_bounces=3, seed=5), 1e-4)
     lum = np.array([0.2126, 0.7152, 0.0722])
-    rel = np.abs(g["radiance"] @ lum / (ref["radiance"] @ lum) - 1)
-    rel_se = (ref["standard_error"] @ lum) / (ref["radiance"] @ lum)
+    rel = np.abs(g.radiance @ lum / (ref.radiance @ lum) - 1)
+    rel_se = (ref.standard_error @ lum) / (ref.radiance @ lum)
     assert np.all(rel <= 3 * rel_se + 0.03), (rel, rel_se)
 
 
@@ -126,13 +131,13 @@ def test_gather_is_deterministic_and_needs_a_hierarchical_solve():
     solve(m, 1e-3, 0.01)
     pts = np.ascontiguousarray(np.c_[np.random.default_rng(1).random((50, 2)), np.zeros(50)])
     nrm = np.ascontiguousarray(np.tile([0.0, 0, 1], (50, 1)))
-    a = m.gather(pts, nrm, rays=16)
+    a = m.gather(pts, nrm, _engine.GatherOptions(rays=16))
     try:
         _engine.set_threads(1)
-        b = m.gather(pts, nrm, rays=16)
+        b = m.gather(pts, nrm, _engine.GatherOptions(rays=16))
     finally:
         _engine.set_threads(0)
-    assert np.array_equal(a["irradiance"], b["irradiance"]) and a["irradiance"].max() > 0
+    assert np.array_equal(a.irradiance, b.irradiance) and a.irradiance.max() > 0
 
 
 def test_flat_gather_matches_the_closed_form_and_the_hierarchical_gather():
@@ -140,11 +145,11 @@ def test_flat_gather_matches_the_closed_form_and_the_hierarchical_gather():
     # gather is the closed form too, whatever the patch size.
     m = make_model(parallel_squares(1.0), reflectance=[[0.5] * 3, [0.0] * 3], emission=[[0.0] * 3, [np.pi] * 3],
                    max_area=1 / 16, max_edge=0.25)
-    m.compute_links("raycast", 16, 64, 4, 1, None)
-    b = m.solve("direct", 1e-12, 1000, 16, 1, 0, None, None)["radiosity"]
+    m.compute_links(_engine.FormFactorOptions(method="raycast", samples=16, seed=1))
+    b = m.solve(_engine.SolveOptions(method="direct", tolerance=1e-12, max_iterations=1000)).radiosity
     xy = np.array([[0.5, 0.5], [0.1, 0.1], [0.83, 0.27]])
     pts = np.ascontiguousarray(np.c_[xy, np.zeros(len(xy))])
     nrm = np.ascontiguousarray(np.tile([0.0, 0.0, 1.0], (len(xy), 1)))
     g = m.gather_flat(pts, nrm, b, rays=16)
     expected = np.array([np.pi * point_to_square(x, y, 1.0) for x, y in xy])
-    np.testing.assert_allclose(g["irradiance"][:, 0], expected, rtol=2e-3)
+    np.testing.assert_allclose(g.irradiance[:, 0], expected, rtol=2e-3)

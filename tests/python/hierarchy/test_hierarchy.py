@@ -1,4 +1,4 @@
-"""Hierarchical radiosity (Model.solve_hierarchical) against physics: the flat solution at the
+"""Hierarchical radiosity (Engine.solve_hierarchical) against physics: the flat solution at the
 same leaf resolution, the furnace, energy balance, the cost of initial linking, adaptivity, the
 structure of the link hierarchy, determinism, and the method through hirad.bake."""
 
@@ -13,6 +13,7 @@ import pytest
 from conftest import box_faces, make_model, quad
 
 from hirad import _engine
+from hirad.engine import build_engine, patch_dict
 
 REPO = Path(__file__).resolve().parents[3]
 CORNELL = REPO / "configs" / "scenes" / "cornell_box.usda"
@@ -23,7 +24,11 @@ GRID_MIN_AREA = 0.0624
 
 
 def solve_h(m, epsilon, min_area, samples=16, seed=1, tolerance=1e-9, max_iterations=100000, max_rounds=6):
-    return m.solve_hierarchical(epsilon, min_area, samples, seed, tolerance, max_iterations, max_rounds)
+    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=min_area, samples=samples, seed=seed,
+                                                      max_rounds=max_rounds),
+                             _engine.SolveOptions(method="jacobi", tolerance=tolerance, max_iterations=max_iterations))
+    m.use_leaves_as_patches()
+    return r
 
 
 def accumulate_down(parent, per_node):
@@ -58,28 +63,28 @@ def test_epsilon_zero_matches_the_flat_solution_at_the_same_leaves():
     faces, refl, emis = coloured_box()
     samples = 256  # per link on both sides; at 64 the two estimates differ by up to 1.8 %
     flat = make_model(faces, refl, emis, max_area=1 / 16, max_edge=0.25)
-    flat.compute_links("raycast", samples, 64, 4, 1, None)
-    fs = flat.solve("direct", 1e-12, 1000, 16, 1, 0, None, None)
-    fp = flat.patch_arrays()
+    flat.compute_links(_engine.FormFactorOptions(method="raycast", samples=samples, seed=1))
+    fs = flat.solve(_engine.SolveOptions(method="direct", tolerance=1e-12, max_iterations=1000))
+    fp = patch_dict(flat.patch_arrays())
 
     hm = make_model(faces, refl, emis)
     # epsilon 0: every link with any power splits down to min_area (round 1 splits the links
     # from the emitter; round 2, with B from round 1, all others).
     hs = solve_h(hm, 0.0, GRID_MIN_AREA, samples=samples)
-    hp = hm.patch_arrays()
-    assert hs["settled"] and hs["converged"]
+    hp = patch_dict(hm.patch_arrays())
+    assert hs.settled and hs.converged
     assert len(hp["area"]) == len(fp["area"]) == 6 * 16
     np.testing.assert_allclose(hp["area"], 1 / 16, rtol=1e-12)
 
     d = np.linalg.norm(fp["centroid"][:, None, :] - hp["centroid"][None, :, :], axis=2)
     match = d.argmin(axis=1)
     assert d.min(axis=1).max() < 1e-9 and len(set(match.tolist())) == len(match)
-    bf, bh = fs["radiosity"], hs["radiosity"][match]
+    bf, bh = fs.radiosity, hs.radiosity[match]
     assert bf.min() > 0
     rel = np.abs(bh - bf) / bf
     assert rel.max() < 0.01, f"max relative difference {rel.max():.4f} at patch {np.unravel_index(rel.argmax(), rel.shape)}"
     # Every leaf sees every leaf of the other faces: 96 x 80 links, none coarser.
-    assert hs["links"] == 96 * 80
+    assert hs.links == 96 * 80
 
 
 # ---------------------------------------------------------------------------------------------
@@ -103,19 +108,19 @@ def furnace(request):
     rho = request.param
     m = make_model(box_faces(), rho, 1.0)
     r = solve_h(m, FURNACE[rho], FURNACE_MIN_AREA, samples=FURNACE_SAMPLES, tolerance=1e-10)
-    return rho, r, m.patch_arrays()
+    return rho, r, patch_dict(m.patch_arrays())
 
 
 def test_furnace_radiosity_is_e_over_one_minus_rho(furnace):
     rho, r, p = furnace
-    assert r["converged"]
+    assert r.converged
     expected = 1.0 / (1.0 - rho)
-    b = r["radiosity"]
+    b = r.radiosity
     assert b.shape == (len(p["area"]), 3) and len(b) == 6 * 64
     err = np.abs(b / expected - 1)
     assert err.max() < 0.01, f"rho {rho}: max relative error {err.max():.4f}"
     # There are coarse links (the hierarchy is used), not only leaf-to-leaf ones.
-    assert r["links"] < len(b) * (len(b) - 64)
+    assert r.links < len(b) * (len(b) - 64)
 
 
 def test_furnace_energy_balance_with_escaped(furnace):
@@ -131,10 +136,10 @@ def test_furnace_energy_balance_with_escaped(furnace):
 
     rho, r, p = furnace
     emitted = p["area"].sum() * 1.0
-    absorbed = ((1 - rho) * r["irradiance"] * p["area"][:, None]).sum(axis=0)
-    escaped = r["escaped"].sum(axis=0)
+    absorbed = ((1 - rho) * r.irradiance * p["area"][:, None]).sum(axis=0)
+    escaped = r.escaped.sum(axis=0)
     faces = (np.array(box_faces(), dtype=np.float64), np.full(6, 4, dtype=np.int32))
-    measured, sigma, frac = escaped_power(p["corners"], p["nv"], p["normal"], r["radiosity"], p["area"], 200, 1,
+    measured, sigma, frac = escaped_power(p["corners"], p["nv"], p["normal"], r.radiosity, p["area"], 200, 1,
                                           occluders=faces)
     assert np.all(frac == 0) and np.all(measured == 0) and np.all(sigma == 0)
     assert np.all(np.abs(escaped) < 0.01 * emitted), f"closed box, escaped {escaped} of {emitted} W"
@@ -147,13 +152,13 @@ def test_links_conserve_power_in_a_closed_box(furnace):
     # links at each leaf and at its ancestors, over their areas) equals the power gathered,
     # which in a closed box is all of sum B A.
     rho, r, p = furnace
-    parent, area = r["node_parent"], r["node_area"]
+    parent, area = r.node_parent, r.node_area
     own = np.zeros(len(parent))
-    np.add.at(own, r["link_source"], r["link_coupling"] / area[r["link_source"]])
-    out = accumulate_down(parent, own)[r["leaf_node"]]
-    b = r["radiosity"][:, 0]
+    np.add.at(own, r.link_source, r.link_coupling / area[r.link_source])
+    out = accumulate_down(parent, own)[r.leaf_node]
+    b = r.radiosity[:, 0]
     carried = (b * p["area"] * out).sum()
-    gathered = (r["irradiance"][:, 0] * p["area"]).sum()
+    gathered = (r.irradiance[:, 0] * p["area"]).sum()
     np.testing.assert_allclose(carried, gathered, rtol=1e-6)
     np.testing.assert_allclose(gathered, (b * p["area"]).sum(), rtol=0.01)
 
@@ -186,8 +191,8 @@ def test_initial_linking_never_enumerates_all_pairs(capsys):
         polys, refl, emis = tiled_room(n)
         k = len(polys)
         r = solve_h(make_model(polys, refl, emis), 1e-3, 1e-4, samples=16, tolerance=1e-6, max_rounds=1)
-        assert r["rounds"] == 1 and len(r["links_per_round"]) == 1
-        rows.append((k, r["links_per_round"][0], r["link_estimates"]))
+        assert r.rounds == 1 and len(r.links_per_round) == 1
+        rows.append((k, r.links_per_round[0], r.link_estimates))
     with capsys.disabled():
         print("\n     k    links  links/k  estimates  est/(k log2 k)  links/k^2")
         for k, links, est in rows:
@@ -246,11 +251,11 @@ def test_refinement_adapts_to_epsilon_and_to_the_light():
     for eps in (1e-2, 1e-3, 1e-4):
         m = make_model(polys, refl, emis)
         r = solve_h(m, eps, 1e-3, samples=16, tolerance=1e-6)
-        results[eps] = (r, m.patch_arrays())
+        results[eps] = (r, patch_dict(m.patch_arrays()))
     # Larger epsilon: fewer leaves and fewer links.
     for a, b in ((1e-2, 1e-3), (1e-3, 1e-4)):
-        assert results[a][0]["elements"] < results[b][0]["elements"]
-        assert results[a][0]["links"] < results[b][0]["links"]
+        assert results[a][0].elements < results[b][0].elements
+        assert results[a][0].links < results[b][0].links
     # Under the lamp the floor is refined more finely than in the far corner: the irradiance
     # under it is ~10x that in the corner (distance 1.99 m vs ~3.6 m, cosines 1 vs ~0.5), so
     # links there carry more power and split further (each split quarters the area).
@@ -277,25 +282,25 @@ def tiled():
 
 def test_rounds_refine_until_settled(tiled):
     r = tiled
-    assert r["settled"], "this scene settles within 6 rounds (in 3)"
-    assert r["splits_per_round"][-1] == 0
-    assert all(s > 0 for s in r["splits_per_round"][:-1])
-    lpr = r["links_per_round"]
-    assert len(lpr) == r["rounds"] >= 2
+    assert r.settled, "this scene settles within 6 rounds (in 3)"
+    assert r.splits_per_round[-1] == 0
+    assert all(s > 0 for s in r.splits_per_round[:-1])
+    lpr = r.links_per_round
+    assert len(lpr) == r.rounds >= 2
     assert all(b > a for a, b in zip(lpr, lpr[1:])), lpr
-    assert r["links"] == lpr[-1] == len(r["link_receiver"])
+    assert r.links == lpr[-1] == len(r.link_receiver)
 
 
 def test_links_join_elements_to_disjoint_nodes_once(tiled):
     r = tiled
-    rec, src, parent, cluster = r["link_receiver"], r["link_source"], r["node_parent"], r["node_cluster"]
-    assert len(rec) == len(src) == len(r["link_coupling"]) > 0
+    rec, src, parent, cluster = r.link_receiver, r.link_source, r.node_parent, r.node_cluster
+    assert len(rec) == len(src) == len(r.link_coupling) > 0
     assert np.all(cluster[rec] == 0), "a link receiver is a cluster"
     assert cluster.any(), "no clusters at all"
     assert cluster[src].any(), "no link from a cluster: clustering is not used"
     # Every link can carry light: its coupling is positive, or its rays all met an occluder
     # but light can pass unoccluded (kept, so that later rounds and the gather can see it).
-    g, u = r["link_coupling"], r["link_unoccluded"]
+    g, u = r.link_coupling, r.link_unoccluded
     assert np.all(g >= 0) and np.all(u >= 0)
     assert np.all((g > 0) | (u > 0))
     pairs = rec.astype(np.int64) * len(parent) + src
@@ -317,9 +322,9 @@ def test_links_join_elements_to_disjoint_nodes_once(tiled):
 
 def test_leaves_tile_the_input_faces(tiled):
     r = tiled
-    area = r["node_area"]
-    leaves = r["leaf_node"]
-    assert len(leaves) == r["elements"]
+    area = r.node_area
+    leaves = r.leaf_node
+    assert len(leaves) == r.elements
     # Total leaf area is the scene's area: floor and ceiling 16 m^2 each, four 4 x 2.5 m walls,
     # and the 1 m^2 lamp; and each leaf lies under exactly one input face (the element roots).
     np.testing.assert_allclose(area[leaves].sum(), 2 * 16 + 4 * 10 + 1, rtol=1e-12)
@@ -336,7 +341,7 @@ def test_deterministic_across_runs_and_threads():
 
     def run():
         r = solve_h(make_model(polys, refl, emis), 1e-3, 1e-3, samples=16, tolerance=1e-7)
-        return r["radiosity"], r["link_receiver"], r["link_source"], r["link_coupling"]
+        return r.radiosity, r.link_receiver, r.link_source, r.link_coupling
 
     try:
         _engine.set_threads(2)
@@ -402,9 +407,8 @@ def test_mean_radiosity_does_not_depend_on_samples_per_link():
     s = usd.read_scene(CORNELL)
     means = {}
     for samples in (4, 64):
-        m = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
-                          s.face_reflectance, s.face_emission, s.corner_uv)
+        m = build_engine(s)
         r = solve_h(m, 1e-5, 2e-4, samples=samples, tolerance=1e-6)
-        a = m.patch_arrays()["area"]
-        means[samples] = float((a[:, None] * r["radiosity"]).sum(axis=0).mean() / a.sum())
+        a = patch_dict(m.patch_arrays())["area"]
+        means[samples] = float((a[:, None] * r.radiosity).sum(axis=0).mean() / a.sum())
     assert abs(means[4] / means[64] - 1) < 0.005, means

@@ -6,6 +6,7 @@ way (budget, threads, memory or disk, interrupted or not)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -20,21 +21,25 @@ from conftest import box_faces, make_model
 from hirad_e2e_helpers import CORNELL, run_cli, write_config
 
 from hirad import _engine, usd
+from hirad.engine import build_engine
 
 ARGS = dict(epsilon=1e-5, min_area=4e-4, samples=16, seed=1, tolerance=1e-6, max_iterations=100000, max_rounds=4)
 
 
 def cornell_model():
-    s = usd.read_scene(CORNELL)
-    return _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
-                         s.face_reflectance, s.face_emission, s.corner_uv)
+    return build_engine(usd.read_scene(CORNELL))
 
 
 def solve(model, store="", budget=0, group_faces=1, resume=False, reuse=False, **kw):
     a = dict(ARGS, **kw)
-    return model.solve_out_of_core(a["epsilon"], a["min_area"], a["samples"], a["seed"], a["tolerance"],
-                                   a["max_iterations"], a["max_rounds"], None, str(store), budget, group_faces,
-                                   0.0, resume, reuse)
+    r = model.solve_out_of_core(
+        _engine.HierarchyOptions(epsilon=a["epsilon"], min_area=a["min_area"], samples=a["samples"], seed=a["seed"],
+                                 max_rounds=a["max_rounds"]),
+        _engine.SolveOptions(tolerance=a["tolerance"], max_iterations=a["max_iterations"]),
+        _engine.OutOfCoreOptions(store=str(store), memory_budget=budget, group_faces=group_faces, resume=resume,
+                                 reuse_links=reuse))
+    model.use_leaves_as_patches()
+    return r
 
 
 @pytest.fixture(scope="module")
@@ -49,12 +54,12 @@ def test_same_bits_whatever_the_budget_the_threads_and_where_links_live(tmp_path
     fine = dict(epsilon=3e-6)
     store = tmp_path / "unlimited"
     ref = solve(cornell_model(), store, **fine)
-    s = ref["streaming"]
-    decoded = s["decoded_bytes"]
-    assert decoded >= 6 * ref["links"]  # a coupling and a receiver delta per link, at least
+    s = ref.streaming
+    decoded = s.decoded_bytes
+    assert decoded >= 6 * ref.links  # a coupling and a receiver delta per link, at least
     # The smallest budget the solver accepts: its state and the chunks in flight.
-    minimum = s["state_bytes"] + s["chunks_in_flight"] * s["largest_chunk_bytes"]
-    assert s["minimum_budget"] == minimum
+    minimum = s.state_bytes + s.chunks_in_flight * s.largest_chunk_bytes
+    assert s.minimum_budget == minimum
     budget = minimum + decoded // 50
     assert budget < 0.3 * decoded, "the test needs a budget well below the links' size"
     try:
@@ -64,20 +69,20 @@ def test_same_bits_whatever_the_budget_the_threads_and_where_links_live(tmp_path
         _engine.set_threads(0)
     memory = solve(cornell_model(), "", **fine)
     for other in (small, memory):
-        assert np.array_equal(other["radiosity"], ref["radiosity"])
-        assert np.array_equal(other["irradiance"], ref["irradiance"])
-        assert other["links"] == ref["links"]
+        assert np.array_equal(other.radiosity, ref.radiosity)
+        assert np.array_equal(other.irradiance, ref.irradiance)
+        assert other.links == ref.links
     # The small budget really streamed: chunks were read again and again.
     chunks = len(list(_final_round(store).glob("chunk-*.hlc")))
-    assert chunks >= ref["source_groups"]
-    assert small["streaming"]["chunk_reads"] > 2 * chunks
+    assert chunks >= ref.source_groups
+    assert small.streaming.chunk_reads > 2 * chunks
     # Unlimited: every chunk read once, then kept decoded.
-    assert ref["streaming"]["chunk_reads"] == chunks
-    assert small["streaming"]["resident_bytes_peak"] + s["state_bytes"] <= budget
-    assert small["streaming"]["chunks_in_flight"] >= 2
+    assert ref.streaming.chunk_reads == chunks
+    assert small.streaming.resident_bytes_peak + s.state_bytes <= budget
+    assert small.streaming.chunks_in_flight >= 2
     # The report's solver history is the last solve's, one residual a shooting round.
-    assert ref["streaming"]["rounds"] > 0 and ref["iterations"] == ref["streaming"]["rounds"]
-    assert len(ref["residual_history"]) == ref["streaming"]["rounds"]
+    assert ref.streaming.rounds > 0 and ref.iterations == ref.streaming.rounds
+    assert len(ref.residual_history) == ref.streaming.rounds
 
 
 def test_budget_below_the_minimum_is_a_clear_error(tmp_path):
@@ -90,16 +95,18 @@ def test_agrees_with_the_in_memory_hierarchical_solve(unlimited):
     # same physics: area-weighted mean radiosity and energy balance.
     _, ooc = unlimited
     m = cornell_model()
-    jac = m.solve_hierarchical(ARGS["epsilon"], ARGS["min_area"], ARGS["samples"], 1, 1e-6, 100000,
-                               ARGS["max_rounds"], None, "jacobi")
-    assert ooc["converged"]
+    jac = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=ARGS["epsilon"], min_area=ARGS["min_area"],
+                                                        samples=ARGS["samples"], seed=1, max_rounds=ARGS["max_rounds"]),
+                               _engine.SolveOptions(method="jacobi", tolerance=1e-6, max_iterations=100000))
+    m.use_leaves_as_patches()
+    assert ooc.converged
     # Weighted by area (the leaves differ): the power the surfaces reflect.
     m_ooc = cornell_model()
     solve(m_ooc, "")  # the same links in memory: the same leaves as `ooc`
-    a_ooc, a_jac = m_ooc.patch_arrays()["area"], m.patch_arrays()["area"]
-    assert len(a_ooc) == len(ooc["radiosity"]) and len(a_jac) == len(jac["radiosity"])
-    mean_ooc = (a_ooc[:, None] * ooc["radiosity"]).sum(axis=0) / a_ooc.sum()
-    mean_jac = (a_jac[:, None] * jac["radiosity"]).sum(axis=0) / a_jac.sum()
+    a_ooc, a_jac = m_ooc.patch_arrays().area, m.patch_arrays().area
+    assert len(a_ooc) == len(ooc.radiosity) and len(a_jac) == len(jac.radiosity)
+    mean_ooc = (a_ooc[:, None] * ooc.radiosity).sum(axis=0) / a_ooc.sum()
+    mean_jac = (a_jac[:, None] * jac.radiosity).sum(axis=0) / a_jac.sum()
     np.testing.assert_allclose(mean_ooc, mean_jac, rtol=2e-3)
 
 
@@ -108,8 +115,8 @@ def test_furnace(rho, tmp_path):
     m = make_model(box_faces(), rho, 1.0)
     r = solve(m, tmp_path / "links", epsilon={0.5: 2e-5, 0.9: 1e-4}[rho], min_area=0.0155, samples=144,
               tolerance=1e-9)
-    assert r["converged"]
-    err = np.abs(r["radiosity"] * (1 - rho) - 1)
+    assert r.converged
+    err = np.abs(r.radiosity * (1 - rho) - 1)
     assert err.max() < 0.01, f"rho {rho}: max relative error {err.max():.4f}"
 
 
@@ -119,17 +126,15 @@ def test_reuse_links_for_new_emission_computes_no_form_factor_and_is_linear(unli
     # from the emission).
     store, ref = unlimited
     s = usd.read_scene(CORNELL)
-    m2 = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
-                       s.face_reflectance, 2 * s.face_emission, s.corner_uv)
+    m2 = build_engine(dataclasses.replace(s, face_emission=2 * s.face_emission))
     r2 = solve(m2, store, reuse=True)
-    assert r2["reused_links"] and r2["link_estimates"] == 0 and r2["links"] == ref["links"]
-    np.testing.assert_allclose(r2["radiosity"], 2 * ref["radiosity"], rtol=1e-4, atol=1e-9)
+    assert r2.reused_links and r2.link_estimates == 0 and r2.links == ref.links
+    np.testing.assert_allclose(r2.radiosity, 2 * ref.radiosity, rtol=1e-4, atol=1e-9)
     # Reflectance too: a new solve on the same links, converged.
-    m3 = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
-                       0.5 * s.face_reflectance, s.face_emission, s.corner_uv)
+    m3 = build_engine(dataclasses.replace(s, face_reflectance=0.5 * s.face_reflectance))
     r3 = solve(m3, store, reuse=True)
-    assert r3["reused_links"] and r3["link_estimates"] == 0 and r3["converged"]
-    assert r3["radiosity"].mean() < ref["radiosity"].mean()
+    assert r3.reused_links and r3.link_estimates == 0 and r3.converged
+    assert r3.radiosity.mean() < ref.radiosity.mean()
 
 
 def test_reuse_without_a_store_of_this_scene_is_refused(tmp_path):
@@ -152,13 +157,13 @@ def test_link_generation_holds_a_bounded_part_of_the_links(tmp_path):
     # so it never holds the group's links at once (it did: all of them, here).
     store = tmp_path / "links"
     r = solve(cornell_model(), store, epsilon=3e-6, group_faces=32)
-    assert r["source_groups"] == 1 and r["links"] > 400_000
-    assert r["peak_refine_links"] < r["links"] / 3
+    assert r.source_groups == 1 and r.links > 400_000
+    assert r.peak_refine_links < r.links / 3
     # The group's links are parts of 16,384 (the last one shorter), the same as in memory.
     chunks = sorted(_final_round(store).glob("chunk-*.hlc"))
-    assert len(chunks) == -(-r["links"] // 16384)
+    assert len(chunks) == -(-r.links // 16384)
     memory = solve(cornell_model(), "", epsilon=3e-6, group_faces=32)
-    assert np.array_equal(memory["radiosity"], r["radiosity"])
+    assert np.array_equal(memory.radiosity, r.radiosity)
 
 
 @pytest.mark.parametrize("damage", ["flip", "truncate", "manifest"])

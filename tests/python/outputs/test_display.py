@@ -84,16 +84,21 @@ def test_values_are_continuous_at_t_vertices():
     refl = [[0.6, 0.6, 0.6]] * 6 + [[0.0, 0.0, 0.0]]
     em = [[0, 0, 0]] * 6 + [[20, 20, 20]]
     m = make_model(faces, reflectance=refl, emission=em)
-    solved = m.solve_hierarchical(3e-4, 0.004, 16, 1, 1e-6, 1000, 4)
+    from hirad import _engine
+
+    solved = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=3e-4, min_area=0.004, samples=16, seed=1,
+                                                           max_rounds=4),
+                                  _engine.SolveOptions(method="jacobi", tolerance=1e-6, max_iterations=1000))
+    m.use_leaves_as_patches()
     pa = m.patch_arrays()
-    assert np.all(pa["normal"][pa["emission"][:, 0] > 0][:, 2] == -1.0)  # the light faces down
+    assert np.all(pa.normal[pa.emission[:, 0] > 0][:, 2] == -1.0)  # the light faces down
     display = m.display_mesh(30.0)
-    values = m.vertex_values(solved["radiosity"])
-    faces, codes, owner = display["faces"], display["face_code"], display["face_patch"]
-    corners, nv = display["corners"], m.patch_arrays()["nv"]
+    values = m.vertex_values(solved.radiosity)
+    faces, codes, owner = display.faces, display.face_code, display.face_patch
+    corners, nv = display.corners, pa.nv
     checked = 0
     for f in range(len(faces)):
-        for c in range(display["face_nv"][f]):
+        for c in range(display.face_nv[f]):
             code = int(codes[f][c])
             if 4 <= code < 8:
                 p, k = owner[f], code - 4
@@ -108,11 +113,11 @@ def test_values_are_continuous_at_t_vertices():
     # the other side sits at exactly the same position, on a face turned by more than 30 degrees.
     users = {}
     for f in range(len(faces)):
-        for c in range(display["face_nv"][f]):
+        for c in range(display.face_nv[f]):
             users.setdefault(int(faces[f][c]), []).append(f)
-    normal = pa["normal"][owner]
-    points = display["points"]
-    mids = {int(faces[f][c]): f for f in range(len(faces)) for c in range(display["face_nv"][f])
+    normal = pa.normal[owner]
+    points = display.points
+    mids = {int(faces[f][c]): f for f in range(len(faces)) for c in range(display.face_nv[f])
             if 4 <= int(codes[f][c]) < 8}
     across_creases = 0
     for v, fan_face in mids.items():

@@ -5,7 +5,7 @@ box matches a Monte Carlo reference of the same quantity.
 The reference: the volume stores at a point x the scalar irradiance s0 = integral over the
 sphere of the incident radiance L(x, w) dw, and s1 = integral of L w dw. L(x, w) is the
 exitant radiance of the first surface the ray x + t w meets. The engine has no Monte Carlo
-estimate at points in space, but it has one at surface points (Model.reference_at, path
+estimate at points in space, but it has one at surface points (Engine.reference_at, path
 tracing, independent of the radiosity solution): so we shoot our own stratified directions
 from the probe, find where they land (ray_cast), and average the path-traced exitant radiance
 there, times 4 pi / N. That integrates the same L as the probe with independent directions
@@ -91,18 +91,18 @@ def test_centre_probe_matches_monte_carlo(cornell_volume):
     s1 = np.stack([vdb["grids"][f"sh1_{a}"]["values"][k] for a in "xyz"]).astype(np.float64)  # (axis, rgb)
 
     dirs = sphere_directions(64, seed=5)  # 4096 directions
-    hits = _engine.ray_cast(np.ascontiguousarray(result.corners), np.ascontiguousarray(result.nv, dtype=np.int32),
-                            np.ascontiguousarray(np.broadcast_to(x, dirs.shape)), np.ascontiguousarray(dirs))
-    front = (hits["patch"] >= 0) & (hits["back"] == 0)
+    hits = result.field.ray_cast(np.ascontiguousarray(np.broadcast_to(x, dirs.shape)), np.ascontiguousarray(dirs))
+    front = (hits.patch >= 0) & (hits.back == 0)
     assert front.mean() > 0.7  # the box is open at the front only
-    ref = result._model.reference_at(np.ascontiguousarray(hits["points"][front]),
-                                     np.ascontiguousarray(hits["normals"][front]), 32, 3, 17, 1e-3)
+    ref = result._model.reference_at(np.ascontiguousarray(hits.points[front]),
+                                     np.ascontiguousarray(hits.normals[front]),
+                                     _engine.ReferenceOptions(paths=32, min_bounces=3, seed=17), 1e-3)
     radiance = np.zeros((len(dirs), 3))
-    radiance[front] = ref["radiance"]
+    radiance[front] = ref.radiance
     w = 4 * math.pi / len(dirs)
     s0_ref = radiance.sum(axis=0) * w
     s1_ref = (dirs[:, :, None] * radiance[:, None, :]).sum(axis=0) * w
-    err = np.sqrt((ref["standard_error"] ** 2).sum(axis=0)) * w
+    err = np.sqrt((ref.standard_error ** 2).sum(axis=0)) * w
     print(f"\ncentre probe s0 {s0} reference {s0_ref} (+- {err}); s1 {s1[1]} reference {s1_ref[1]}")
     assert (err < 0.01 * s0_ref).all()  # the reference itself is good to 1 %
     np.testing.assert_allclose(s0, s0_ref, rtol=0.05)
@@ -128,13 +128,13 @@ def test_probe_moments_in_a_uniform_box():
     L = np.array([1.0, 2.0, 0.5])
     rad = np.ascontiguousarray(np.broadcast_to(L, (6, 4, 3)))
     pts = np.array([[0.5, 0.5, 0.5], [0.2, 0.7, 0.9], [1.5, 0.5, 0.5]])
-    m = _engine.volume_probes(np.ascontiguousarray(faces), nv, rad, pts, 1024, 3)
-    np.testing.assert_allclose(m["s0"][:2], np.broadcast_to(4 * math.pi * L, (2, 3)), rtol=1e-12)
-    assert np.abs(m["s1"][:2]).max() < 0.05 * 4 * math.pi * L.max()
-    np.testing.assert_allclose(m["hit_fraction"][:2], 1.0)
-    assert (m["back_fraction"][:2] == 0).all()
+    m = _engine.SurfaceField(np.ascontiguousarray(faces), nv, rad).volume_probes(pts, 1024, 3)
+    np.testing.assert_allclose(m.s0[:2], np.broadcast_to(4 * math.pi * L, (2, 3)), rtol=1e-12)
+    assert np.abs(m.s1[:2]).max() < 0.05 * 4 * math.pi * L.max()
+    np.testing.assert_allclose(m.hit_fraction[:2], 1.0)
+    assert (m.back_fraction[:2] == 0).all()
     # outside: about half the directions meet the box's back faces, and they count nothing
-    assert m["back_fraction"][2] == m["hit_fraction"][2] and 0.1 < m["hit_fraction"][2] < 0.5
-    assert (m["s0"][2] == 0).all()
+    assert m.back_fraction[2] == m.hit_fraction[2] and 0.1 < m.hit_fraction[2] < 0.5
+    assert (m.s0[2] == 0).all()
     # the nearest hit of the off-centre probe: the wall at z = 1, 0.1 away (within a ray spacing)
-    assert 0.1 - 1e-9 <= m["nearest"][1] < 0.11
+    assert 0.1 - 1e-9 <= m.nearest[1] < 0.11

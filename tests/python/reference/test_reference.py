@@ -3,7 +3,7 @@ agree within its own stated standard error (and a small absolute margin)."""
 
 import numpy as np
 
-from conftest import BIG, box_faces, make_model, parallel_squares
+from conftest import BIG, _engine, box_faces, make_model, parallel_squares
 
 
 def _within(estimate, error, expected, sigmas=4.0, rel=2e-3):
@@ -17,9 +17,9 @@ def test_furnace_box_radiance_is_e_over_pi_one_minus_rho():
     m = make_model(box_faces(), reflectance=0.5, emission=1.0, max_area=BIG, max_edge=BIG)
     ids = np.arange(6, dtype=np.int32)
     st = np.full((6, 2), 0.37)
-    ref = m.reference(ids, st, 4096, 3, 11)
-    _within(ref["radiance"], ref["standard_error"], 2.0 / np.pi)
-    assert np.all(ref["standard_error"] > 0)
+    ref = m.reference(ids, st, _engine.ReferenceOptions(paths=4096, min_bounces=3, seed=11))
+    _within(ref.radiance, ref.standard_error, 2.0 / np.pi)
+    assert np.all(ref.standard_error > 0)
 
 
 def _corner_form_factor(a, b, c):
@@ -36,9 +36,10 @@ def test_radiance_under_a_square_emitter_matches_the_closed_form():
     m = make_model(polys, reflectance=[[0.5] * 3, [0.0] * 3], emission=[[0.0] * 3, [np.pi] * 3],
                    max_area=BIG, max_edge=BIG)
     # At the centre: H = E * F(point -> square) with F = 4 x corner(0.5, 0.5, 1).
-    ref = m.reference(np.array([0], dtype=np.int32), np.array([[0.5, 0.5]]), 20000, 3, 3)
+    ref = m.reference(np.array([0], dtype=np.int32), np.array([[0.5, 0.5]]),
+                      _engine.ReferenceOptions(paths=20000, min_bounces=3, seed=3))
     expected = 0.5 / np.pi * np.pi * 4 * _corner_form_factor(0.5, 0.5, 1.0)
-    _within(ref["radiance"][0], ref["standard_error"][0], expected)
+    _within(ref.radiance[0], ref.standard_error[0], expected)
 
 
 def test_mean_over_the_receiver_matches_the_area_form_factor():
@@ -48,11 +49,10 @@ def test_mean_over_the_receiver_matches_the_area_form_factor():
     g = 16
     s, t = np.meshgrid((np.arange(g) + 0.5) / g, (np.arange(g) + 0.5) / g)
     st = np.ascontiguousarray(np.stack([s.ravel(), t.ravel()], axis=1))
-    ref = m.reference(np.zeros(g * g, dtype=np.int32), st, 512, 3, 5)
-    mean = ref["radiance"].mean(axis=0)
-    err = np.sqrt((ref["standard_error"] ** 2).sum(axis=0)) / (g * g)
-    from hirad import _engine
-
+    ref = m.reference(np.zeros(g * g, dtype=np.int32), st,
+                      _engine.ReferenceOptions(paths=512, min_bounces=3, seed=5))
+    mean = ref.radiance.mean(axis=0)
+    err = np.sqrt((ref.standard_error ** 2).sum(axis=0)) / (g * g)
     expected = 0.5 * _engine.parallel_rectangles_form_factor(1, 1, 1)
     # The midpoint rule over a 16 x 16 grid adds well under 0.5 % here.
     _within(mean, err, expected, rel=5e-3)
@@ -61,8 +61,8 @@ def test_mean_over_the_receiver_matches_the_area_form_factor():
 def test_reference_is_deterministic_for_a_seed():
     m = make_model(box_faces(), reflectance=0.5, emission=1.0, max_area=BIG, max_edge=BIG)
     ids, st = np.arange(6, dtype=np.int32), np.full((6, 2), 0.5)
-    a = m.reference(ids, st, 64, 3, 1)["radiance"]
-    b = m.reference(ids, st, 64, 3, 1)["radiance"]
-    c = m.reference(ids, st, 64, 3, 2)["radiance"]
+    a = m.reference(ids, st, _engine.ReferenceOptions(paths=64, min_bounces=3, seed=1)).radiance
+    b = m.reference(ids, st, _engine.ReferenceOptions(paths=64, min_bounces=3, seed=1)).radiance
+    c = m.reference(ids, st, _engine.ReferenceOptions(paths=64, min_bounces=3, seed=2)).radiance
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)

@@ -87,12 +87,13 @@ def render(solution: str | Path, view: View, width: int, height: int) -> np.ndar
     dirs = fwd + px[..., None] * right + py[..., None] * up
     dirs = np.ascontiguousarray(dirs.reshape(-1, 3))
     origins = np.ascontiguousarray(np.broadcast_to(np.asarray(view.position, float), dirs.shape))
-    hit = _engine.ray_cast(quads, np.full(len(quads), 3, np.int32), origins, dirs)
+    hit = _engine.SurfaceField(quads, np.full(len(quads), 3, np.int32)).ray_cast(origins, dirs)
 
     image = np.zeros((height * width, 3))
-    seen = (hit["patch"] >= 0) & (hit["back"] == 0)   # back faces show nothing, as in images.render
-    tri = hit["patch"][seen]
-    p = hit["points"][seen]
+    patch = hit.patch
+    seen = (patch >= 0) & (hit.back == 0)   # back faces show nothing, as in images.render
+    tri = patch[seen]
+    p = hit.points[seen]
     a, b, c = corners[tri, 0], corners[tri, 1], corners[tri, 2]
     v0, v1, v2 = b - a, c - a, p - a
     d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)

@@ -36,14 +36,14 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
     sending half of them through to the far side), else the nearest. Returns (points, moved)."""
     if len(points) == 0:
         return points, np.zeros(0, bool)
-    corners = np.ascontiguousarray(result.corners)
-    nv = np.ascontiguousarray(result.nv, dtype=np.int32)
+    field = result.field  # the solution's one ray-tracing scene
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    first = _engine.lift_samples(corners, nv, pts, nrm, float(epsilon), float(reach))
-    moved = first["moved"].astype(bool)
+    first = field.lift_samples(pts, nrm, float(epsilon), float(reach))
+    moved = first.moved.astype(bool)
+    first_points = first.points
     if not moved.any():
-        return first["points"], moved
+        return first_points, moved
     # anchor: mean of the texel's free samples (or of all its samples when none is free)
     t = np.asarray(texel, dtype=np.int64)
     nt = int(t.max()) + 1
@@ -55,10 +55,10 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
         a_all = np.bincount(t, pts[:, c], minlength=nt) / np.maximum(np.bincount(t, minlength=nt), 1)
         anchor[:, c] = np.where(w_free > 0, a_free / np.maximum(w_free, 1e-300), a_all)
     sel = np.nonzero(moved)[0]
-    again = _engine.lift_samples(corners, nv, np.ascontiguousarray(pts[sel]), np.ascontiguousarray(nrm[sel]),
-                                 float(epsilon), float(reach), np.ascontiguousarray(anchor[t[sel]]))
-    out = first["points"].copy()
-    out[sel] = again["points"]
+    again = field.lift_samples(np.ascontiguousarray(pts[sel]), np.ascontiguousarray(nrm[sel]),
+                               float(epsilon), float(reach), np.ascontiguousarray(anchor[t[sel]]))
+    out = first_points.copy()
+    out[sel] = again.points
     return out, moved
 
 
@@ -152,11 +152,11 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             miss = g["patch"] < 0
         else:
             q = field.probe(np.ascontiguousarray(lifted), np.ascontiguousarray(normals, dtype=np.float64), 1e30)
-            values = q["irradiance"] / np.pi
-            miss = q["patch"] < 0
+            values = q.irradiance / np.pi
+            miss = q.patch < 0
         if miss.any():  # no surface facing along the normal: take the nearest one
             q = field.probe(np.ascontiguousarray(lifted[miss]), np.zeros((int(miss.sum()), 3)), 1e30)
-            values[miss] = q["irradiance"] / np.pi
+            values[miss] = q.irradiance / np.pi
         evaluate.samples += len(points)
         return values
 

@@ -43,14 +43,12 @@ def write_volume(cfg, result, scene, staging: Path) -> dict:
     near = result.query(world, None, reach)
     keep = (near["patch"] >= 0) & (near["distance"] > 1e-3 * s)  # not on a surface itself
     grid, world = grid[keep], world[keep]
-    probes = _engine.volume_probes(np.ascontiguousarray(result.corners), np.ascontiguousarray(result.nv, dtype=np.int32),
-                                   np.ascontiguousarray(result.corner_radiance), np.ascontiguousarray(world),
-                                   int(vc.rays), int(cfg.seed))
+    probes = result.field.volume_probes(np.ascontiguousarray(world), int(vc.rays), int(cfg.seed))
     # Behind or inside geometry: more than a tenth of what the probe sees is the back of a
     # surface (outside a closed room, inside a solid, behind a one-sided wall).
-    empty = (probes["back_fraction"] <= 0.1 * probes["hit_fraction"]) & (probes["nearest"] > 1e-6)
+    empty = (probes.back_fraction <= 0.1 * probes.hit_fraction) & (probes.nearest > 1e-6)
     grid, world = grid[empty], world[empty]
-    s0, s1 = probes["s0"][empty], probes["s1"][empty]
+    s0, s1 = probes.s0[empty], probes.s1[empty]
     lum = np.array([0.2126, 0.7152, 0.0722])
     vec = s1 @ lum  # (n, 3): luminance of each axis moment
     norm = np.linalg.norm(vec, axis=1, keepdims=True)

@@ -1,0 +1,174 @@
+// hirad._engine.SurfaceField: a solved surface as one ray-tracing scene built once
+// (pipeline/engine/ray_scene.h), queried many times; and the display mesh's arrays.
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/vector.h>
+
+#include <optional>
+
+#include "pipeline/bindings/common.h"
+#include "pipeline/engine/ray_scene.h"
+#include "pipeline/outputs/reconstruct.h"
+
+namespace hirad::py {
+
+using namespace nb::literals;
+
+namespace {
+
+Vec3 vec3(const std::vector<double>& v, const char* what) {
+    if (v.size() != 3) throw std::invalid_argument(std::string(what) + ": 3 components");
+    return {v[0], v[1], v[2]};
+}
+
+template <class C, class T>
+auto arr(std::vector<T> C::*p) {
+    return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
+}
+template <class C>
+auto vec3s(std::vector<Vec3> C::*p) {
+    return [p](const C& c) { return rows3(c.*p); };
+}
+// (n, 4) rows of fixed-size arrays.
+template <class T, class C, class U>
+auto quads(std::vector<std::array<U, 4>> C::*p) {
+    return [p](const C& c) {
+        const auto& v = c.*p;
+        std::vector<T> flat(v.size() * 4);
+        for (size_t i = 0; i < v.size(); ++i)
+            for (int k = 0; k < 4; ++k) flat[4 * i + k] = static_cast<T>(v[i][k]);
+        return to_numpy(std::move(flat), {v.size(), 4});
+    };
+}
+
+}  // namespace
+
+void bind_display(nb::module_& m) {
+    nb::class_<DisplayMesh>(m, "DisplayMesh", "Welded display mesh of the patches (reconstruct.h).")
+        .def_prop_ro("points", vec3s(&DisplayMesh::points), kOwned, "(points, 3) m.")
+        .def_prop_ro("point_mesh", [](const DisplayMesh& d) {
+            std::vector<int32_t> v(d.point_mesh.begin(), d.point_mesh.end());
+            return to_numpy(std::move(v), {d.point_mesh.size()});
+        }, kOwned, "(points) input mesh of each point.")
+        .def_prop_ro("corners", quads<int32_t>(&DisplayMesh::corners), kOwned,
+                     "(patches, 4) each patch's corner points.")
+        .def_prop_ro("boundary", arr(&DisplayMesh::boundary), kOwned, "(points) 1 on a boundary.")
+        .def_prop_ro("faces", quads<int32_t>(&DisplayMesh::faces), kOwned, "(faces, 4) display faces' points.")
+        .def_prop_ro("face_nv", arr(&DisplayMesh::face_nv), kOwned, "(faces) 3 or 4.")
+        .def_prop_ro("face_patch", [](const DisplayMesh& d) {
+            std::vector<int32_t> v(d.face_patch.begin(), d.face_patch.end());
+            return to_numpy(std::move(v), {d.face_patch.size()});
+        }, kOwned, "(faces) the patch each face belongs to.")
+        .def_prop_ro("face_code", quads<uint8_t>(&DisplayMesh::face_code), kOwned,
+                     "(faces, 4) corner codes (reconstruct.h).")
+        .def_prop_ro("anchored", [](const DisplayMesh& d) {
+            std::vector<uint8_t> v(d.anchors.size());
+            for (size_t i = 0; i < v.size(); ++i) v[i] = !d.anchors[i].empty();
+            return to_numpy(std::move(v), {v.size()});
+        }, kOwned, "(points) 1 for T-vertices and fan centres (weighted sums of other points).");
+}
+
+void bind_fields(nb::module_& m) {
+    nb::class_<ProbeResult>(m, "ProbeResult", "The closest surface point to each query point.")
+        .def_prop_ro("patch", arr(&ProbeResult::patch), kOwned, "(n) patch (-1: none within max_distance).")
+        .def_prop_ro("distance", arr(&ProbeResult::distance), kOwned, "(n) m (-1: none).")
+        .def_prop_ro("irradiance", vec3s(&ProbeResult::irradiance), kOwned, "(n, 3) W/m^2.")
+        .def_prop_ro("radiance", vec3s(&ProbeResult::radiance), kOwned, "(n, 3) W/(m^2 sr).");
+    nb::class_<RayCastResult>(m, "RayCastResult", "First hits of rays.")
+        .def_prop_ro("patch", arr(&RayCastResult::patch), kOwned, "(n) patch hit (-1: escaped).")
+        .def_prop_ro("t", arr(&RayCastResult::t), kOwned, "(n) distance along the normalised direction (-1: none).")
+        .def_prop_ro("points", vec3s(&RayCastResult::points), kOwned, "(n, 3) hit points.")
+        .def_prop_ro("normals", vec3s(&RayCastResult::normals), kOwned, "(n, 3) the hit patch's normal.")
+        .def_prop_ro("back", arr(&RayCastResult::back), kOwned, "(n) 1 where a back face was hit.");
+    nb::class_<LiftResult>(m, "LiftResult", "Lightmap sample points lifted off their surface.")
+        .def_prop_ro("points", vec3s(&LiftResult::points), kOwned, "(n, 3) m.")
+        .def_prop_ro("moved", arr(&LiftResult::moved), kOwned, "(n) 1 where a point was moved out of geometry.");
+    nb::class_<VolumeProbes>(m, "VolumeProbes", "Full-sphere radiance moments at points in empty space.")
+        .def_prop_ro("s0", vec3s(&VolumeProbes::s0), kOwned, "(n, 3) integral of L over the sphere.")
+        .def_prop_ro("s1", [](const VolumeProbes& v) {
+            std::vector<double> flat(v.s1.size() * 9);
+            for (size_t q = 0; q < v.s1.size(); ++q)
+                for (int a = 0; a < 3; ++a)
+                    for (int c = 0; c < 3; ++c) flat[9 * q + 3 * a + c] = v.s1[q][a][c];
+            return to_numpy(std::move(flat), {v.s1.size(), 3, 3});
+        }, kOwned, "(n, 3, 3) [q, a, c]: integral of L w_a in channel c.")
+        .def_prop_ro("back_fraction", arr(&VolumeProbes::back_fraction), kOwned, "(n) rays that hit a back face.")
+        .def_prop_ro("hit_fraction", arr(&VolumeProbes::hit_fraction), kOwned, "(n) rays that hit anything.")
+        .def_prop_ro("nearest", arr(&VolumeProbes::nearest), kOwned, "(n) closest hit, m (-1: none).");
+
+    nb::class_<RayScene>(m, "SurfaceField",
+                         "A solved surface as one Embree scene, built once: render, probe, lift_samples, "
+                         "volume_probes and ray_cast query it.")
+        .def("__init__",
+             [](RayScene* self, In<double> corners, In<int32_t> nv, std::optional<In<double>> rad,
+                std::optional<In<double>> irr) {
+                 require_shape(nv, {-1}, "nv");
+                 const long n = long(nv.shape(0));
+                 require_shape(corners, {n, 4, 3}, "corners");
+                 if (rad) require_shape(*rad, {n, 4, 3}, "corner_radiance");
+                 if (irr) require_shape(*irr, {n, 4, 3}, "corner_irradiance");
+                 new (self) RayScene(corners.data(), nv.data(), size_t(n), rad ? rad->data() : nullptr,
+                                     irr ? irr->data() : nullptr);
+             },
+             "corners"_a, "nv"_a, "corner_radiance"_a.none() = nb::none(), "corner_irradiance"_a.none() = nb::none(),
+             "Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner "
+             "(n, 4, 3), optional (zero without).")
+        .def("__len__", &RayScene::size)
+        .def("render",
+             [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
+                const std::vector<double>& up, double fov, int width, int height, int samples) {
+                 Camera cam;
+                 cam.position = vec3(pos, "position");
+                 cam.forward = vec3(fwd, "forward");
+                 cam.up = vec3(up, "up");
+                 cam.vertical_fov_degrees = fov;
+                 cam.width = width;
+                 cam.height = height;
+                 std::vector<float> img;
+                 {
+                     nb::gil_scoped_release release;
+                     img = s.render(cam, samples);
+                 }
+                 return to_numpy(std::move(img), {size_t(height), size_t(width), 3});
+             },
+             "position"_a, "forward"_a, "up"_a, "vertical_fov"_a, "width"_a, "height"_a, "samples"_a,
+             "Pinhole render of exitant radiance (height, width, 3) float32; vertical_fov in degrees.")
+        .def("probe",
+             [](const RayScene& s, In<double> p, In<double> n, double max_distance) {
+                 auto pts = vec3_rows(p, "points");
+                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
+                 nb::gil_scoped_release release;
+                 return s.probe(pts, nrm, max_distance);
+             },
+             "points"_a, "normals"_a, "max_distance"_a = 1e30,
+             "Closest surface point within max_distance, facing along the normal when it is non-zero (ProbeResult).")
+        .def("lift_samples",
+             [](const RayScene& s, In<double> p, In<double> n, double eps, double reach, std::optional<In<double>> a) {
+                 auto pts = vec3_rows(p, "points");
+                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
+                 std::vector<Vec3> anc;
+                 if (a) anc = vec3_rows(*a, "anchors", long(pts.size()));
+                 nb::gil_scoped_release release;
+                 return s.lift_samples(std::move(pts), nrm, eps, reach, a ? &anc : nullptr);
+             },
+             "points"_a, "normals"_a, "epsilon"_a, "reach"_a, "anchors"_a.none() = nb::none(),
+             "Lightmap sample points lifted epsilon (m) along their normals and moved out of geometry within "
+             "reach (m) (LiftResult).")
+        .def("volume_probes",
+             [](const RayScene& s, In<double> p, int rays, uint64_t seed) {
+                 auto pts = vec3_rows(p, "points");
+                 nb::gil_scoped_release release;
+                 return s.volume_probes(pts, rays, seed);
+             },
+             "points"_a, "rays"_a = 256, "seed"_a = 1,
+             "Full-sphere radiance moments at points in empty space (VolumeProbes).")
+        .def("ray_cast",
+             [](const RayScene& s, In<double> o, In<double> d) {
+                 auto org = vec3_rows(o, "origins");
+                 auto dir = vec3_rows(d, "directions", long(org.size()));
+                 nb::gil_scoped_release release;
+                 return s.ray_cast(org, dir);
+             },
+             "origins"_a, "directions"_a, "First hits of rays (RayCastResult).");
+}
+
+}  // namespace hirad::py

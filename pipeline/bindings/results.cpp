@@ -1,0 +1,144 @@
+// The engine's result structs, read-only: scalars and lists as they are, per-row values as
+// numpy arrays (a fresh copy on every access; keep the array, not the attribute, in loops).
+#include <nanobind/stl/vector.h>
+
+#include "pipeline/bindings/common.h"
+#include "pipeline/engine/engine.h"
+
+namespace hirad::py {
+
+template <class C>
+auto rgb(std::vector<RGB> C::*p) {
+    return [p](const C& c) { return rows3(c.*p); };
+}
+template <class C, class T>
+auto arr(std::vector<T> C::*p) {
+    return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
+}
+template <class C, class T>
+auto rows(std::vector<T> C::*p, size_t C::*count, std::initializer_list<size_t> tail_dims) {
+    std::vector<size_t> tail(tail_dims);  // an initializer_list's array would not outlive this call
+    return [p, count, tail](const C& c) {
+        std::vector<size_t> shape{c.*count};
+        shape.insert(shape.end(), tail.begin(), tail.end());
+        auto* data = new std::vector<T>(c.*p);
+        nb::capsule owner(data, [](void* q) noexcept { delete static_cast<std::vector<T>*>(q); });
+        return Array<T>(data->data(), shape.size(), shape.data(), owner);
+    };
+}
+
+void bind_results(nb::module_& m) {
+    nb::class_<Stats>(m, "Stats", "Counts of the scene and of what has been built from it so far.")
+        .def_ro("input_faces", &Stats::input_faces, "Polygons given.")
+        .def_ro("faces", &Stats::faces, "Usable faces after triangulation and cleaning.")
+        .def_ro("degenerate_faces", &Stats::degenerate_faces, "Dropped: zero area.")
+        .def_ro("nonfinite_faces", &Stats::nonfinite_faces, "Dropped: a NaN or infinite corner.")
+        .def_ro("triangulated_faces", &Stats::triangulated_faces, "Non-quads and non-planar or concave quads split.")
+        .def_ro("nonmanifold_edges", &Stats::nonmanifold_edges, "Edges of more than two faces (kept, counted).")
+        .def_ro("patches", &Stats::patches, "Current patches (flat patches, or published leaves).")
+        .def_ro("links", &Stats::links, "Flat links stored.")
+        .def_ro("link_bytes", &Stats::link_bytes, "Their memory, bytes.")
+        .def_ro("rays", &Stats::rays, "Rays cast against the current patches.");
+
+    nb::class_<PatchArrays>(m, "PatchArrays", "The current patches as arrays; row k is patch k.")
+        .def_ro("count", &PatchArrays::count)
+        .def_prop_ro("corners", rows(&PatchArrays::corners, &PatchArrays::count, {4, 3}), kOwned,
+                     "(n, 4, 3) m; triangles repeat corner 2 as corner 3.")
+        .def_prop_ro("uv", rows(&PatchArrays::uv, &PatchArrays::count, {4, 2}), kOwned,
+                     "(n, 4, 2) texture coordinates.")
+        .def_prop_ro("area", arr(&PatchArrays::area), kOwned, "(n) m^2.")
+        .def_prop_ro("normal", rows(&PatchArrays::normal, &PatchArrays::count, {3}), kOwned, "(n, 3) unit normals.")
+        .def_prop_ro("centroid", rows(&PatchArrays::centroid, &PatchArrays::count, {3}), kOwned, "(n, 3) m.")
+        .def_prop_ro("reflectance", rows(&PatchArrays::reflectance, &PatchArrays::count, {3}), kOwned, "(n, 3).")
+        .def_prop_ro("emission", rows(&PatchArrays::emission, &PatchArrays::count, {3}), kOwned,
+                     "(n, 3) exitance, W/m^2.")
+        .def_prop_ro("nv", arr(&PatchArrays::nv), kOwned, "(n) 3 or 4 corners.")
+        .def_prop_ro("mesh", arr(&PatchArrays::mesh), kOwned, "(n) input mesh index.")
+        .def_prop_ro("face", arr(&PatchArrays::face), kOwned, "(n) engine face (after triangulation).")
+        .def_prop_ro("source_face", arr(&PatchArrays::source_face), kOwned, "(n) authored face within its mesh.");
+
+    nb::class_<FlatSolveResult>(m, "FlatSolveResult", "A flat solve.")
+        .def_prop_ro("radiosity", rgb(&FlatSolveResult::radiosity), kOwned, "(n, 3) B per patch, W/m^2.")
+        .def_ro("iterations", &FlatSolveResult::iterations, "Sweeps, or shots.")
+        .def_ro("residual", &FlatSolveResult::residual, "Final relative residual.")
+        .def_ro("converged", &FlatSolveResult::converged)
+        .def_ro("residual_history", &FlatSolveResult::residual_history, "Residual after each iteration.")
+        .def_ro("rows_computed", &FlatSolveResult::rows_computed, "Progressive: coupling rows computed on the fly.");
+
+    nb::class_<Transport>(m, "Transport", "The two terms of the flat energy balance, per patch.")
+        .def_prop_ro("irradiance", rgb(&Transport::irradiance), kOwned, "(n, 3) H = F B, W/m^2.")
+        .def_prop_ro("escaped", rgb(&Transport::escaped), kOwned,
+                     "(n, 3) (A_i - sum_j G_ij) B_i, W: power that leaves and reaches no patch (signed).");
+
+    nb::class_<StreamingStats>(m, "StreamingStats", "The last streaming (out-of-core) solve.")
+        .def_ro("rounds", &StreamingStats::rounds)
+        .def_ro("groups_shot", &StreamingStats::groups_shot)
+        .def_ro("links_shot", &StreamingStats::links_shot)
+        .def_ro("chunk_reads", &StreamingStats::chunk_reads, "Chunks read and decoded.")
+        .def_ro("chunk_hits", &StreamingStats::chunk_hits, "Chunks shot from memory.")
+        .def_ro("resident_bytes_peak", &StreamingStats::resident_bytes_peak)
+        .def_ro("state_bytes", &StreamingStats::state_bytes)
+        .def_ro("largest_chunk_bytes", &StreamingStats::largest_chunk_bytes)
+        .def_ro("chunks_in_flight", &StreamingStats::chunks_in_flight)
+        .def_ro("minimum_budget", &StreamingStats::minimum_budget, "The smallest memory budget taken, bytes.")
+        .def_ro("decoded_bytes", &StreamingStats::decoded_bytes)
+        .def_ro("checkpoints", &StreamingStats::checkpoints)
+        .def_ro("resumed", &StreamingStats::resumed)
+        .def_ro("read_wait_seconds", &StreamingStats::read_wait_seconds)
+        .def_ro("shoot_seconds", &StreamingStats::shoot_seconds);
+
+    using H = HierarchicalResult;
+    nb::class_<H>(m, "HierarchicalResult",
+                  "A hierarchical solve. Per-leaf arrays follow the leaves that use_leaves_as_patches() makes the "
+                  "engine's patches.")
+        .def_prop_ro("radiosity", rgb(&H::radiosity), kOwned, "(leaves, 3) B, W/m^2.")
+        .def_prop_ro("irradiance", rgb(&H::irradiance), kOwned, "(leaves, 3) H, W/m^2.")
+        .def_prop_ro("escaped", rgb(&H::escaped), kOwned, "(leaves, 3) B A (1 - outgoing fraction), W, signed.")
+        .def_ro("residual", &H::residual)
+        .def_ro("converged", &H::converged)
+        .def_ro("iterations", &H::iterations, "All rounds.")
+        .def_ro("residual_history", &H::residual_history, "In memory: all rounds; out of core: the last solve.")
+        .def_ro("links", &H::links, "Final links.")
+        .def_ro("elements", &H::elements, "Leaves.")
+        .def_ro("nodes", &H::nodes)
+        .def_ro("clusters", &H::clusters)
+        .def_ro("balance_splits", &H::balance_splits, "Leaves split for the 2:1 balance of the display.")
+        .def_ro("rounds", &H::rounds, "The final round.")
+        .def_ro("settled", &H::settled, "Refinement stopped splitting (else max_rounds ended it).")
+        .def_ro("links_per_round", &H::links_per_round)
+        .def_ro("splits_per_round", &H::splits_per_round,
+                "In memory: each refinement after the first (a last 0 when settled); out of core: each pass that "
+                "made a round, the first included.")
+        .def_ro("refine_seconds", &H::refine_seconds)
+        .def_ro("solve_seconds", &H::solve_seconds)
+        .def_ro("link_estimates", &H::link_estimates, "Form factor estimates made by refinement.")
+        .def_ro("rays", &H::rays, "Rays cast over the hierarchy's faces.")
+        .def_ro("epsilon_watts", &H::epsilon_watts, "The split threshold, W.")
+        .def_ro("out_of_core", &H::out_of_core)
+        .def_ro("reused_links", &H::reused_links)
+        .def_ro("resumed_from_round", &H::resumed_from_round, "0: started fresh.")
+        .def_ro("store_bytes", &H::store_bytes, "Compressed link payload of the final round.")
+        .def_ro("transport_bytes", &H::transport_bytes)
+        .def_ro("peak_refine_links", &H::peak_refine_links)
+        .def_ro("source_groups", &H::source_groups)
+        .def_ro("streaming", &H::streaming, "The last streaming solve (out of core).")
+        .def_prop_ro("link_receiver", arr(&H::link_receiver), kOwned)
+        .def_prop_ro("link_source", arr(&H::link_source), kOwned)
+        .def_prop_ro("link_coupling", arr(&H::link_coupling), kOwned, "G, m^2.")
+        .def_prop_ro("link_unoccluded", arr(&H::link_unoccluded), kOwned, "G without visibility, m^2.")
+        .def_prop_ro("node_parent", arr(&H::node_parent), kOwned, "-1 at the root.")
+        .def_prop_ro("node_area", arr(&H::node_area), kOwned)
+        .def_prop_ro("node_cluster", arr(&H::node_cluster), kOwned)
+        .def_prop_ro("leaf_node", arr(&H::leaf_node), kOwned);
+
+    nb::class_<PointValues>(m, "PointValues", "Values at query points on the surfaces.")
+        .def_prop_ro("patch", arr(&PointValues::patch), kOwned, "(n) the patch of each point (-1: none within reach).")
+        .def_prop_ro("irradiance", rgb(&PointValues::irradiance), kOwned, "(n, 3) W/m^2.")
+        .def_prop_ro("radiance", rgb(&PointValues::radiance), kOwned, "(n, 3) exitant, W/(m^2 sr).");
+
+    nb::class_<ReferenceResult>(m, "ReferenceResult", "The Monte Carlo reference at points.")
+        .def_prop_ro("radiance", rgb(&ReferenceResult::radiance), kOwned, "(n, 3) exitant, W/(m^2 sr).")
+        .def_prop_ro("standard_error", rgb(&ReferenceResult::standard_error), kOwned, "(n, 3) of radiance.");
+}
+
+}  // namespace hirad::py

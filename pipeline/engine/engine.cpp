@@ -1,0 +1,548 @@
+#include "pipeline/engine/engine.h"
+
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <stdexcept>
+
+#include "pipeline/geometry/formfactors.h"
+#include "pipeline/geometry/hemicube.h"
+#include "pipeline/hierarchy/hierarchical_solver.h"
+#include "pipeline/outofcore/outofcore.h"
+#include "pipeline/outofcore/run_store.h"
+
+namespace hirad {
+
+namespace {
+
+std::unique_ptr<tbb::global_control> g_threads;
+
+// Hemicube rows are not reciprocal on their own; the stored coupling is the mean of the two
+// directions, G_ij = (A_i F_ij + A_j F_ji) / 2.
+LinkMatrix symmetric_hemicube_links(const std::vector<Patch>& patches, const Hemicube& hc, const DoneFn& done) {
+    const uint32_t n = static_cast<uint32_t>(patches.size());
+    std::vector<std::vector<std::pair<uint32_t, double>>> rows(n);
+    std::atomic<uint64_t> finished{0};
+    tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+        hc.row(i, rows[i]);
+        const uint64_t d = ++finished;
+        if (done) done(d);
+    });
+    std::vector<std::vector<std::pair<uint32_t, float>>> upper(n);
+    auto find = [&](uint32_t i, uint32_t j) {
+        auto it = std::lower_bound(rows[i].begin(), rows[i].end(), std::make_pair(j, -1.0));
+        return (it != rows[i].end() && it->first == j) ? it->second : 0.0;
+    };
+    tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+        const double ai = patches[i].area;
+        // Pairs seen from either side: walk row i (j > i) and pick up j's view of i.
+        for (const auto& [j, f] : rows[i])
+            if (j > i) upper[i].emplace_back(j, static_cast<float>(0.5 * (ai * f + patches[j].area * find(j, i))));
+    });
+    // Pairs that only j saw (j < i would be in row j; j > i only in row j): add them.
+    for (uint32_t j = 0; j < n; ++j)
+        for (const auto& [i, f] : rows[j])
+            if (i < j && find(i, j) == 0.0) upper[i].emplace_back(j, static_cast<float>(0.5 * patches[j].area * f));
+    for (auto& u : upper) std::sort(u.begin(), u.end());
+    return LinkMatrix::from_upper(n, upper);
+}
+
+// Exitant radiance of a surface with irradiance e: (E + rho H) / pi.
+RGB exitant(const Patch& s, const RGB& e) { return (s.emission + mul(s.reflectance, e)) / kPi; }
+
+void require_points(const std::vector<Vec3>& points, const std::vector<Vec3>& normals) {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+}
+
+}  // namespace
+
+void set_threads(int threads) {
+    g_threads.reset();
+    if (threads > 0) g_threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, threads);
+}
+
+// What a hierarchical solve leaves behind for publishing and the final gather.
+struct Engine::Solved {
+    explicit Solved(const Scene& scene) : hierarchy(scene) {}
+    Hierarchy hierarchy;
+    std::unique_ptr<Visibility> visibility;  // over hierarchy.faces
+    std::vector<Link> links;                 // sorted by receiver
+    std::vector<RGB> radiosity;              // per node
+    std::vector<uint32_t> leaves;            // node of each leaf (of each published patch)
+    std::vector<Patch> leaf_patches;         // the leaves' shapes, until published
+    std::string store_round;                 // out of core: the final links' store
+    size_t groups = 0;                       // and its number of source groups
+};
+
+Engine::Engine(const SceneInput& in, size_t num_indices) {
+    size_t corners = 0;
+    for (size_t f = 0; f < in.num_faces; ++f) {
+        if (in.face_vertex_counts[f] < 0) throw std::invalid_argument("face_vertex_counts: negative count");
+        corners += in.face_vertex_counts[f];
+    }
+    if (num_indices != corners) throw std::invalid_argument("face_vertex_indices: length != sum of counts");
+    scene_ = Scene::build(in);
+}
+
+Engine::~Engine() = default;
+
+Stats Engine::stats() const {
+    Stats s;
+    s.input_faces = scene_.stats.input_faces;
+    s.faces = scene_.faces.size();
+    s.degenerate_faces = scene_.stats.degenerate_faces;
+    s.nonfinite_faces = scene_.stats.nonfinite_faces;
+    s.triangulated_faces = scene_.stats.triangulated_faces;
+    s.nonmanifold_edges = scene_.stats.nonmanifold_edges;
+    s.patches = patches_.patches.size();
+    s.links = links_ ? links_->link_count() : 0;
+    s.link_bytes = links_ ? links_->bytes() : 0;
+    s.rays = rays_cast();
+    return s;
+}
+
+void Engine::require_mesh() const {
+    if (!visibility_) throw std::invalid_argument("no patches yet: call mesh() (or use_leaves_as_patches()) first");
+}
+
+void Engine::require_index(uint32_t i) const {
+    require_mesh();
+    if (i >= patches_.patches.size()) throw std::out_of_range("patch index out of range");
+}
+
+void Engine::replace_patches(PatchSet patches) {
+    links_.reset();
+    visibility_.reset();  // it refers to the old patches
+    display_ = DisplayMesh{};
+    patches_ = std::move(patches);
+    visibility_ = std::make_unique<Visibility>(patches_.patches);
+}
+
+void Engine::mesh(const MeshOptions& o) {
+    if (!(o.max_patch_area > 0) || !(o.max_edge_length > 0)) throw std::invalid_argument("meshing limits must be positive");
+    if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+    leaves_published_ = false;
+    replace_patches(mesh_patches(scene_, {o.max_patch_area, o.max_edge_length}));
+}
+
+PatchArrays Engine::patch_arrays() const {
+    const auto& P = patches_.patches;
+    const size_t n = P.size();
+    PatchArrays a;
+    a.count = n;
+    a.corners.resize(n * 12);
+    a.uv.resize(n * 8);
+    a.area.resize(n);
+    a.normal.resize(n * 3);
+    a.centroid.resize(n * 3);
+    a.reflectance.resize(n * 3);
+    a.emission.resize(n * 3);
+    a.nv.resize(n);
+    a.mesh.resize(n);
+    a.face.resize(n);
+    a.source_face.resize(n);
+    for (size_t i = 0; i < n; ++i) {
+        const Patch& p = P[i];
+        for (int k = 0; k < 4; ++k) {
+            for (int c = 0; c < 3; ++c) a.corners[i * 12 + k * 3 + c] = p.p[k][c];
+            a.uv[i * 8 + k * 2] = p.uv[k].u;
+            a.uv[i * 8 + k * 2 + 1] = p.uv[k].v;
+        }
+        for (int c = 0; c < 3; ++c) {
+            a.normal[i * 3 + c] = p.normal[c];
+            a.centroid[i * 3 + c] = p.centroid[c];
+            a.reflectance[i * 3 + c] = p.reflectance[c];
+            a.emission[i * 3 + c] = p.emission[c];
+        }
+        a.area[i] = p.area;
+        a.nv[i] = p.nv;
+        a.mesh[i] = static_cast<int32_t>(p.mesh);
+        a.face[i] = static_cast<int32_t>(p.face);
+        a.source_face[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
+    }
+    return a;
+}
+
+void Engine::compute_links(const FormFactorOptions& o, const DoneFn& done) {
+    require_mesh();
+    const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
+    if (o.method == "raycast") {
+        RayCastFormFactors ff(patches_.patches, *visibility_, {o.samples, o.seed});
+        links_ = std::make_unique<LinkMatrix>(LinkMatrix::build(
+            n, [&](uint32_t i, auto& out) { ff.upper_couplings_of(i, out); },
+            [&](uint32_t d) { if (done) done(d); }));
+    } else if (o.method == "hemicube") {
+        Hemicube hc(patches_.patches, {o.hemicube_resolution, o.hemicube_points});
+        links_ = std::make_unique<LinkMatrix>(symmetric_hemicube_links(patches_.patches, hc, done));
+    } else {
+        throw std::invalid_argument("unknown form factor method '" + o.method + "' (raycast or hemicube)");
+    }
+}
+
+RadiositySystem Engine::system() const {
+    RadiositySystem sys;
+    sys.links = links_.get();
+    for (const Patch& p : patches_.patches) {
+        sys.area.push_back(p.area);
+        sys.reflectance.push_back(p.reflectance);
+        sys.emission.push_back(p.emission);
+    }
+    return sys;
+}
+
+FlatSolveResult Engine::solve(const SolveOptions& o, const FormFactorOptions& ff, const SnapshotFn& snapshot,
+                              const FlatProgressFn& progress) {
+    require_mesh();
+    RadiositySystem sys = system();
+    SolverOptions base;
+    base.tolerance = o.tolerance;
+    base.max_iterations = o.max_iterations;
+    base.on_iteration = [&](const IterationReport& r) {
+        if (progress) progress(r.iteration, r.residual);
+        return true;
+    };
+    Solution sol;
+    FlatSolveResult out;
+    if (o.method == "progressive") {
+        ProgressiveOptions opt;
+        static_cast<SolverOptions&>(opt) = base;
+        opt.snapshot_every = snapshot ? o.snapshot_every : 0;
+        opt.snapshot = snapshot;
+        RayCastFormFactors rff(patches_.patches, *visibility_, RayCastOptions{ff.samples, ff.seed});
+        sol = solve_progressive(sys, [&](uint32_t i, auto& row) { rff.couplings_of(i, row); }, opt, &out.rows_computed);
+    } else {
+        if (!links_) throw std::invalid_argument("solver '" + o.method + "' needs links: compute_links first");
+        if (o.method == "direct") sol = solve_direct(sys);
+        else if (o.method == "jacobi") sol = solve_jacobi(sys, base);
+        else if (o.method == "gauss_seidel") sol = solve_gauss_seidel(sys, base);
+        else if (o.method == "southwell") sol = solve_southwell(sys, base);
+        else throw std::invalid_argument("unknown solver '" + o.method + "'");
+    }
+    out.radiosity = std::move(sol.radiosity);
+    out.iterations = sol.iterations;
+    out.residual = sol.residual;
+    out.converged = sol.converged;
+    out.residual_history = std::move(sol.residual_history);
+    return out;
+}
+
+Transport Engine::transport(const std::vector<RGB>& b, const FormFactorOptions& o) const {
+    require_mesh();
+    const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
+    if (b.size() != n) throw std::invalid_argument("radiosity: one row per patch");
+    Transport t;
+    t.irradiance.resize(n);
+    t.escaped.resize(n);
+    std::unique_ptr<RayCastFormFactors> ff;
+    if (!links_) ff = std::make_unique<RayCastFormFactors>(patches_.patches, *visibility_, RayCastOptions{o.samples, o.seed});
+    tbb::parallel_for(uint32_t(0), n, [&](uint32_t i) {
+        std::vector<std::pair<uint32_t, float>> row;
+        if (links_) {
+            for (uint64_t k = links_->offsets[i]; k < links_->offsets[i + 1]; ++k)
+                row.emplace_back(links_->columns[k], links_->coupling[k]);
+        } else {
+            ff->couplings_of(i, row);
+        }
+        RGB acc;
+        double g_sum = 0;
+        for (const auto& [j, g] : row) { acc += b[j] * double(g); g_sum += g; }
+        const double a = patches_.patches[i].area;
+        t.irradiance[i] = acc / a;
+        // Not clamped: sampling makes some rows sum a little above 1, others below, and only
+        // the signed values add up to the power that really leaves the scene.
+        t.escaped[i] = b[i] * (a - g_sum);
+    });
+    return t;
+}
+
+double Engine::residual_of(const std::vector<RGB>& b) const {
+    if (!links_) throw std::invalid_argument("residual_of needs links: compute_links first");
+    RadiositySystem sys = system();
+    if (b.size() != sys.size()) throw std::invalid_argument("radiosity: one row per patch");
+    return relative_residual(sys, b);
+}
+
+double Engine::form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) const {
+    require_index(i);
+    require_index(j);
+    RayCastFormFactors ff(patches_.patches, *visibility_, {samples, seed});
+    return ff.form_factor(i, j);
+}
+
+std::vector<double> Engine::hemicube_row(uint32_t i, int resolution, int points) const {
+    require_index(i);
+    Hemicube hc(patches_.patches, {resolution, points});
+    std::vector<std::pair<uint32_t, double>> row;
+    hc.row(i, row);
+    std::vector<double> dense(patches_.patches.size(), 0.0);
+    for (const auto& [j, f] : row) dense[j] = f;
+    return dense;
+}
+
+uint64_t Engine::rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
+
+// ---- hierarchical ------------------------------------------------------------------------
+
+std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& o, double& emitted) {
+    if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
+    if (!(o.epsilon >= 0) || !(o.min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
+    if (o.max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
+    links_.reset();
+    solved_.reset();
+    auto state = std::make_unique<Solved>(scene_);
+    state->visibility = std::make_unique<Visibility>(state->hierarchy.faces);
+    emitted = 0;
+    for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
+    return state;
+}
+
+HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const SolveOptions& s,
+                                              const RoundProgressFn& progress) {
+    const PushPull kind = s.method == "jacobi"         ? PushPull::Jacobi
+                          : s.method == "gauss_seidel" ? PushPull::GaussSeidel
+                          : s.method == "southwell"    ? PushPull::Southwell
+                                                       : throw std::invalid_argument(
+                                                             "hierarchical solver must be jacobi, gauss_seidel or "
+                                                             "southwell, not '" + s.method + "'");
+    double emitted = 0;
+    auto state = fresh_hierarchy(o, emitted);
+    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    SolverOptions so;
+    so.tolerance = s.tolerance;
+    so.max_iterations = s.max_iterations;
+    RoundsRun run = run_in_memory(state->hierarchy, *state->visibility, ropt, o.max_rounds, kind, so, progress);
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
+    if (run.log.refine_splits.size() > 1)
+        r.splits_per_round.assign(run.log.refine_splits.begin() + 1, run.log.refine_splits.end());
+    return r;
+}
+
+HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const SolveOptions& s,
+                                             const OutOfCoreOptions& c, const RoundProgressFn& progress) {
+    double emitted = 0;
+    auto state = fresh_hierarchy(o, emitted);
+    Hierarchy& h = state->hierarchy;
+    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    StreamingOptions so;
+    so.tolerance = s.tolerance;
+    so.max_rounds = s.max_iterations;
+    so.memory_budget = c.memory_budget;
+    so.checkpoint_seconds = c.checkpoint_seconds;
+    const SourceGroups groups = SourceGroups::cut(h, c.group_faces);
+    RunStore store(c.store,
+                   StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces),
+                   groups.count());
+    RoundsRun run = run_streamed(h, *state->visibility, ropt, o.max_rounds, groups, so, store, c.resume,
+                                 c.reuse_links, progress);
+    state->store_round = run.store_round;
+    state->groups = run.groups;
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
+    for (size_t k = 0; k < run.log.refine_splits.size(); ++k)
+        if (run.log.refine_kept[k]) r.splits_per_round.push_back(run.log.refine_splits[k]);
+    r.out_of_core = true;
+    r.reused_links = run.state.stop_after_solve;
+    r.resumed_from_round = run.resumed_from_round;
+    r.store_bytes = run.store_bytes;
+    r.transport_bytes = run.transport_bytes;
+    r.peak_refine_links = run.peak_refine_links;
+    r.source_groups = run.groups;
+    r.streaming = run.last_solve;
+    return r;
+}
+
+// Balances the solved hierarchy 2:1 for a display without cracks (new leaves carry their
+// parent's values) and keeps it for publishing and the final gather.
+HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts) {
+    Hierarchy& h = state->hierarchy;
+    HierarchicalSolution& sol = run.solution;
+    state->links = std::move(run.links);
+    const std::vector<Link>& links = state->links;
+    HierarchicalResult r;
+    r.balance_splits = h.balance();
+    for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
+        const uint32_t parent = h.nodes[i].parent;
+        sol.radiosity.push_back(sol.radiosity[parent]);
+        sol.irradiance.push_back(sol.irradiance[parent]);
+        sol.outgoing.push_back(sol.outgoing[parent]);
+    }
+    std::vector<uint32_t> leaves = h.leaves();
+    state->leaf_patches.reserve(leaves.size());
+    r.radiosity.resize(leaves.size());
+    r.irradiance.resize(leaves.size());
+    r.escaped.resize(leaves.size());
+    for (size_t k = 0; k < leaves.size(); ++k) {
+        const Node& node = h.nodes[leaves[k]];
+        state->leaf_patches.push_back(node.shape);
+        r.radiosity[k] = sol.radiosity[leaves[k]];
+        r.irradiance[k] = sol.irradiance[leaves[k]];
+        // Signed, as for the flat method: the per-leaf shares only add up unclamped.
+        r.escaped[k] = r.radiosity[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
+    }
+    r.residual = sol.residual;
+    r.converged = sol.converged;
+    r.iterations = run.iterations;
+    r.residual_history = run.residual_history;
+    r.links = run.link_count;
+    r.elements = leaves.size();
+    r.nodes = h.nodes.size();
+    for (const Node& node : h.nodes) r.clusters += node.cluster;
+    r.rounds = run.state.round;
+    r.settled = run.state.settled;
+    r.links_per_round = run.links_per_round;
+    r.refine_seconds = run.log.refine_seconds;
+    r.solve_seconds = run.log.solve_seconds;
+    r.link_estimates = run.refine.evaluated;
+    r.rays = state->visibility->rays_cast();
+    r.epsilon_watts = epsilon_watts;
+    r.link_receiver.resize(links.size());
+    r.link_source.resize(links.size());
+    r.link_coupling.resize(links.size());
+    r.link_unoccluded.resize(links.size());
+    for (size_t k = 0; k < links.size(); ++k) {
+        r.link_receiver[k] = links[k].receiver;
+        r.link_source[k] = links[k].source;
+        r.link_coupling[k] = links[k].coupling;
+        r.link_unoccluded[k] = links[k].unoccluded;
+    }
+    r.node_parent.resize(h.nodes.size());
+    r.node_area.resize(h.nodes.size());
+    r.node_cluster.resize(h.nodes.size());
+    for (size_t i = 0; i < h.nodes.size(); ++i) {
+        r.node_parent[i] = h.nodes[i].parent == kNoNode ? -1 : static_cast<int32_t>(h.nodes[i].parent);
+        r.node_area[i] = h.nodes[i].area;
+        r.node_cluster[i] = h.nodes[i].cluster;
+    }
+    r.leaf_node.assign(leaves.begin(), leaves.end());
+    state->radiosity = std::move(sol.radiosity);
+    state->leaves = std::move(leaves);
+    solved_ = std::move(state);
+    leaves_published_ = false;
+    return r;
+}
+
+void Engine::use_leaves_as_patches() {
+    if (!solved_) throw std::invalid_argument("use_leaves_as_patches needs a hierarchical solve first");
+    if (leaves_published_) return;
+    replace_patches(weld_patches(solved_->leaf_patches));
+    leaves_published_ = true;
+}
+
+// ---- outputs -----------------------------------------------------------------------------
+
+const DisplayMesh& Engine::display_mesh(double crease_angle) {
+    require_mesh();
+    display_ = build_display_mesh(patches_, crease_angle);
+    return display_;
+}
+
+std::vector<RGB> Engine::vertex_values(const std::vector<RGB>& values) const {
+    if (display_.corners.size() != patches_.patches.size() || patches_.patches.empty())
+        throw std::invalid_argument("vertex_values: call display_mesh first");
+    if (values.size() != patches_.patches.size()) throw std::invalid_argument("values: one row per patch");
+    return hirad::vertex_values(patches_, display_, values);
+}
+
+PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                           const GatherOptions& options, double max_distance) {
+    if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
+    if (!leaves_published_) throw std::invalid_argument("gather needs the leaves as patches: call use_leaves_as_patches()");
+    require_points(points, normals);
+    // Links of an out-of-core solve are read from its store on the first gather.
+    if (solved_->links.empty() && !solved_->store_round.empty())
+        solved_->links = load_links(solved_->store_round, solved_->groups);
+    const size_t n = points.size();
+    PointValues out;
+    out.patch.assign(n, -1);
+    out.irradiance.assign(n, RGB{});
+    out.radiance.assign(n, RGB{});
+    std::vector<RayHit> hits(n);
+    tbb::parallel_for(size_t(0), n, [&](size_t q) { hits[q] = visibility_->closest_point(points[q], normals[q], max_distance); });
+    std::vector<uint32_t> leaf;
+    std::vector<Vec3> x;
+    std::vector<uint64_t> key;
+    std::vector<size_t> slot;
+    for (size_t q = 0; q < n; ++q) {
+        if (hits[q].patch < 0) continue;
+        out.patch[q] = hits[q].patch;
+        leaf.push_back(solved_->leaves[hits[q].patch]);
+        x.push_back(points[q]);
+        key.push_back(q);
+        slot.push_back(q);
+    }
+    Gatherer g(solved_->hierarchy, solved_->links, solved_->radiosity, *solved_->visibility, options);
+    std::vector<RGB> e(leaf.size());
+    g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data());
+    for (size_t k = 0; k < leaf.size(); ++k) {
+        out.irradiance[slot[k]] = e[k];
+        out.radiance[slot[k]] = exitant(solved_->hierarchy.nodes[leaf[k]].shape, e[k]);
+    }
+    return out;
+}
+
+PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                const std::vector<RGB>& radiosity, int rays, uint64_t seed) const {
+    const size_t n = points.size(), np = patches_.patches.size();
+    if (!visibility_ || np == 0) throw std::invalid_argument("gather_flat needs a meshed, solved model");
+    require_points(points, normals);
+    if (radiosity.size() != np) throw std::invalid_argument("radiosity: one row per patch");
+    std::vector<Vec3> x(n), nn(n);
+    PointValues out;
+    out.patch.resize(n);
+    out.irradiance.assign(n, RGB{});
+    out.radiance.assign(n, RGB{});
+    for (size_t q = 0; q < n; ++q) {
+        const RayHit hit = visibility_->closest_point(points[q], normals[q], 1e30);
+        out.patch[q] = hit.patch;
+        const Patch& s = patches_.patches[std::max(0, hit.patch)];
+        nn[q] = s.normal;
+        x[q] = points[q] - s.normal * dot(points[q] - s.p[0], s.normal);
+    }
+    std::vector<RGB> e(n);
+    hirad::gather_flat(patches_.patches, radiosity, *visibility_, x.data(), nn.data(), n, rays, seed, e.data());
+    for (size_t q = 0; q < n; ++q) {
+        if (out.patch[q] < 0) continue;
+        out.irradiance[q] = e[q];
+        out.radiance[q] = exitant(patches_.patches[out.patch[q]], e[q]);
+    }
+    return out;
+}
+
+ReferenceResult Engine::reference(const std::vector<uint32_t>& patch, const std::vector<Vec2>& st,
+                                  const ReferenceOptions& options) const {
+    require_mesh();
+    if (st.size() != patch.size()) throw std::invalid_argument("patch and st differ in length");
+    for (uint32_t p : patch)
+        if (p >= patches_.patches.size()) throw std::out_of_range("patch index out of range");
+    std::vector<ReferenceEstimate> est = reference_radiance(patches_.patches, *visibility_, patch, st, options);
+    ReferenceResult r;
+    r.radiance.resize(est.size());
+    r.standard_error.resize(est.size());
+    for (size_t q = 0; q < est.size(); ++q) {
+        r.radiance[q] = est[q].radiance;
+        r.standard_error[q] = est[q].standard_error;
+    }
+    return r;
+}
+
+ReferenceResult Engine::reference_at(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                     const ReferenceOptions& options, double max_distance) const {
+    require_mesh();
+    require_points(points, normals);
+    const size_t n = points.size();
+    std::vector<uint32_t> ids(n);
+    std::vector<Vec2> st(n);
+    for (size_t q = 0; q < n; ++q) {
+        const RayHit hit = visibility_->closest_point(points[q], normals[q], max_distance);
+        if (hit.patch < 0)
+            throw std::invalid_argument("point " + std::to_string(q) + ": no surface within " +
+                                        std::to_string(max_distance) + " m");
+        ids[q] = static_cast<uint32_t>(hit.patch);
+        // The closest point's (s, t) in the patch's own parametrisation (Patch::point).
+        st[q] = {hit.u, hit.v};
+    }
+    return reference(ids, st, options);
+}
+
+}  // namespace hirad

@@ -1,0 +1,284 @@
+// The engine: one scene taken through the pipeline, scene -> patches -> links -> solution,
+// by either method.
+//
+//   flat          mesh(MeshOptions)                    patches of bounded area and edge
+//                 compute_links(FormFactorOptions)     every pair that exchanges light (ray-cast
+//                                                      or symmetrised hemicube form factors)
+//                 solve(SolveOptions)                  B = E + rho F B (direct, Jacobi, Gauss-
+//                                                      Seidel, Southwell, progressive)
+//                 transport(B)                         irradiance H = F B and escaped power
+//   hierarchical  solve_hierarchical(HierarchyOptions, SolveOptions[, OutOfCoreOptions])
+//                                                      refine -> solve rounds (rounds.h) over
+//                                                      the scene's own hierarchy; then
+//                 use_leaves_as_patches()              the leaf elements become the patches
+//
+// After either, the patches and their values feed the outputs: display_mesh / vertex_values
+// (Gouraud reconstruction), gather / gather_flat (final gather at points) and reference (the
+// Monte Carlo path tracer, independent of links and solution).
+//
+// Units: metres, m^2; radiosity B, irradiance H and emission E (exitance) in W/m^2 per RGB
+// channel; radiance L = B / pi in W/(m^2 sr); power in W. Colours are linear RGB.
+//
+// Long calls take progress callbacks. They are called from the thread doing the work (link
+// rows: from TBB worker threads), so they must be cheap, thread-safe and must not throw; the
+// Python bindings run each long call on a worker thread and poll what the callbacks stored.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "pipeline/engine/rounds.h"
+#include "pipeline/flat/links.h"
+#include "pipeline/flat/solvers.h"
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/scene.h"
+#include "pipeline/geometry/visibility.h"
+#include "pipeline/hierarchy/gather.h"
+#include "pipeline/hierarchy/hierarchy.h"
+#include "pipeline/outputs/reconstruct.h"
+#include "pipeline/reference/reference.h"
+
+namespace hirad {
+
+// Caps the engine's TBB threads (0: all cores). Results do not depend on it.
+void set_threads(int threads);
+
+// ---- options ----------------------------------------------------------------------------
+
+// Flat meshing: every face is cut into patches no larger than these.
+struct MeshOptions {
+    double max_patch_area = 0.01;   // m^2
+    double max_edge_length = 0.1;   // m
+};
+
+// Form factors of the flat method.
+struct FormFactorOptions {
+    // "raycast": stratified area-to-area sampling with Embree visibility (reciprocal by
+    // construction); "hemicube": rasterised hemicubes, rows made reciprocal by averaging
+    // G_ij = (A_i F_ij + A_j F_ji) / 2.
+    std::string method = "raycast";
+    int samples = 16;               // raycast: stratified points per patch (also the progressive solver's)
+    int hemicube_resolution = 128;  // hemicube: pixels along the top face (even)
+    int hemicube_points = 4;        // hemicube: hemicubes averaged per patch
+    uint64_t seed = 1;              // equal seeds give equal bits, whatever the thread count
+};
+
+// The solve: of B = E + rho F B (flat) or of the hierarchy's links (hierarchical).
+struct SolveOptions {
+    // flat: "direct", "jacobi", "gauss_seidel", "southwell", "progressive";
+    // hierarchical in memory: "jacobi", "gauss_seidel", "southwell" (with push-pull);
+    // hierarchical out of core: ignored (streaming block Southwell).
+    std::string method = "southwell";
+    double tolerance = 1e-4;        // relative residual ||E - M B|| / ||E|| to stop at
+    uint64_t max_iterations = 100000000;  // sweeps, or shots for shooting methods
+    uint64_t snapshot_every = 0;    // progressive only: a snapshot every this many shots (0: none)
+};
+
+// Hierarchical radiosity with clustering (refine.h).
+struct HierarchyOptions {
+    double epsilon = 1e-5;          // a link may carry at most epsilon x the emitted power (W) unsplit
+    double min_area = 1e-3;         // m^2: elements are not split below this
+    int samples = 16;               // point pairs per link estimate
+    uint64_t seed = 1;
+    int max_rounds = 6;             // refine -> solve rounds at most (>= 1)
+};
+
+// The hierarchical method out of core: links streamed through a link store.
+struct OutOfCoreOptions {
+    std::string store;              // the link store's directory; empty: links in memory
+    uint64_t memory_budget = 0;     // bytes for solver state and decoded chunks; 0: unlimited
+    uint32_t group_faces = 1024;    // input faces per source group (one chunk each)
+    double checkpoint_seconds = 0;  // the running solve's state this often (0: never)
+    bool resume = false;            // continue what a killed bake with the same inputs left
+    bool reuse_links = false;       // solve on the store's final links (same geometry and
+                                    // settings, other materials): no link estimates
+};
+
+// ---- results ------------------------------------------------------------------------------
+
+// Counts of the scene and of what has been built from it so far.
+struct Stats {
+    uint64_t input_faces = 0;         // polygons given
+    uint64_t faces = 0;               // usable faces after triangulation and cleaning
+    uint64_t degenerate_faces = 0;    // dropped: zero area
+    uint64_t nonfinite_faces = 0;     // dropped: a NaN or infinite corner
+    uint64_t triangulated_faces = 0;  // non-quads and non-planar or concave quads split
+    uint64_t nonmanifold_edges = 0;   // edges of more than two faces (kept, only counted)
+    uint64_t patches = 0;             // current patches (flat patches, or published leaves)
+    uint64_t links = 0;               // flat links stored (0 before compute_links)
+    uint64_t link_bytes = 0;          // their memory
+    uint64_t rays = 0;                // rays cast against the current patches
+};
+
+// The current patches as flat arrays (row k is patch k).
+struct PatchArrays {
+    size_t count = 0;
+    std::vector<double> corners;      // (n, 4, 3) m; triangles repeat corner 2 as corner 3
+    std::vector<double> uv;           // (n, 4, 2) the face's texture coordinates at the corners
+    std::vector<double> area;         // (n) m^2
+    std::vector<double> normal;       // (n, 3) unit
+    std::vector<double> centroid;     // (n, 3) m
+    std::vector<double> reflectance;  // (n, 3)
+    std::vector<double> emission;     // (n, 3) W/m^2
+    std::vector<int32_t> nv;          // (n) 3 or 4
+    std::vector<int32_t> mesh;        // (n) input mesh
+    std::vector<int32_t> face;        // (n) engine face (after triangulation)
+    std::vector<int32_t> source_face; // (n) the authored face within its mesh
+};
+
+// A flat solve.
+struct FlatSolveResult {
+    std::vector<RGB> radiosity;       // per patch, W/m^2
+    uint64_t iterations = 0;
+    double residual = 0;              // final relative residual
+    bool converged = false;
+    std::vector<double> residual_history;
+    uint64_t rows_computed = 0;       // progressive: coupling rows computed on the fly
+};
+
+// The two terms of the flat energy balance, per patch.
+struct Transport {
+    std::vector<RGB> irradiance;      // H = F B, W/m^2
+    std::vector<RGB> escaped;         // (A_i - sum_j G_ij) B_i, W: leaves and reaches no patch
+                                      // (signed: sampling makes some rows sum above 1)
+};
+
+// A hierarchical solve. Per-leaf arrays follow the leaves of the 2:1 balanced hierarchy, the
+// patches that use_leaves_as_patches() makes.
+struct HierarchicalResult {
+    std::vector<RGB> radiosity;       // per leaf, W/m^2
+    std::vector<RGB> irradiance;      // per leaf, W/m^2
+    std::vector<RGB> escaped;         // per leaf, W: B A (1 - outgoing fraction), signed
+    double residual = 0;
+    bool converged = false;
+    uint64_t iterations = 0;          // all rounds
+    std::vector<double> residual_history;  // in memory: all rounds; out of core: the last solve's
+    uint64_t links = 0;               // final links
+    uint64_t elements = 0;            // leaves
+    uint64_t nodes = 0;
+    uint64_t clusters = 0;
+    uint64_t balance_splits = 0;      // leaves split for the 2:1 balance of the display
+    int rounds = 0;                   // the final round
+    bool settled = false;             // refinement stopped splitting (else max_rounds ended it)
+    std::vector<uint64_t> links_per_round;
+    // Links split per refinement pass. In memory: each pass after the first, the last 0 when
+    // it settled; out of core: each pass that made a round, the first included. (Two
+    // conventions kept from before the loop was shared, so reports compare with old ones.)
+    std::vector<uint64_t> splits_per_round;
+    std::vector<double> refine_seconds, solve_seconds;
+    uint64_t link_estimates = 0;      // form factor estimates made by refinement
+    uint64_t rays = 0;                // rays cast over the hierarchy's faces
+    double epsilon_watts = 0;         // epsilon x emitted power: the split threshold, W
+    // out of core only
+    bool out_of_core = false;
+    bool reused_links = false;
+    int resumed_from_round = 0;       // 0: started fresh
+    uint64_t store_bytes = 0;         // compressed link payload of the final round
+    uint64_t transport_bytes = 0;     // of which the transport sections
+    uint64_t peak_refine_links = 0;   // most links refinement held at once
+    uint64_t source_groups = 0;
+    StreamingStats streaming;         // the last streaming solve
+    // The hierarchy and its links as plain arrays (tests, inspection).
+    std::vector<int32_t> link_receiver, link_source;
+    std::vector<double> link_coupling, link_unoccluded;  // G, m^2
+    std::vector<int32_t> node_parent;  // -1 at the root
+    std::vector<double> node_area;
+    std::vector<uint8_t> node_cluster;
+    std::vector<int32_t> leaf_node;    // per leaf
+};
+
+// Values at query points on the surfaces.
+struct PointValues {
+    std::vector<int32_t> patch;       // the patch each point went to (-1: none within reach)
+    std::vector<RGB> irradiance;      // W/m^2 (0 where patch is -1)
+    std::vector<RGB> radiance;        // exitant, W/(m^2 sr)
+};
+
+struct ReferenceResult {
+    std::vector<RGB> radiance;        // exitant, W/(m^2 sr)
+    std::vector<RGB> standard_error;  // of `radiance`
+};
+
+using DoneFn = std::function<void(uint64_t done)>;
+using FlatProgressFn = std::function<void(uint64_t iteration, double residual)>;
+using SnapshotFn = std::function<void(uint64_t shot, const std::vector<RGB>& display)>;
+
+class Engine {
+public:
+    // The scene as flat arrays (validated: counts, indices, per-face rows). Faces that are
+    // degenerate or not finite are dropped and counted (stats()).
+    Engine(const SceneInput& scene, size_t num_indices);
+    ~Engine();
+
+    Stats stats() const;
+
+    // ---- flat method
+    void mesh(const MeshOptions& options);
+    size_t num_patches() const { return patches_.patches.size(); }
+    PatchArrays patch_arrays() const;
+    // `done(rows)`: rows finished so far (called from TBB worker threads, not in order).
+    void compute_links(const FormFactorOptions& options, const DoneFn& done = {});
+    // Progressive solves need no links (rows are computed as they are shot, with `ff`'s
+    // samples and seed); the others need compute_links first. `snapshot` (progressive,
+    // snapshot_every > 0) receives B + rho x ambient, the displayed radiosity.
+    FlatSolveResult solve(const SolveOptions& options, const FormFactorOptions& ff = {},
+                          const SnapshotFn& snapshot = {}, const FlatProgressFn& progress = {});
+    // H and escaped power from B; couplings from the links, or sampled with `ff` without links.
+    Transport transport(const std::vector<RGB>& radiosity, const FormFactorOptions& ff = {}) const;
+    double residual_of(const std::vector<RGB>& radiosity) const;
+    double form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) const;
+    std::vector<double> hemicube_row(uint32_t i, int resolution, int points) const;  // dense F_i.
+    uint64_t rays_cast() const;
+
+    // ---- hierarchical method (replaces any earlier hierarchical solve and drops flat links)
+    HierarchicalResult solve_hierarchical(const HierarchyOptions& hierarchy, const SolveOptions& solve,
+                                          const RoundProgressFn& progress = {});
+    HierarchicalResult solve_out_of_core(const HierarchyOptions& hierarchy, const SolveOptions& solve,
+                                         const OutOfCoreOptions& out_of_core, const RoundProgressFn& progress = {});
+    // Makes the last hierarchical solve's leaves the patches (in the order of the result's
+    // per-leaf arrays), so that patch_arrays, display_mesh, vertex_values, gather and
+    // reference work on them. Until then the patches are the flat meshing's (if any).
+    void use_leaves_as_patches();
+    bool leaves_are_patches() const { return leaves_published_; }
+
+    // ---- outputs
+    const DisplayMesh& display_mesh(double crease_angle_degrees);   // kept for vertex_values
+    std::vector<RGB> vertex_values(const std::vector<RGB>& patch_values) const;
+    // Final gather after a hierarchical solve whose leaves are the patches: each point goes to
+    // the nearest leaf facing along its normal within max_distance, every link reaching that
+    // leaf is re-evaluated at the point.
+    PointValues gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                       const GatherOptions& options, double max_distance = 1e30);
+    // Final gather from a flat solution `radiosity` (per patch): O(patches) a point.
+    PointValues gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                            const std::vector<RGB>& radiosity, int rays, uint64_t seed) const;
+    // Monte Carlo reference at (s, t) of the given patches.
+    ReferenceResult reference(const std::vector<uint32_t>& patch, const std::vector<Vec2>& st,
+                              const ReferenceOptions& options) const;
+    // The same at arbitrary points, each on the closest patch facing along its normal (any when
+    // the normal is zero) within max_distance (an error naming the point otherwise).
+    ReferenceResult reference_at(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                 const ReferenceOptions& options, double max_distance) const;
+
+private:
+    struct Solved;
+    void require_mesh() const;
+    void require_index(uint32_t i) const;
+    RadiositySystem system() const;
+    void replace_patches(PatchSet patches);
+    std::unique_ptr<Solved> fresh_hierarchy(const HierarchyOptions& options, double& emitted);
+    HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts);
+
+    Scene scene_;
+    PatchSet patches_;
+    std::unique_ptr<Visibility> visibility_;   // over patches_
+    std::unique_ptr<LinkMatrix> links_;
+    std::unique_ptr<Solved> solved_;
+    bool leaves_published_ = false;
+    DisplayMesh display_;
+};
+
+}  // namespace hirad

@@ -1,0 +1,120 @@
+#include "pipeline/engine/ray_scene.h"
+
+#include <tbb/parallel_for.h>
+
+#include <stdexcept>
+
+namespace hirad {
+
+namespace {
+
+CornerValues corner_values(const double* a, size_t n) {
+    CornerValues v(n);
+    for (size_t i = 0; i < n; ++i)
+        for (int k = 0; k < 4; ++k) {
+            const double* c = a + (i * 4 + k) * 3;
+            v[i][k] = {c[0], c[1], c[2]};
+        }
+    return v;
+}
+
+}  // namespace
+
+RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
+                   const double* corner_irradiance)
+    : patches_(n) {
+    for (size_t i = 0; i < n; ++i) {
+        Patch& p = patches_[i];
+        p.nv = nv[i];
+        if (p.nv != 3 && p.nv != 4)
+            throw std::invalid_argument("nv: patch " + std::to_string(i) + " has " + std::to_string(p.nv) +
+                                        " corners (3 or 4)");
+        for (int k = 0; k < 4; ++k) {
+            const double* c = corners + (i * 4 + k) * 3;
+            p.p[k] = {c[0], c[1], c[2]};
+        }
+        if (p.nv == 3) p.p[3] = p.p[2];
+        Vec3 nn;
+        for (int k = 0; k < p.nv; ++k) nn += cross(p.p[k], p.p[(k + 1) % p.nv]);
+        p.area = 0.5 * length(nn);
+        p.normal = normalize(nn);
+        p.centroid = p.p[0];
+    }
+    has_values_ = corner_radiance && corner_irradiance;
+    radiance_ = corner_radiance ? corner_values(corner_radiance, n) : CornerValues(n);
+    irradiance_ = corner_irradiance ? corner_values(corner_irradiance, n) : CornerValues(n);
+    visibility_ = std::make_unique<Visibility>(patches_);
+}
+
+std::vector<float> RayScene::render(const Camera& camera, int samples) const {
+    if (camera.width <= 0 || camera.height <= 0) throw std::invalid_argument("image size must be positive");
+    return render_radiance(patches_, *visibility_, radiance_, camera, samples);
+}
+
+ProbeResult RayScene::probe(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                            double max_distance) const {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    const size_t n = points.size();
+    ProbeResult r;
+    r.patch.resize(n);
+    r.distance.resize(n);
+    r.irradiance.assign(n, RGB{});
+    r.radiance.assign(n, RGB{});
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+        const RayHit hit = visibility_->closest_point(points[q], normals[q], max_distance);
+        r.patch[q] = hit.patch;
+        r.distance[q] = hit.patch >= 0 ? hit.t : -1;
+        if (hit.patch < 0) return;
+        const int nv = patches_[hit.patch].nv;
+        r.irradiance[q] = interpolate_corners(nv, irradiance_[hit.patch], hit.u, hit.v);
+        r.radiance[q] = interpolate_corners(nv, radiance_[hit.patch], hit.u, hit.v);
+    });
+    return r;
+}
+
+LiftResult RayScene::lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
+                                  double reach, const std::vector<Vec3>* anchors) const {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    if (anchors && anchors->size() != points.size()) throw std::invalid_argument("points and anchors differ in length");
+    LiftResult r;
+    hirad::lift_samples(patches_, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
+    r.points = std::move(points);
+    return r;
+}
+
+VolumeProbes RayScene::volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const {
+    const std::vector<ProbeMoments> m = probe_moments(patches_, *visibility_, radiance_, points, rays, seed);
+    VolumeProbes v;
+    for (const ProbeMoments& p : m) {
+        v.s0.push_back(p.s0);
+        v.s1.push_back(p.s1);
+        v.back_fraction.push_back(p.back_fraction);
+        v.hit_fraction.push_back(p.hit_fraction);
+        v.nearest.push_back(p.nearest);
+    }
+    return v;
+}
+
+RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<Vec3>& d) const {
+    if (o.size() != d.size()) throw std::invalid_argument("origins and directions differ in length");
+    const size_t n = o.size();
+    RayCastResult r;
+    r.patch.assign(n, -1);
+    r.t.assign(n, -1);
+    r.points.assign(n, Vec3{});
+    r.normals.assign(n, Vec3{});
+    r.back.assign(n, 0);
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+        const Vec3 dir = normalize(d[q]);
+        const RayHit h = visibility_->intersect(o[q], dir);
+        if (h.patch < 0) return;
+        r.patch[q] = h.patch;
+        r.t[q] = h.t;
+        r.points[q] = o[q] + dir * h.t;
+        r.normals[q] = patches_[h.patch].normal;
+        r.back[q] = dot(r.normals[q], dir) >= 0;
+    });
+    return r;
+}
+
+}  // namespace hirad

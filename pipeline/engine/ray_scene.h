@@ -1,0 +1,84 @@
+// A solved surface as one ray-tracing scene: the patches (corners and corner count) in one
+// Embree BVH, built once, with optional exitant radiance and irradiance at every patch
+// corner. Everything that traces rays against a finished solution queries it:
+//   render          pinhole camera, radiance interpolated at the first hit (render.h)
+//   probe           the closest surface point to each query point and its values
+//   lift_samples    lightmap sample points lifted off their surface and out of geometry
+//   volume_probes   full-sphere radiance moments at points in empty space (volume.h)
+//   ray_cast        first hits of arbitrary rays
+// Units: metres; radiance W/(m^2 sr), irradiance W/m^2.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
+#include "pipeline/outputs/render.h"
+#include "pipeline/outputs/volume.h"
+
+namespace hirad {
+
+using CornerValues = std::vector<std::array<RGB, 4>>;
+
+struct ProbeResult {
+    std::vector<int32_t> patch;       // closest patch (-1: none within max_distance)
+    std::vector<double> distance;     // to it, m (-1 when none)
+    std::vector<RGB> irradiance;      // interpolated at the closest point, W/m^2
+    std::vector<RGB> radiance;        // W/(m^2 sr)
+};
+
+struct RayCastResult {
+    std::vector<int32_t> patch;       // first patch hit (-1: the ray escapes)
+    std::vector<double> t;            // distance along the normalised direction (-1: none)
+    std::vector<Vec3> points;         // hit points
+    std::vector<Vec3> normals;        // the hit patch's normal
+    std::vector<uint8_t> back;        // 1 when the ray hit the patch's back face
+};
+
+struct LiftResult {
+    std::vector<Vec3> points;         // lifted off the surface, out of geometry
+    std::vector<uint8_t> moved;       // 1 where a point had to be moved out of geometry
+};
+
+// Full-sphere radiance moments per point in empty space (volume.h).
+struct VolumeProbes {
+    std::vector<RGB> s0;                    // integral of L over the sphere
+    std::vector<std::array<RGB, 3>> s1;     // [a]: integral of L w_a
+    std::vector<double> back_fraction;      // rays that hit a back face
+    std::vector<double> hit_fraction;       // rays that hit anything
+    std::vector<double> nearest;            // closest hit distance, m (-1: nothing hit)
+};
+
+class RayScene {
+public:
+    // Patches from corner arrays: `corners` (n, 4, 3), `nv` (n) of 3 or 4 (triangles ignore
+    // their fourth corner). Radiance and irradiance (n, 4, 3) per corner may be null (then
+    // render and probe values are zero).
+    RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
+             const double* corner_irradiance);
+    RayScene(const RayScene&) = delete;
+    RayScene& operator=(const RayScene&) = delete;
+
+    size_t size() const { return patches_.size(); }
+    bool has_values() const { return has_values_; }
+
+    std::vector<float> render(const Camera& camera, int samples) const;  // (height, width, 3)
+    // With a non-zero normal, only surfaces facing the same way qualify.
+    ProbeResult probe(const std::vector<Vec3>& points, const std::vector<Vec3>& normals, double max_distance) const;
+    // Lightmap samples: each point lifted `epsilon` along its normal and, if that lands inside
+    // geometry, moved out within `reach` (towards its anchor when given; volume.h).
+    LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon, double reach,
+                            const std::vector<Vec3>* anchors = nullptr) const;
+    VolumeProbes volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const;
+    RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
+
+private:
+    std::vector<Patch> patches_;
+    CornerValues radiance_, irradiance_;
+    bool has_values_ = false;
+    std::unique_ptr<Visibility> visibility_;   // over patches_, built once
+};
+
+}  // namespace hirad

@@ -1,0 +1,268 @@
+#include "pipeline/engine/rounds.h"
+
+#include <chrono>
+#include <memory>
+#include <stdexcept>
+
+#include "pipeline/outofcore/outofcore.h"
+
+namespace hirad {
+
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+// All links in one vector, solved by a push-pull solver.
+class MemoryStages : public RoundStages {
+public:
+    MemoryStages(Hierarchy& h, const Visibility& vis, const RefineOptions& ropt, PushPull kind,
+                 const SolverOptions& so, const RoundProgressFn& progress, RoundsRun& run)
+        : h_(h), refiner_(h, vis, ropt), kind_(kind), so_(so), progress_(progress), run_(run) {}
+
+    uint64_t refine(int next, const std::vector<RGB>& b) override {
+        const uint64_t before = run_.refine.split;
+        pending_ = next == 1 ? refiner_.initial_links(b, run_.refine) : refiner_.refine(run_.links, b, run_.refine);
+        return run_.refine.split - before;
+    }
+    void commit(int) override {
+        run_.links.swap(pending_);
+        pending_ = {};
+        sort_links(run_.links);
+        run_.links_per_round.push_back(run_.links.size());
+    }
+    void discard(int) override { pending_ = {}; }
+    HierarchicalSolution solve(int round, const std::vector<RGB>& start) override {
+        SolverOptions so = so_;
+        const uint64_t links = run_.links.size();
+        so.on_iteration = [&](const IterationReport& rep) {
+            if (progress_) progress_({round, links, rep.iteration, rep.residual});
+            return !so_.on_iteration || so_.on_iteration(rep);
+        };
+        HierarchicalSolution sol;
+        switch (kind_) {
+            case PushPull::Jacobi: sol = solve_push_pull(h_, run_.links, start, so); break;
+            case PushPull::GaussSeidel: sol = solve_gauss_seidel_push_pull(h_, run_.links, start, so); break;
+            case PushPull::Southwell: sol = solve_southwell_push_pull(h_, run_.links, start, so); break;
+        }
+        run_.iterations += sol.iterations;
+        run_.residual_history.insert(run_.residual_history.end(), sol.residual_history.begin(),
+                                     sol.residual_history.end());
+        return sol;
+    }
+
+private:
+    Hierarchy& h_;
+    Refiner refiner_;
+    PushPull kind_;
+    SolverOptions so_;
+    const RoundProgressFn& progress_;
+    RoundsRun& run_;
+    std::vector<Link> pending_;
+};
+
+// Links group by group through a RoundWriter (the store's round directory, or memory chunks),
+// solved by streaming block Southwell; every step recorded in the run store.
+class StreamedStages : public RoundStages {
+public:
+    StreamedStages(Hierarchy& h, const Visibility& vis, const RefineOptions& ropt, const SourceGroups& groups,
+                   const StreamingOptions& so, RunStore& store, const RoundProgressFn& progress, RoundsRun& run)
+        : h_(h), groups_(groups), ng_(groups.count()), refiner_(h, vis, ropt), so_(so), store_(store),
+          progress_(progress), run_(run), info_{store.links_fingerprint(), store.settings_fingerprint(), UINT32_MAX, 0} {}
+
+    // Starts from a stored round (resume or reuse).
+    void adopt(int round, std::vector<uint8_t> is_source, std::vector<double> outgoing) {
+        chunks_ = std::make_unique<StoreChunks>(store_.round_dir(round), ng_);
+        is_source_ = std::move(is_source);
+        outgoing_ = std::move(outgoing);
+    }
+
+    uint64_t refine(int next, const std::vector<RGB>& b) override {
+        const uint64_t splits_before = run_.refine.split;
+        out_ = std::make_unique<RoundWriter>(store_.round_dir(next), ng_, info_);
+        src_.clear();
+        own_.clear();
+        std::vector<Link> frontier;
+        std::vector<LinkRecord> records, kept_records;
+        refiner_.set_radiosity(b);
+        // Kept links leave for the store a part at a time, as refinement makes them; what
+        // refinement holds is bounded by kChunkLinks per level of depth.
+        auto keep = [&](uint32_t g, std::vector<Link>& kept) {
+            src_.resize(h_.nodes.size(), 0);
+            own_.resize(h_.nodes.size(), 0.0);
+            kept_records.clear();
+            for (const Link& l : kept) {
+                src_[l.source] = 1;
+                own_[l.source] += double(l.coupling) / h_.nodes[l.source].area;
+                kept_records.push_back(to_record(l));
+            }
+            out_->add(g, kept_records);
+        };
+        for (uint32_t g = 0; g < ng_; ++g) {
+            // Round 1 starts from the link of the root to the group; later rounds re-judge the
+            // previous round's links of the group, part by part.
+            const size_t pieces = next == 1 ? 1 : chunks_->parts(g);
+            for (size_t p = 0; p < pieces; ++p) {
+                std::vector<uint8_t> evaluated;
+                frontier.clear();
+                if (next == 1) {
+                    Link seed;
+                    seed.receiver = h_.root;
+                    seed.source = groups_.roots[g];
+                    frontier.push_back(seed);
+                    evaluated.push_back(0);
+                } else {
+                    chunks_->read(g, p, records);
+                    for (const LinkRecord& r : records) frontier.push_back(to_link(r));
+                    evaluated.assign(frontier.size(), 1);
+                }
+                const uint64_t held =
+                    refiner_.run_group(std::move(frontier), std::move(evaluated), run_.refine, kChunkLinks,
+                                       [&](std::vector<Link>& kept) { keep(g, kept); });
+                frontier = {};
+                run_.peak_refine_links = std::max<uint64_t>(run_.peak_refine_links, held);
+            }
+            out_->end_group(g);
+        }
+        src_.resize(h_.nodes.size(), 0);
+        own_.resize(h_.nodes.size(), 0.0);
+        return run_.refine.split - splits_before;
+    }
+    void commit(int next) override {
+        uint32_t elements = 0;
+        for (const Node& node : h_.nodes) elements += !node.cluster;
+        chunks_ = out_->finish(static_cast<uint32_t>(h_.nodes.size()), elements);
+        out_.reset();
+        is_source_ = std::move(src_);
+        outgoing_ = std::move(own_);
+        run_.links_per_round.push_back(chunks_->total_links());
+        store_.refined(next, h_, is_source_, outgoing_);
+    }
+    void discard(int next) override {
+        store_.discard_round(next);
+        out_.reset();
+    }
+    HierarchicalSolution solve(int round, const std::vector<RGB>& start) override {
+        // Solve round `round`'s links, checkpointing into the store.
+        StreamingOptions so = so_;
+        so.checkpoint_path = store_.checkpoint_path();
+        so.checkpoint_fingerprint = store_.checkpoint_fingerprint(round);
+        const uint64_t links_now = chunks_->total_links();
+        so.on_round = [&](uint64_t it, double res) {
+            if (progress_) progress_({round, links_now, shots_ + it, res});
+            return !so_.on_round || so_.on_round(it, res);
+        };
+        run_.last_solve = StreamingStats{};
+        HierarchicalSolution sol = solve_streaming(h_, groups_, *chunks_, is_source_, outgoing_, start, so, run_.last_solve);
+        shots_ += run_.last_solve.rounds;
+        return sol;
+    }
+    void solved(int round, const HierarchicalSolution& solution) override { store_.solved(round, solution); }
+
+    const LinkChunks& chunks() const { return *chunks_; }
+
+private:
+    Hierarchy& h_;
+    const SourceGroups& groups_;
+    size_t ng_;
+    Refiner refiner_;
+    StreamingOptions so_;
+    RunStore& store_;
+    const RoundProgressFn& progress_;
+    RoundsRun& run_;
+    LinkStoreInfo info_;
+    std::unique_ptr<LinkChunks> chunks_;     // the current round's links
+    std::vector<uint8_t> is_source_;         // per node, of the current round's links
+    std::vector<double> outgoing_;
+    std::unique_ptr<RoundWriter> out_;       // refinement's pending round
+    std::vector<uint8_t> src_;
+    std::vector<double> own_;
+    uint64_t shots_ = 0;
+};
+
+}  // namespace
+
+void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsState& s, RoundsLog& log) {
+    if (max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
+    auto now = [] { return std::chrono::steady_clock::now(); };
+    for (;;) {
+        if (!s.solved && s.round > 0) {
+            // From the previous round's solution, extended to new nodes by their parents.
+            std::vector<RGB> start = s.solution.radiosity;
+            if (start.empty()) start = node_emission(h);
+            for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
+            const auto t0 = now();
+            s.solution = stages.solve(s.round, start);
+            log.solve_seconds.push_back(seconds_since(t0));
+            s.solved = true;
+            stages.solved(s.round, s.solution);
+        }
+        if (s.stop_after_solve || (s.round > 0 && s.settled) || s.round >= max_rounds) break;
+        const int next = s.round + 1;
+        const auto t0 = now();
+        const uint64_t splits = stages.refine(next, next == 1 ? node_emission(h) : s.solution.radiosity);
+        log.refine_seconds.push_back(seconds_since(t0));
+        log.refine_splits.push_back(splits);
+        if (next > 1 && splits == 0) {
+            stages.discard(next);
+            log.refine_kept.push_back(0);
+            s.settled = true;
+            break;
+        }
+        stages.commit(next);
+        log.refine_kept.push_back(1);
+        s.round = next;
+        s.solved = false;
+    }
+    if (!s.solved) throw std::logic_error("hierarchical rounds ended without a solution");
+}
+
+RoundsRun run_in_memory(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
+                        PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress) {
+    RoundsRun run;
+    MemoryStages stages(h, vis, refine, solver, solve, progress, run);
+    run_rounds(h, stages, max_rounds, run.state, run.log);
+    run.solution = run.state.solution;
+    run.link_count = run.links.size();
+    return run;
+}
+
+RoundsRun run_streamed(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
+                       const SourceGroups& groups, const StreamingOptions& solve, RunStore& store, bool resume,
+                       bool reuse_links, const RoundProgressFn& progress) {
+    if (!h.subdivided.empty()) throw std::invalid_argument("out-of-core run: the hierarchy must be fresh");
+    RoundsRun run;
+    run.groups = groups.count();
+    store.open(resume || reuse_links);
+    StreamedStages stages(h, vis, refine, groups, solve, store, progress, run);
+    // What an earlier bake left: final links to reuse, or the last finished step to resume from.
+    ResumePoint at = store.resume_point(h, reuse_links, resume, max_rounds);
+    if (at.round > 0) {
+        stages.adopt(at.round, std::move(at.is_source), std::move(at.outgoing));
+        run.state.round = at.round;
+        run.state.solved = at.solved;
+        run.state.solution = std::move(at.solution);
+        run.state.settled = at.settled;
+        run.state.stop_after_solve = at.reused;
+        if (!at.reused) run.resumed_from_round = at.round;
+    }
+    run_rounds(h, stages, max_rounds, run.state, run.log);
+    run.solution = run.state.solution;
+    run.iterations = run.solution.iterations;
+    run.residual_history = run.solution.residual_history;
+    const LinkChunks& chunks = stages.chunks();
+    run.link_count = chunks.total_links();
+    if (store.on_disk()) {
+        auto* stored = dynamic_cast<const StoreChunks*>(&chunks);
+        run.store_bytes = stored ? stored->reader().total_compressed_bytes() : 0;
+        run.transport_bytes = stored ? stored->reader().total_transport_bytes() : 0;
+        run.store_round = store.round_dir(run.state.round);
+        if (!run.state.stop_after_solve) store.finish(run.state.round, run.state.settled);
+    } else {
+        run.links = all_links(chunks);
+    }
+    return run;
+}
+
+}  // namespace hirad

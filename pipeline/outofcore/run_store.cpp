@@ -1,0 +1,201 @@
+#include "pipeline/outofcore/run_store.h"
+
+#include <cstring>
+#include <filesystem>
+#include <stdexcept>
+
+#include "formats/linkstore.h"
+#include "formats/statefile.h"
+#include "pipeline/outofcore/streaming_solver.h"
+
+namespace fs = std::filesystem;
+
+namespace hirad {
+
+namespace {
+
+uint64_t mix(uint64_t a, uint64_t b) { return hash_pair(a, b, 0x5EEDull); }
+
+uint64_t bits(double x) {
+    uint64_t u;
+    std::memcpy(&u, &x, 8);
+    return u;
+}
+
+void save_solution(const std::string& path, uint64_t fingerprint, const HierarchicalSolution& sol) {
+    StateFile f;
+    f.fingerprint = fingerprint;
+    f.put("radiosity", flatten_rgb(sol.radiosity));
+    f.put("irradiance", flatten_rgb(sol.irradiance));
+    f.put("outgoing", sol.outgoing);
+    f.put("residual", std::vector<double>{sol.residual, sol.converged ? 1.0 : 0.0, double(sol.iterations)});
+    f.write(path);
+}
+
+HierarchicalSolution load_solution(const StateFile& f, size_t n, const std::string& path) {
+    HierarchicalSolution sol;
+    sol.radiosity = unflatten_rgb(f.f64("radiosity"), n, path);
+    sol.irradiance = unflatten_rgb(f.f64("irradiance"), n, path);
+    sol.outgoing = f.f64("outgoing");
+    const std::vector<double>& r = f.f64("residual");
+    if (sol.outgoing.size() != n || r.size() != 3) throw std::runtime_error(path + ": inconsistent solution arrays");
+    sol.residual = r[0];
+    sol.converged = r[1] != 0;
+    sol.iterations = static_cast<uint64_t>(r[2]);
+    return sol;
+}
+
+// A state file if it exists and carries the fingerprint, else nothing.
+bool load_state(const std::string& path, uint64_t fingerprint, StateFile& out) {
+    if (!fs::exists(path)) return false;
+    StateFile f = StateFile::read(path);
+    if (f.fingerprint != fingerprint) return false;
+    out = std::move(f);
+    return true;
+}
+
+bool store_committed(const std::string& dir) {
+    try {
+        LinkStoreReader r(dir);
+        return true;
+    } catch (const std::runtime_error&) {
+        return false;
+    }
+}
+
+}  // namespace
+
+StoreFingerprints StoreFingerprints::of(const Scene& scene, double epsilon, double min_area, int samples,
+                                        uint64_t seed, int max_rounds, uint32_t group_faces) {
+    // Geometry (what the links depend on) and the materials (what the oracle's radiosity,
+    // hence the refinement, also depends on).
+    StoreFingerprints fp;
+    uint64_t geo = 0x6E0ull, mat = 0x3A7ull;
+    for (const Face& f : scene.faces) {
+        geo = hash_pair(geo, (uint64_t(f.nv) << 32) | f.mesh, 1);
+        for (int k = 0; k < f.nv; ++k)
+            for (int a = 0; a < 3; ++a) geo = hash_pair(geo, bits(f.p[k][a]), 2);
+        for (int a = 0; a < 3; ++a) mat = hash_pair(hash_pair(mat, bits(f.reflectance[a]), 3), bits(f.emission[a]), 4);
+    }
+    uint64_t settings = 0x5E7ull;
+    for (uint64_t v : {bits(epsilon), bits(min_area), uint64_t(samples), seed, uint64_t(max_rounds), uint64_t(group_faces)})
+        settings = hash_pair(settings, v, 5);
+    fp.geometry = geo;
+    fp.settings = settings;
+    fp.materials = mat;
+    return fp;
+}
+
+RunStore::RunStore(std::string root, const StoreFingerprints& fingerprints, size_t groups)
+    : root_(std::move(root)), fp_(fingerprints) {
+    links_fp_ = mix(mix(fp_.geometry, fp_.settings), groups);
+    run_fp_ = mix(links_fp_, fp_.materials);
+}
+
+std::string RunStore::round_dir(int r) const { return on_disk() ? root_ + "/round-" + std::to_string(r) : std::string(); }
+std::string RunStore::refined_path(int r) const { return root_ + "/refined-" + std::to_string(r); }
+std::string RunStore::solved_path(int r) const { return root_ + "/solved-" + std::to_string(r); }
+std::string RunStore::final_path() const { return root_ + "/final"; }
+std::string RunStore::checkpoint_path() const { return on_disk() ? root_ + "/checkpoint" : std::string(); }
+uint64_t RunStore::checkpoint_fingerprint(int round) const { return on_disk() ? mix(run_fp_, round) : 0; }
+
+void RunStore::open(bool keep_earlier) {
+    if (!on_disk()) return;
+    fs::create_directories(root_);
+    if (keep_earlier) return;
+    // Only the names this component writes, the final marker first, so that an interrupted
+    // new run never passes for the old one.
+    fs::remove(final_path());
+    for (const auto& entry : fs::directory_iterator(root_)) {
+        const std::string name = entry.path().filename().string();
+        if (name.rfind("round-", 0) == 0 || name.rfind("refined-", 0) == 0 || name.rfind("solved-", 0) == 0 ||
+            name == "checkpoint" || (name.size() > 4 && name.compare(name.size() - 4, 4, ".tmp") == 0))
+            fs::remove_all(entry.path());
+    }
+}
+
+ResumePoint RunStore::resume_point(Hierarchy& h, bool reuse_links, bool resume, int max_rounds) const {
+    ResumePoint at;
+    if (!on_disk() || !(reuse_links || resume)) return at;
+    auto adopt_refined = [&](const StateFile& f, int r) {
+        h.replay(f.u32("log"));
+        const std::vector<uint32_t>& src = f.u32("is_source");
+        if (src.size() != h.nodes.size() || f.f64("outgoing").size() != h.nodes.size())
+            throw std::runtime_error(refined_path(r) + ": per-node arrays do not match the hierarchy");
+        at.is_source.assign(src.begin(), src.end());
+        at.outgoing = f.f64("outgoing");
+        at.round = r;
+    };
+    auto adopt_solution = [&](const StateFile& f, int r) {
+        at.solution = load_solution(f, h.nodes.size(), solved_path(r));
+        at.solved = true;
+    };
+    StateFile fin;
+    const bool have_final = load_state(final_path(), links_fp_, fin);
+    if (reuse_links && !have_final)
+        throw std::runtime_error(root_ + ": no final links of this geometry and these refinement settings to "
+                                 "reuse (bake once without --reuse-links)");
+    if (have_final) {
+        const int r = static_cast<int>(fin.u64("round").at(0));
+        StateFile ref;
+        if (!load_state(refined_path(r), links_fp_, ref))
+            throw std::runtime_error(refined_path(r) + ": missing or of another scene, though " + final_path() +
+                                     " names round " + std::to_string(r));
+        adopt_refined(ref, r);
+        at.reused = true;
+        at.settled = fin.u64("round").at(1) != 0;
+        // Reuse always solves again from the links; a resumed bake that had finished takes
+        // its solution as it was.
+        StateFile sol;
+        if (!reuse_links && load_state(solved_path(r), run_fp_, sol)) adopt_solution(sol, r);
+        return at;
+    }
+    for (int r = max_rounds; r >= 1 && at.round == 0; --r) {
+        StateFile ref;
+        if (!load_state(refined_path(r), run_fp_, ref) || !store_committed(round_dir(r))) continue;
+        adopt_refined(ref, r);
+        StateFile sol;
+        if (load_state(solved_path(r), run_fp_, sol)) adopt_solution(sol, r);
+    }
+    return at;
+}
+
+void RunStore::refined(int round, const Hierarchy& h, const std::vector<uint8_t>& is_source,
+                       const std::vector<double>& outgoing) const {
+    if (!on_disk()) return;
+    StateFile f;
+    f.fingerprint = run_fp_;
+    f.put("log", h.subdivided);
+    f.put("is_source", std::vector<uint32_t>(is_source.begin(), is_source.end()));
+    f.put("outgoing", outgoing);
+    f.write(refined_path(round));
+}
+
+void RunStore::discard_round(int round) const {
+    if (on_disk()) fs::remove_all(round_dir(round));
+}
+
+void RunStore::solved(int round, const HierarchicalSolution& solution) const {
+    if (!on_disk()) return;
+    save_solution(solved_path(round), run_fp_, solution);
+    fs::remove(checkpoint_path());
+    if (round > 1) {
+        fs::remove_all(round_dir(round - 1));
+        fs::remove(refined_path(round - 1));
+        fs::remove(solved_path(round - 1));
+    }
+}
+
+void RunStore::finish(int round, bool settled) const {
+    if (!on_disk()) return;
+    // Refinement depended on the materials; its result stays usable for others.
+    StateFile ref = StateFile::read(refined_path(round));
+    ref.fingerprint = links_fp_;
+    ref.write(refined_path(round));
+    StateFile fin;
+    fin.fingerprint = links_fp_;
+    fin.put("round", std::vector<uint64_t>{uint64_t(round), uint64_t(settled)});
+    fin.write(final_path());
+}
+
+}  // namespace hirad

@@ -1,0 +1,55 @@
+"""The one place Python builds the engine's scene, and turns the engine's result structs into the
+plain data the outputs and the report take.
+
+`build_engine(scene)` makes a ``hirad._engine.Engine`` from :class:`hirad.usd.SceneArrays` (or
+anything with the same arrays: points, face_vertex_counts, face_vertex_indices, face_mesh,
+face_source, face_reflectance, face_emission, corner_uv); the bake, the reference, the
+estimate and the tests all use it. The engine's API (option structs, result structs, every
+signature) is in ``hirad/_engine.pyi``, generated from the bindings.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _engine
+
+PATCH_FIELDS = ("corners", "uv", "area", "normal", "centroid", "reflectance", "emission", "nv", "mesh", "face",
+                "source_face")
+DISPLAY_FIELDS = ("points", "point_mesh", "corners", "boundary", "faces", "face_nv", "face_patch", "face_code",
+                  "anchored")
+STREAMING_FIELDS = ("rounds", "groups_shot", "links_shot", "chunk_reads", "chunk_hits", "resident_bytes_peak",
+                    "state_bytes", "largest_chunk_bytes", "chunks_in_flight", "minimum_budget", "decoded_bytes",
+                    "checkpoints", "resumed", "read_wait_seconds", "shoot_seconds")
+
+
+def build_engine(scene, *, face_source=None, with_uv: bool = True) -> "_engine.Engine":
+    """The engine's scene from the USD arrays (metres, W/m^2). `face_source` overrides the
+    authored face index per face (default: the scene's own); `with_uv=False` leaves the
+    texture coordinates out (patches then carry none)."""
+    def f64(a):
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    def i32(a):
+        return np.ascontiguousarray(a, dtype=np.int32)
+
+    source = scene.face_source if face_source is None else face_source
+    uv = getattr(scene, "corner_uv", None) if with_uv else None
+    return _engine.Engine(f64(scene.points), i32(scene.face_vertex_counts), i32(scene.face_vertex_indices),
+                          i32(scene.face_mesh), i32(source), f64(scene.face_reflectance), f64(scene.face_emission),
+                          None if uv is None else f64(uv))
+
+
+def patch_dict(arrays: "_engine.PatchArrays") -> dict:
+    """The patches as {name: array}, each read once (every attribute access copies)."""
+    return {k: getattr(arrays, k) for k in PATCH_FIELDS}
+
+
+def display_dict(mesh: "_engine.DisplayMesh") -> dict:
+    """The display mesh as {name: array}."""
+    return {k: getattr(mesh, k) for k in DISPLAY_FIELDS}
+
+
+def streaming_dict(stats: "_engine.StreamingStats") -> dict:
+    """The last streaming solve's counters, for report.json."""
+    return {k: getattr(stats, k) for k in STREAMING_FIELDS}
