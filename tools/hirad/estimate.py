@@ -54,9 +54,15 @@ def _face_geometry(scene):
         corners = pts[idx[starts[sel][:, None] + np.arange(n)[None, :]]]          # (F, n, 3)
         nxt = np.roll(corners, -1, axis=1)
         area[sel] = 0.5 * np.linalg.norm(np.cross(corners, nxt).sum(axis=1), axis=1)
-        edges = np.sort(np.linalg.norm(nxt - corners, axis=2), axis=1)
-        lu[sel] = edges[:, -1]
-        lv[sel] = edges[:, -2] if n > 3 else 0.5 * edges[:, -2]
+        edges = np.linalg.norm(nxt - corners, axis=2)
+        if n == 4:
+            # the engine's grid directions: u along edges 0-1 and 3-2, v along 0-3 and 1-2
+            lu[sel] = np.maximum(edges[:, 0], edges[:, 2])
+            lv[sel] = np.maximum(edges[:, 1], edges[:, 3])
+        else:
+            # the longest edge and the height over it
+            lu[sel] = edges.max(axis=1)
+            lv[sel] = np.where(lu[sel] > 0, 2 * area[sel] / np.where(lu[sel] > 0, lu[sel], 1), 0)
     ok = np.isfinite(area) & np.isfinite(lu) & np.isfinite(lv)
     return np.where(ok, area, 0.0), np.where(ok, lu, 0.0), np.where(ok, lv, 0.0)
 
