@@ -528,16 +528,17 @@ def baked(tmp_path_factory):
     return {"root": root, "scene": scene, "out": out, "solution": out / "solution.usda", "points": points}
 
 
-@pytest.mark.parametrize("command", ["probe", "render"])
+@pytest.mark.parametrize("command", ["probe", "render", "reference"])
 def test_planted_partial_link_is_not_followed(baked, tmp_path, command):
     victim = tmp_path / "victim.txt"
     victim.write_text("precious\n")
     before = sha256(victim)
-    target = tmp_path / ("probe.csv" if command == "probe" else "view.png")
+    target = tmp_path / ("view.png" if command == "render" else f"{command}.csv")
     for name in (target.name + ".partial", f".{target.name}.partial"):
         (tmp_path / name).symlink_to(victim)
-    args = [baked["solution"], baked["points"]] if command == "probe" else [baked["solution"], "--width", 32,
-                                                                            "--height", 32]
+    args = {"probe": [baked["solution"], baked["points"]],
+            "render": [baked["solution"], "--width", 32, "--height", 32],
+            "reference": [baked["scene"], baked["points"], "--paths", 4]}[command]
     proc = run_cli(command, *args, "-o", target)
     assert proc.returncode == 0, proc.stderr
     assert sha256(victim) == before
