@@ -60,6 +60,21 @@ def test_en12464_spacing_published_values():
         en12464_spacing(0.0)
 
 
+def test_rounding_nearest_and_cell_aspect_ratio():
+    room = [[0, 0], [5, 0], [5, 4], [0, 4]]
+    # 5 x 4 m, no band: d = 5, p = 0.61648 m; ceil: 9 x 7 cells; nearest: round(8.11) x round(6.49) = 8 x 6
+    g = _grid({"kind": "workplane", "polygon": room, "border": 0})
+    assert (g.layout.nu, g.layout.nv) == (9, 7)
+    g = _grid({"kind": "workplane", "polygon": room, "border": 0, "rounding": "nearest"})
+    assert (g.layout.nu, g.layout.nv) == (8, 6) and g.rule["rounding"] == "nearest"
+    # with ceil the cells stay within the standard's aspect ratio 0.5 .. 2 for areas of any shape
+    for a, b in [(5, 4), (10, 1), (3, 2.9), (40, 3), (1, 0.3), (100, 49), (7, 3.4)]:
+        g = _grid({"kind": "workplane", "polygon": [[0, 0], [a, 0], [a, b], [0, b]], "border": 0})
+        du, dv = g.spacing
+        assert 0.5 <= du / dv <= 2.0, (a, b, du, dv)
+        assert max(du, dv) <= g.rule["p"]
+
+
 def test_en12464_dimension_long_narrow_rule():
     assert en12464_dimension(10.0, 6.0) == 10.0  # the longer side
     assert en12464_dimension(6.0, 10.0) == 10.0

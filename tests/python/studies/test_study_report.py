@@ -79,6 +79,19 @@ def test_grid_pictures_are_png_and_deterministic(results):
     assert grid_picture(results[0]) != grid_picture(results[0], maintained=True)
 
 
+def test_pictures_of_points_and_single_row_grids(tmp_path):
+    f = tmp_path / "p.csv"
+    f.write_text("0,0,0\n1,0,0\n1,1,0\n2,1.5,0\n")
+    study = study_from_dict({"grids": {
+        "pts": {"kind": "points", "file": str(f)},
+        "row": {"kind": "workplane", "polygon": [[0, 0], [6, 0], [6, 0.3], [0, 0.3]], "border": 0, "spacing": 0.5,
+                "measure": {"type": "vertical", "azimuth": 90.0}}}})
+    results = evaluate_grids(study, point_source())
+    assert (results[1].grid.layout.nu, results[1].grid.layout.nv) == (12, 1)
+    for r in results:
+        assert grid_picture(r)[:8] == PNG
+
+
 def test_luminance_picture():
     yy, xx = np.mgrid[0:40, 0:60]
     L = 250.0 * np.exp(-((xx - 30) ** 2 + (yy - 20) ** 2) / 200.0)

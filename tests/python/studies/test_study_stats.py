@@ -161,6 +161,14 @@ def test_too_many_points_refused():
         build_grid("big", study.grids["big"])
 
 
+def test_too_many_sensors_refused():
+    study = study_from_dict({"grids": {"hall": {"kind": "workplane", "polygon": [[0, 0], [100, 0], [100, 100], [0, 100]],
+                                                "spacing": 0.4, "measure": {"type": "cylindrical", "azimuths": 720}}}})
+    # 100 m less the 0.5 m band: 99 m, ceil(99 / 0.4) = 248 cells a side, 248^2 = 61504 points
+    with pytest.raises(StudyError, match=r"grid hall: 61504 points x 720 azimuths exceed the limit"):
+        build_grid("hall", study.grids["hall"])
+
+
 @pytest.mark.parametrize("evaluate, words", [
     (lambda p, n: np.full(len(p), np.nan), "not finite"),
     (lambda p, n: np.full(len(p) - 1, 1.0), "shape"),

@@ -1,17 +1,22 @@
 """Calculation grids: the points of a grid spec, and every measure reduced to planar sensors.
 
-Spacing (EN 12464-1:2011 clause 4.4, EN 12464-1:2021 clause 5.2.3)
--------------------------------------------------------------------
+Spacing (EN 12464-1:2011, "grid system")
+----------------------------------------
 The maximum grid size is ``p = 0.2 x 5^log10(d)`` metres (equivalently 0.2 d^0.699), and
 p <= 10 m, where d is the longer dimension of the calculation area in metres -- but the shorter
 one when the longer is at least twice the shorter (the standard's rule for long, narrow areas).
-The standard requires the spacing not to EXCEED p, so each side L of the area gets
-``n = ceil(L / p)`` cells (at least 1) and the actual spacing is ``L / n <= p``; the two sides
-are counted separately (cells need not be square). ``ceil`` is taken with a relative
-tolerance of 1e-9 so that an exact fit (d = 10 m: p = 1 m, 10 cells) is not pushed to one more
-cell by rounding. An explicit ``spacing: s`` is treated the same way: n = ceil(L / s), spacing
-L / n <= s. Points are at the CENTRES of the cells, as the standard's figure places them, so the
-outermost points are half a spacing inside the evaluation area.
+The spacing must not EXCEED p: each side L of the area gets ``n = ceil(L / p)`` cells (at least
+1; the 2011 wording is "the nearest whole number greater than d/p") and the actual spacing is
+``L / n <= p``; the two sides are counted separately with the same p (cells need not be
+square). ``ceil`` is taken with a relative tolerance of 1e-9 so that an exact fit (d = 10 m:
+p = 1 m, 10 cells) is not pushed to one more cell by rounding. With ceil every side at least p
+long gets cells in (p/2, p], so the cells' length-to-width ratio stays within the standard's
+0.5 to 2. Some tools read the 2021 edition as rounding to the nearest whole number instead,
+which lets the spacing exceed p a little: ``rounding: nearest`` does that (n = round(L / p),
+at least 1; not checked against the 2021 text). An explicit ``spacing: s`` is always an upper
+bound: n = ceil(L / s), spacing L / n <= s. Points are at the CENTRES (centroids) of the cells,
+as the standard places them, so the outermost points are half a spacing inside the evaluation
+area.
 
 Evaluation area of a work plane
 -------------------------------
@@ -79,6 +84,7 @@ import numpy as np
 
 from .spec import (
     MAX_GRID_POINTS,
+    MAX_SENSORS,
     CorridorGrid,
     GridSpec,
     Measure,
@@ -212,6 +218,9 @@ def _sensors(name: str, measure: Measure, points: np.ndarray, normals: np.ndarra
         n = np.broadcast_to(horizontal(measure.azimuth, up_axis), (m, 3)).copy()
         return n, points, n, np.ones(m), idx
     k = measure.azimuths
+    if m * (k + 2) > MAX_SENSORS:
+        raise StudyError(f"grid {name}: {m} points x {k} azimuths exceed the limit of {MAX_SENSORS} sensors; "
+                         "use fewer azimuths or a larger spacing")
     ring = horizontal(360.0 * np.arange(k) / k, up_axis)  # (k, 3)
     sp = np.repeat(points, k, axis=0)
     sn = np.tile(ring, (m, 1))
@@ -235,14 +244,17 @@ def _check_count(name: str, n: int) -> None:
         raise StudyError(f"grid {name}: {n} points exceed the limit of {MAX_GRID_POINTS}; use a larger spacing")
 
 
-def _cells(name: str, lu: float, lv: float, spacing) -> tuple[int, int, Optional[dict]]:
+def _cells(name: str, lu: float, lv: float, spacing, rounding: str = "ceil") -> tuple[int, int, Optional[dict]]:
     if spacing == "en12464":
         d = en12464_dimension(lu, lv)
         p = en12464_spacing(d)
-        rule = {"d": float(d), "p": float(p)}
+        rule = {"d": float(d), "p": float(p), "rounding": rounding}
     else:
-        p, rule = float(spacing), None
-    nu, nv = cells_along(lu, p), cells_along(lv, p)
+        p, rule, rounding = float(spacing), None, "ceil"
+    if rounding == "nearest":
+        nu, nv = max(1, round(lu / p)), max(1, round(lv / p))
+    else:
+        nu, nv = cells_along(lu, p), cells_along(lv, p)
     _check_count(name, nu * nv)
     return nu, nv, rule
 
@@ -344,7 +356,7 @@ def _workplane(name: str, spec: WorkplaneGrid, up_axis: str, polygons=None):
         raise StudyError(f"grid {name}: the border band of {spec.border:g} m leaves no area "
                          f"(the floor spans {umax - umin + 2 * spec.border:g} x {vmax - vmin + 2 * spec.border:g} m)")
     lu, lv = umax - umin, vmax - vmin
-    nu, nv, rule = _cells(name, lu, lv, spec.spacing)
+    nu, nv, rule = _cells(name, lu, lv, spec.spacing, spec.rounding)
     du, dv = float(lu / nu), float(lv / nv)
     ii, jj = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
     ii, jj = ii.ravel(), jj.ravel()
@@ -389,7 +401,7 @@ def _rectangle(name: str, spec: RectangleGrid):
     if not (lu > 0 and lv > 0):
         raise StudyError(f"grid {name}: the border band of {spec.border:g} m leaves no area of the "
                          f"{lu0:g} x {lv0:g} m rectangle")
-    nu, nv, rule = _cells(name, lu, lv, spec.spacing)
+    nu, nv, rule = _cells(name, lu, lv, spec.spacing, spec.rounding)
     du, dv = float(lu / nu), float(lv / nv)
     ii, jj = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
     ii, jj = ii.ravel(), jj.ravel()
@@ -490,7 +502,7 @@ def build_grid(name: str, spec: GridSpec, *, up_axis: str = "Z", base_dir=None,
 
 def resolve_room(stage, prim_path: str, up_axis: Optional[str] = None, *, max_tilt_deg: float = 1.0) -> list[np.ndarray]:
     """The floor polygons of a room prim: the faces of every Mesh at or under `prim_path`
-    whose world normal points up (within max_tilt_deg), in world metres (metersPerUnit
+    (instance proxies included) whose world normal points up (within max_tilt_deg), in world metres (metersPerUnit
     applied), as 3D polygons for a work plane's `polygons`. Errors name the prim."""
     from pxr import Usd, UsdGeom
 
@@ -502,7 +514,7 @@ def resolve_room(stage, prim_path: str, up_axis: Optional[str] = None, *, max_ti
     mpu = UsdGeom.GetStageMetersPerUnit(stage)
     cos_tilt = math.cos(math.radians(max_tilt_deg))
     out = []
-    for p in Usd.PrimRange(prim):
+    for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies()):
         if not p.IsA(UsdGeom.Mesh):
             continue
         mesh = UsdGeom.Mesh(p)

@@ -139,7 +139,8 @@ h1{font-size:18pt;margin-bottom:0.2em} h2{font-size:13pt;margin-top:1.6em;border
 h3{font-size:11pt} table{border-collapse:collapse;margin:0.5em 0} th,td{border:1px solid #bbb;padding:3px 8px}
 th{background:#eee;text-align:left} td.n{text-align:right;font-variant-numeric:tabular-nums}
 img{max-width:100%} .grid{page-break-inside:avoid} .sub{color:#555}
-@page{size:A4;margin:15mm}
+#grid-summary{font-size:8.5pt} #grid-summary td,#grid-summary th{padding:2px 5px}
+@page{size:A4;margin:15mm} @media print{body{margin:0}}
 """
 
 

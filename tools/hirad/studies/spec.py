@@ -51,6 +51,7 @@ _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 # Above this many points a grid is refused (a typo such as spacing 0.0001 m over a hall):
 # 4 M points of cylindrical illuminance are 100 M evaluations.
 MAX_GRID_POINTS = 4_000_000
+MAX_SENSORS = 40_000_000  # points x sensors per point (cylindrical: N azimuths): about 2 GB of float64
 
 
 class StudyError(BakeError, ValueError):
@@ -112,6 +113,15 @@ class _Spacing(BaseModel):
             "Grid spacing in metres (> 0), or 'en12464': p = 0.2 x 5^log10(d) m, p <= 10 m, d the"
             " longer side of the evaluation area (the shorter one when the longer is at least twice"
             " it); n = ceil(side / p) cells per side, so the spacing side/n never exceeds p."
+        ),
+    )
+    rounding: Literal["ceil", "nearest"] = Field(
+        default="ceil",
+        description=(
+            "Cells per side under the 'en12464' rule: ceil (n = ceil(side / p), spacing <= p: the"
+            " EN 12464-1:2011 wording, 'the nearest whole number greater than d/p') or nearest"
+            " (n = round(side / p), at least 1: the spacing may exceed p by up to about 1/(2n);"
+            " how some tools read the 2021 edition)."
         ),
     )
     measure: Measure = Field(default_factory=Measure, description="What is measured at each point.")
