@@ -28,7 +28,45 @@ bool point_in_triangle_2d(const double* a, const double* b, const double* c, con
     return d1 >= 0 && d2 >= 0 && d3 >= 0;
 }
 
+// The polygon in 2D, projected onto the plane of its dominant normal axes and oriented so
+// that it runs counter-clockwise.
+std::vector<std::array<double, 2>> project_ccw(const std::vector<Vec3>& poly) {
+    const int n = static_cast<int>(poly.size());
+    Vec3 nrm = newell(poly.data(), n);
+    int drop = 2;
+    if (std::fabs(nrm.x) >= std::fabs(nrm.y) && std::fabs(nrm.x) >= std::fabs(nrm.z)) drop = 0;
+    else if (std::fabs(nrm.y) >= std::fabs(nrm.z)) drop = 1;
+    int ax = (drop + 1) % 3, ay = (drop + 2) % 3;
+    bool flip = nrm[drop] < 0;
+    std::vector<std::array<double, 2>> q(n);
+    for (int i = 0; i < n; ++i) q[i] = {poly[i][ax], flip ? -poly[i][ay] : poly[i][ay]};
+    return q;
+}
+
+// Sign of the turn a -> b -> c: +1 left, -1 right, 0 collinear.
+int orientation(const std::array<double, 2>& a, const std::array<double, 2>& b, const std::array<double, 2>& c) {
+    const double d = cross2(b[0] - a[0], b[1] - a[1], c[0] - a[0], c[1] - a[1]);
+    return d > 0 ? 1 : (d < 0 ? -1 : 0);
+}
+
 }  // namespace
+
+bool polygon_self_intersects(const std::vector<Vec3>& poly) {
+    const size_t n = poly.size();
+    if (n < 4) return false;
+    const std::vector<std::array<double, 2>> q = project_ccw(poly);
+    for (size_t i = 0; i < n; ++i) {
+        const auto &a = q[i], &b = q[(i + 1) % n];
+        // Edges that share no corner with edge i: j from i + 2, and not the edge before i.
+        for (size_t j = i + 2; j < n; ++j) {
+            if ((j + 1) % n == i) continue;
+            const auto &c = q[j], &d = q[(j + 1) % n];
+            if (orientation(a, b, c) * orientation(a, b, d) < 0 && orientation(c, d, a) * orientation(c, d, b) < 0)
+                return true;
+        }
+    }
+    return false;
+}
 
 Vec3 Face::normal() const { return normalize(newell(p.data(), nv)); }
 double Face::area() const { return 0.5 * length(newell(p.data(), nv)); }
@@ -39,14 +77,7 @@ std::vector<std::array<int, 3>> triangulate_polygon(const std::vector<Vec3>& pol
     if (n < 3) return tris;
     // Project onto the plane's dominant axes, keeping orientation so that the polygon is
     // counter-clockwise in 2D.
-    Vec3 nrm = newell(poly.data(), n);
-    int drop = 2;
-    if (std::fabs(nrm.x) >= std::fabs(nrm.y) && std::fabs(nrm.x) >= std::fabs(nrm.z)) drop = 0;
-    else if (std::fabs(nrm.y) >= std::fabs(nrm.z)) drop = 1;
-    int ax = (drop + 1) % 3, ay = (drop + 2) % 3;
-    bool flip = nrm[drop] < 0;
-    std::vector<std::array<double, 2>> q(n);
-    for (int i = 0; i < n; ++i) q[i] = {poly[i][ax], flip ? -poly[i][ay] : poly[i][ay]};
+    const std::vector<std::array<double, 2>> q = project_ccw(poly);
 
     std::vector<int> idx(n);
     for (int i = 0; i < n; ++i) idx[i] = i;
@@ -72,9 +103,14 @@ std::vector<std::array<int, 3>> triangulate_polygon(const std::vector<Vec3>& pol
         }
         ++guard;
         if (!clipped) {
-            // Self-intersecting or numerically collinear remainder: close it as a fan so the
-            // surface is still covered.
-            for (size_t k = 1; k + 1 < idx.size(); ++k) tris.push_back({idx[0], idx[k], idx[k + 1]});
+            // A numerically collinear remainder (a self-intersecting polygon never gets here:
+            // Scene::build skips it): close it as a fan so the surface is still covered, but
+            // never with a triangle turned the other way (it would face backwards).
+            for (size_t k = 1; k + 1 < idx.size(); ++k) {
+                const double *a = q[idx[0]].data(), *b = q[idx[k]].data(), *c = q[idx[k + 1]].data();
+                if (cross2(b[0] - a[0], b[1] - a[1], c[0] - a[0], c[1] - a[1]) > 0)
+                    tris.push_back({idx[0], idx[k], idx[k + 1]});
+            }
             return tris;
         }
     }
@@ -185,6 +221,13 @@ Scene Scene::build(const SceneInput& in) {
             face.nv = n;
             for (int k = 0; k < n; ++k) { face.p[k] = poly[k]; face.uv[k] = uvs[k]; }
             scene.faces.push_back(face);
+            continue;
+        }
+        // A polygon whose edges cross has no one surface (which lobes count, which way do
+        // they face?): ear clipping would cover some lobes twice, some backwards. Skipped and
+        // counted.
+        if (polygon_self_intersects(poly)) {
+            ++scene.stats.self_intersecting_faces;
             continue;
         }
         ++scene.stats.triangulated_faces;

@@ -28,6 +28,7 @@ struct SceneStats {
     uint64_t input_faces = 0;
     uint64_t degenerate_faces = 0;   // zero area, fewer than 3 distinct corners
     uint64_t nonfinite_faces = 0;    // a NaN or infinite corner
+    uint64_t self_intersecting_faces = 0;  // polygons whose edges cross (in their plane)
     uint64_t triangulated_faces = 0; // non-quad polygons and non-planar or concave quads
     uint64_t nonmanifold_edges = 0;  // edges shared by more than two faces (kept, only counted)
 };
@@ -53,7 +54,7 @@ struct Scene {
 
     // Splits polygons into triangles and planar convex quads (ear clipping in the polygon's
     // plane, so concave polygons come out right) and drops what has no area or is not finite.
-    // Materials are not dropped but refused: a reflectance outside [0, 1] or a negative or
+    // Self-intersecting polygons are skipped and counted. Materials are not dropped but refused: a reflectance outside [0, 1] or a negative or
     // non-finite emission on any face throws std::invalid_argument with the number of such
     // faces and the first one (the USD reader reports them by prim before they get here).
     static Scene build(const SceneInput& in);
@@ -65,5 +66,10 @@ struct Scene {
 // Ear-clipping triangulation of a simple polygon (possibly concave) given in 3D; returns
 // triples of indices into `poly`. Exposed for tests.
 std::vector<std::array<int, 3>> triangulate_polygon(const std::vector<Vec3>& poly);
+
+// Whether two edges of the polygon that share no corner cross, in the plane of its dominant
+// axes (touching is not crossing: a weakly simple "keyhole" polygon is still triangulated).
+// Scene::build skips such faces and counts them. Exposed for tests.
+bool polygon_self_intersects(const std::vector<Vec3>& poly);
 
 }  // namespace hirad

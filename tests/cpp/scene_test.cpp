@@ -266,6 +266,55 @@ TEST(SceneBuild, InvalidMaterialsAreRefusedWithTheCountAndTheFirstFace) {
     EXPECT_EQ(soup.build().faces.size(), 1u);
 }
 
+// Polygons whose edges cross have no one surface: a bow tie (two lobes of opposite turn),
+// a pentagram (its centre wound twice). They are skipped and counted, never covered twice or
+// backwards; simple neighbours in the same mesh are kept whole.
+TEST(SceneBuild, SelfIntersectingPolygonsAreSkippedAndCounted) {
+    for (const Frame& fr : frames()) {
+        SCOPED_TRACE(testing::Message() << "frame normal " << fr.normal().x << " " << fr.normal().y << " "
+                                        << fr.normal().z);
+        Soup soup;
+        soup.face({fr(0, 0), fr(2, 2), fr(2, 0), fr(0, 1)});  // bow tie: lobes of area 1 and 1/3
+        std::vector<Vec3> star;
+        for (int k = 0; k < 5; ++k) {
+            const double a = 2 * kPi * ((2 * k) % 5) / 5;
+            star.push_back(fr(5 + std::cos(a), 5 + std::sin(a)));
+        }
+        soup.face(star);
+        soup.face({fr(10, 0), fr(11, 0), fr(11, 1), fr(10.5, 0.5), fr(10, 1)});  // concave, simple
+        soup.face({fr(20, 0), fr(21, 0), fr(21, 1), fr(20, 1)});               // a plain square
+        const Scene scene = soup.build();
+        EXPECT_EQ(scene.stats.self_intersecting_faces, 2u);
+        EXPECT_EQ(scene.stats.degenerate_faces, 0u);
+        double kept = 0;
+        for (const Face& f : scene.faces) {
+            EXPECT_GE(f.source_face, 2u);  // nothing of the bow tie or the star
+            EXPECT_GT(dot(f.normal(), fr.normal()), 0.999);  // nothing faces backwards
+            EXPECT_TRUE(std::isfinite(f.area()));
+            kept += f.area();
+        }
+        EXPECT_NEAR(kept, 0.75 + 1.0, 1e-12);  // the concave pentagon (1 - 1/4) and the square
+    }
+}
+
+TEST(PolygonSelfIntersects, CrossingEdgesOnly) {
+    auto z0 = [](std::vector<std::array<double, 2>> q) {
+        std::vector<Vec3> p;
+        for (const auto& c : q) p.push_back({c[0], c[1], 0});
+        return p;
+    };
+    // (A bow tie of equal lobes has no normal at all: Scene::build drops it as degenerate.)
+    EXPECT_TRUE(polygon_self_intersects(z0({{0, 0}, {2, 2}, {2, 0}, {0, 1}})));
+    EXPECT_TRUE(polygon_self_intersects(z0({{0, 0}, {3, 0}, {3, 3}, {1, -1}, {0, 3}})));
+    EXPECT_FALSE(polygon_self_intersects(z0({{0, 0}, {1, 0}, {1, 1}, {0, 1}})));
+    EXPECT_FALSE(polygon_self_intersects(z0({{0, 0}, {1, 0}, {1, 1}})));
+    EXPECT_FALSE(polygon_self_intersects(z0({{0, 0}, {3, 0}, {3, 2}, {2, 2}, {2, 1}, {1, 1}, {1, 2}, {0, 2}})));  // U
+    // Touching is not crossing: a keyhole (a square with a square hole joined by a bridge
+    // walked both ways) stays a polygon to triangulate.
+    EXPECT_FALSE(polygon_self_intersects(
+        z0({{0, 0}, {4, 0}, {4, 4}, {0, 4}, {0, 0}, {1, 1}, {1, 3}, {3, 3}, {3, 1}, {1, 1}})));
+}
+
 TEST(SceneBuild, ZeroAreaAndRepeatedCornerFacesAreDegenerate) {
     Soup soup;
     soup.face({{0, 0, 0}, {1, 0, 0}, {2, 0, 0}});              // collinear: zero area
