@@ -37,9 +37,10 @@ point's value is the weighted sum of its sensors' illuminances:
 
 * planar: one sensor, the grid's normal (up for a work plane), weight 1.
 * vertical: one sensor facing the horizontal direction ``azimuth``, weight 1.
-* cylindrical (CIE 17.4 "cylindrical illuminance", EN 12464-1 clause 4.6.2 "mean cylindrical
-  illuminance": the flux on the curved surface of a very small vertical cylinder divided by that
-  surface's area). The element of the cylinder facing azimuth phi receives the vertical
+* cylindrical (the International Lighting Vocabulary's "cylindrical illuminance at a point",
+  CIE S 017, formerly CIE 17.4: the flux on the curved surface of a very small vertical cylinder
+  divided by that surface's area; EN 12464-1's "mean cylindrical illuminance" is its mean over
+  an area, i.e. Em of a cylindrical grid). The element of the cylinder facing azimuth phi receives the vertical
   illuminance E_v(phi), so ``E_z = (1 / 2 pi) integral_0^2pi E_v(phi) dphi``; in terms of the
   luminance L arriving from direction omega at angle theta from the vertical this is
   ``E_z = (1/pi) integral L sin(theta) domega`` (the mean of max(0, cos) over a circle is 1/pi).
@@ -53,8 +54,9 @@ point's value is the weighted sum of its sensors' illuminances:
   better.
   For a horizontal beam of normal illuminance E_n: E_z = E_n/pi; at elevation alpha,
   E_n cos(alpha)/pi.
-* semi-cylindrical (CIE 17.4, EN 12464-2 / EN 12193: the flux on the curved surface of a very
-  small vertical HALF-cylinder facing azimuth phi0, divided by that surface's area):
+* semi-cylindrical (the vocabulary's "semi-cylindrical illuminance at a point", used by the
+  outdoor and sports lighting standards EN 12464-2 and EN 12193: the flux on the curved surface
+  of a very small vertical HALF-cylinder facing azimuth phi0, divided by that surface's area):
   ``E_sc = (1/pi) integral_{phi0-pi/2}^{phi0+pi/2} E_v(phi) dphi``. For a beam from azimuth
   phi0 + delta at elevation alpha this is E_n cos(alpha) (1 + cos delta) / pi (the published
   cos-weighted form). Since cos(alpha) cos(delta) = omega . h0 (h0 the horizontal unit vector
@@ -268,22 +270,21 @@ def _segment_distance(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
 
 def boundary_edges(polygons: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The edges of a set of 2D polygons that lie on the boundary of their union: an edge met
-    twice (in either direction, corners matched to 1 nm) is shared, hence inside."""
-    count: dict = {}
-    order = []
-    for poly in polygons:
-        n = len(poly)
-        for i in range(n):
-            a, b = poly[i], poly[(i + 1) % n]
-            ka = tuple(np.round(a, _KEY_DIGITS))
-            kb = tuple(np.round(b, _KEY_DIGITS))
-            if ka == kb:
-                continue
-            key = (ka, kb) if ka <= kb else (kb, ka)
-            if key not in count:
-                order.append((key, a, b))
-            count[key] = count.get(key, 0) + 1
-    return [(a, b) for key, a, b in order if count[key] % 2 == 1]
+    an even number of times (in either direction, corners matched to 1 nm) is shared, hence
+    inside; degenerate edges are dropped. Edges come back in the polygons' order."""
+    polys = [np.asarray(p, dtype=np.float64) for p in polygons]
+    a = np.concatenate(polys)
+    b = np.concatenate([np.concatenate([p[1:], p[:1]]) for p in polys])
+    ka, kb = np.round(a, _KEY_DIGITS), np.round(b, _KEY_DIGITS)
+    keep = (ka != kb).any(axis=1)
+    a, b, ka, kb = a[keep], b[keep], ka[keep], kb[keep]
+    swap = (ka[:, 0] > kb[:, 0]) | ((ka[:, 0] == kb[:, 0]) & (ka[:, 1] > kb[:, 1]))
+    lo = np.where(swap[:, None], kb, ka)
+    hi = np.where(swap[:, None], ka, kb)
+    keys = np.concatenate([lo, hi], axis=1) + 0.0  # -0.0 and 0.0 alike
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    odd = counts[inverse.ravel()] % 2 == 1
+    return [(a[i], b[i]) for i in np.flatnonzero(odd)]
 
 
 def _inside(pts: np.ndarray, edges) -> np.ndarray:
@@ -325,7 +326,8 @@ def _floor_polygons(name: str, spec: WorkplaneGrid, up_axis: str,
             levels.append(a @ up)
             a = np.stack([a @ e1, a @ e2], axis=1)
         out.append(a)
-        twice_area = np.sum(a[:, 0] * np.roll(a[:, 1], -1) - np.roll(a[:, 0], -1) * a[:, 1])
+        nxt = np.concatenate([a[1:], a[:1]])
+        twice_area = float(np.sum(a[:, 0] * nxt[:, 1] - nxt[:, 0] * a[:, 1]))
         if abs(twice_area) <= 1e-12:
             raise StudyError(f"grid {name}: polygon {k} has no area")
     if levels:

@@ -71,7 +71,7 @@ class Measure(BaseModel):
             "planar: illuminance (lux) on the grid's surface, facing its normal; vertical: on a"
             " vertical plane facing `azimuth`; cylindrical: mean illuminance on the curved surface"
             " of a small vertical cylinder; semi_cylindrical: on the curved half of it facing"
-            " `azimuth` (CIE 17.4 / EN 12464-1 definitions)."
+            " `azimuth` (CIE S 017 vocabulary; see hirad.studies.grids)."
         ),
     )
     azimuth: Optional[StrictFloat] = Field(
