@@ -85,16 +85,10 @@ def test_hirad_info_with_a_config_estimates_the_bundled_box_near_its_real_patch_
 
 
 def _meshed_patch_count(_engine, scene, cfg) -> int:
-    # the engine's meshing of the same faces with the same limits
-    model = _engine_model(_engine, scene)
+    """The engine's meshing of the same faces with the same limits."""
+    from hirad.engine import build_engine
+
+    model = build_engine(scene)
     model.mesh(_engine.MeshOptions(max_patch_area=cfg.meshing.max_patch_area,
                                    max_edge_length=cfg.meshing.max_edge_length))
     return int(model.num_patches)
-
-
-def _engine_model(_engine, scene):
-    import numpy as np
-
-    from hirad.engine import build_engine
-
-    return build_engine(scene, face_source=np.arange(len(scene.face_vertex_counts)), with_uv=False)
