@@ -65,7 +65,7 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
 def _bake_page(atlas, page: int, evaluate, supersample: int):
     """hirad.atlas.bake_page, with each sample's texel passed to `evaluate` (for _lift):
     rasterize -> evaluate -> resolve -> stitch seams -> dilate into the padding."""
-    from . import atlas as A
+    from .. import atlas as A
 
     samples = A.rasterize(atlas, page, supersample)
     points, normals = A.sample_points(samples, atlas.geometry)
@@ -87,7 +87,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     lightmaps/manifest.json, and (mesh_files) lightmaps/<mesh>.exr cut out of the pages.
     Each PatchMeshData gets its page file and faceVarying lightmap UVs for the USD layer.
     Returns (per-mesh files or pages, atlas summary for the report)."""
-    from . import atlas as A
+    from .. import atlas as A
 
     lm = cfg.outputs.lightmaps
     if lm.mode == "final_gather" and (result is None or not result.hierarchical):
@@ -226,7 +226,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     }
     extra = {"hirad:version": __version__, "units": LIGHTMAP_UNITS, "sceneFingerprint": fingerprint,
              "mode": mode, "supersample": lm.supersample,
-             "uvPrimvar": "hirad:lightmapUV (texCoord2f, faceVarying, on /HiradSolution meshes)"}
+             "uvPrimvar": "hirad:lightmapUV (texCoord2f, faceVarying, on the <defaultPrim>/HiradSolution meshes)"}
     if png_files:
         extra["rgbm"] = {"pages": png_files, "decode": "linear = rgb/255 * a/255 * rgbm_range"}
     if lm.mesh_files:

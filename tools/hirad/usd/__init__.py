@@ -4,7 +4,7 @@ Reading (:func:`read_scene`) flattens a USD stage into the flat numpy arrays the
 consumes: world-space polygons in metres, per-face reflectance and emitted exitance, per-corner
 UVs, plus the cameras of the stage.  Writing (:func:`write_solution_layer`) produces a small layer
 that sublayers the input, hides the input geometry and adds one mesh per solved scene mesh under
-``/HiradSolution`` carrying the radiosity as primvars.  :func:`read_solution_layer` loads such a
+``<defaultPrim>/HiradSolution`` carrying the radiosity as primvars.  :func:`read_solution_layer` loads such a
 layer back without re-solving.
 
 Conventions
