@@ -125,7 +125,7 @@ def reference_at(scene_path: str | os.PathLike, points, normals=None, paths: int
 def write_reference_csv(scene_path: Path, points_path: Path, output: Optional[Path], paths: int, seed: int,
                         max_distance: float, stream=None) -> None:
     """`hirad reference`: reads the points, estimates, writes x,y,z,radiance_rgb,stderr_rgb to
-    `output` (atomically: a .partial file renamed into place) or to `stream`."""
+    `output` (hirad.files.atomic_file: exclusive temporary, fsync, rename) or to `stream`."""
     pts, nrm, lines = read_points(points_path)
     ref = reference_at(scene_path, pts, nrm, paths, seed, max_distance, lines, str(points_path))
     rows = [["x", "y", "z", "radiance_r", "radiance_g", "radiance_b", "stderr_r", "stderr_g", "stderr_b"]]
@@ -133,9 +133,9 @@ def write_reference_csv(scene_path: Path, points_path: Path, output: Optional[Pa
         rows.append([*map(repr, pts[k].tolist()), *(f"{v:.6g}" for v in ref["radiance"][k]),
                      *(f"{v:.3g}" for v in ref["standard_error"][k])])
     if output:
-        tmp = output.with_name(output.name + ".partial")
-        with open(tmp, "w", newline="") as f:
+        from .files import atomic_file
+
+        with atomic_file(output, "w", newline="") as f:
             csv.writer(f).writerows(rows)
-        os.replace(tmp, output)
     else:
         csv.writer(stream).writerows(rows)
