@@ -9,7 +9,8 @@ CPP_SRC := $(shell find pipeline formats -name '*.h' -o -name '*.cpp') CMakeList
 CPP_TESTS := $(wildcard tests/cpp/*.cpp)
 DEB_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
                 libembree-dev libtbb-dev libopenexr-dev libeigen3-dev libgtest-dev time \
-                libzstd-dev liblz4-dev libxxhash-dev libopenvdb-dev libboost-iostreams-dev
+                libzstd-dev liblz4-dev libxxhash-dev libopenvdb-dev libboost-iostreams-dev \
+                libpango-1.0-0 libpangoft2-1.0-0 libharfbuzz-subset0
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 JOBS := $(shell nproc)
 
