@@ -9,7 +9,9 @@
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfStringAttribute.h>
 
+#include <cmath>
 #include <stdexcept>
+#include <string>
 
 #include "pipeline/core/atomic_file.h"
 
@@ -48,6 +50,19 @@ private:
 void write_exr_rgb(const std::string& path, int width, int height, const float* rgb,
                    const std::vector<std::pair<std::string, std::string>>& metadata) {
     if (width <= 0 || height <= 0) throw std::invalid_argument(path + ": empty image");
+    // Never write a value that is not a finite number, nor one that half floats cannot hold
+    // (it would be written as infinity).
+    constexpr float kHalfMax = 65504.0f;
+    size_t bad = 0, first = 0;
+    for (size_t i = 0; i < size_t(width) * height * 3; ++i)
+        if (!(std::fabs(rgb[i]) <= kHalfMax) && bad++ == 0) first = i;
+    if (bad > 0) {
+        const size_t px = first / 3;
+        throw std::invalid_argument(path + ": " + std::to_string(bad) + " values are not finite or beyond half float's " +
+                                    "range (65504); the first is pixel (" + std::to_string(px % size_t(width)) + ", " +
+                                    std::to_string(px / size_t(width)) + ") channel " + "RGB"[first % 3] + " = " +
+                                    std::to_string(rgb[first]) + "; nothing was written");
+    }
     std::vector<Imath::half> channels[3];
     for (auto& c : channels) c.resize(size_t(width) * height);
     for (size_t i = 0; i < size_t(width) * height; ++i)

@@ -7,7 +7,9 @@
 
 namespace hirad {
 
-// rgb: height*width*3 floats, row 0 at the top. Metadata become string attributes.
+// rgb: height*width*3 floats, row 0 at the top. Metadata become string attributes. A value
+// that is not finite or beyond half float's range (65504) is refused (std::invalid_argument
+// naming the pixel) and nothing is written.
 void write_exr_rgb(const std::string& path, int width, int height, const float* rgb,
                    const std::vector<std::pair<std::string, std::string>>& metadata);
 

@@ -6,7 +6,9 @@
 
 #include <ext/stdio_filebuf.h>
 
+#include <cmath>
 #include <mutex>
+#include <string>
 #include <ostream>
 #include <stdexcept>
 
@@ -46,6 +48,13 @@ void write_vdb(const std::string& path, const std::vector<VdbGrid>& grids, const
         if (g.coords.size() != g.values.size())
             throw std::invalid_argument("vdb grid " + g.name + ": coords and values differ in length");
         if (!(g.voxel_size > 0)) throw std::invalid_argument("vdb grid " + g.name + ": voxel size must be positive");
+        for (size_t k = 0; k < g.values.size(); ++k)
+            for (int c = 0; c < 3; ++c)
+                if (!std::isfinite(g.values[k][c]))
+                    throw std::invalid_argument(path + ": vdb grid " + g.name + ": voxel (" + std::to_string(g.coords[k][0]) +
+                                                ", " + std::to_string(g.coords[k][1]) + ", " +
+                                                std::to_string(g.coords[k][2]) + ") holds a value that is not finite (" +
+                                                std::to_string(g.values[k][c]) + "); nothing was written");
         auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
         grid->setName(g.name);
         grid->setTransform(lattice_transform(g.voxel_size, g.origin));

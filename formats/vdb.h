@@ -24,6 +24,8 @@ struct VdbGrid {
 };
 
 // Writes the grids to `path` (through an AtomicFile: an exclusive temporary renamed into place).
+// A value that is not finite is refused (std::invalid_argument naming the voxel) and nothing
+// is written.
 void write_vdb(const std::string& path, const std::vector<VdbGrid>& grids, const Metadata& file_metadata);
 
 // Reads every Vec3s grid of a .vdb file (other grid types are skipped); `file_metadata`

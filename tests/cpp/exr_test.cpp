@@ -126,6 +126,29 @@ TEST_F(ExrTest, APlantedSymlinkIsReplacedNotWrittenThrough) {
     EXPECT_EQ(read_exr_rgb(path.string(), w, h), a);
 }
 
+TEST_F(ExrTest, NonFiniteOrUnrepresentableValuesAreNeverWritten) {
+    const std::string path = (dir_ / "bad.exr").string();
+    for (const float bad : {std::nanf(""), INFINITY, -INFINITY, 70000.0f}) {
+        SCOPED_TRACE(bad);
+        std::vector<float> rgb(3 * 2 * 3, 0.5f);
+        rgb[(1 * 3 + 2) * 3 + 1] = bad;  // pixel (2, 1), green
+        rgb[(1 * 3 + 2) * 3 + 2] = bad;
+        try {
+            write_exr_rgb(path, 3, 2, rgb.data(), {});
+            ADD_FAILURE() << "no error";
+        } catch (const std::invalid_argument& e) {
+            EXPECT_NE(std::string(e.what()).find(path + ": 2 values are not finite or beyond half float's range"),
+                      std::string::npos) << e.what();
+            EXPECT_NE(std::string(e.what()).find("pixel (2, 1) channel G"), std::string::npos) << e.what();
+        }
+        EXPECT_FALSE(fs::exists(path));
+    }
+    std::vector<float> edge(3, 65504.0f);  // the largest half is fine
+    write_exr_rgb(path, 1, 1, edge.data(), {});
+    int w = 0, h = 0;
+    EXPECT_EQ(read_exr_rgb(path, w, h), edge);
+}
+
 TEST_F(ExrTest, MissingDirectoryThrowsWithThePathAndLeavesNothing) {
     const std::vector<float> rgb = test_image(4, 4);
     const fs::path missing = dir_ / "no" / "such" / "dir";

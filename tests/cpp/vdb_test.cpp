@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -94,4 +95,21 @@ TEST(Vdb, ReplacesAPlantedSymlinkWithoutWritingThroughIt) {
         EXPECT_NE(std::string(e.what()).find(missing), std::string::npos) << e.what();
     }
     fs::remove_all(dir);
+}
+
+TEST(Vdb, NonFiniteValuesAreNeverWritten) {
+    namespace fs = std::filesystem;
+    const std::string path = ::testing::TempDir() + "hirad_vdb_nan_" + std::to_string(::getpid()) + ".vdb";
+    VdbGrid g;
+    g.name = "irradiance";
+    g.coords = {{0, 0, 0}, {4, 5, 6}};
+    g.values = {{1, 1, 1}, {0.5f, std::nanf(""), 0.5f}};
+    try {
+        write_vdb(path, {g}, {});
+        ADD_FAILURE() << "no error";
+    } catch (const std::invalid_argument& e) {
+        EXPECT_NE(std::string(e.what()).find("voxel (4, 5, 6) holds a value that is not finite"), std::string::npos)
+            << e.what();
+    }
+    EXPECT_FALSE(fs::exists(path));
 }
