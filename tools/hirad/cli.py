@@ -332,6 +332,24 @@ def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML confi
     _run_guarded(go)
 
 
+@app.command()
+def ies(path: Path = typer.Argument(..., help="IES LM-63 photometric file"),
+        plot: Optional[Path] = typer.Option(None, "--plot", help="Polar candela plot (PNG): C0-C180 and C90-C270")):
+    """A luminaire's photometry: lumens by zonal integration, peak candela, beam and field
+    angles, the photometric type, symmetry and LM-63 version found."""
+    def go():
+        from .photometry.ies import IesError, ies_command
+
+        try:
+            print(ies_command(path, plot))
+        except IesError as e:
+            _fail(str(e), EXIT_SCENE)
+        except OSError as e:
+            _fail(f"{path}: {e.strerror or e}", EXIT_USAGE)
+
+    _run_guarded(go)
+
+
 @app.command("config")
 def config_cmd(schema: bool = typer.Option(False, "--schema",
                                            help="Print every config key with its type, default and meaning")):
