@@ -105,8 +105,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
-                               uv_primvars=tuple(cfg.materials.uv_primvars))
+                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=True)
     for w in scene.warnings:
+        rep.warn(w)
+    for w in cfg.ignored_settings():
         rep.warn(w)
 
     with rep.stage("build scene"):
@@ -120,9 +122,6 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if stats.faces == 0:
         raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate or not finite)")
 
-    if not np.any(scene.face_emission > 0):
-        rep.warn(f"{cfg.scene}: nothing emits light (no emissiveColor, MeshLightAPI or UsdLux area "
-                 "light): every radiosity will be zero")
 
     if cfg.method == "hierarchical":
         solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links)
