@@ -22,9 +22,28 @@ uint64_t bits(double x) {
     return u;
 }
 
-void save_solution(const std::string& path, uint64_t fingerprint, const HierarchicalSolution& sol) {
+// What a state file is: its kind and round, written into it, so a file renamed or copied from
+// elsewhere in the store is refused rather than taken for another step.
+enum class StateKind : uint64_t { Refined = 1, Solved = 2, Final = 3 };
+const char* const kBelongsTo = "belongs_to";
+
+const char* kind_name(uint64_t k) {
+    switch (k) {
+        case uint64_t(StateKind::Refined): return "refined";
+        case uint64_t(StateKind::Solved): return "solved";
+        case uint64_t(StateKind::Final): return "final";
+        default: return "unknown";
+    }
+}
+
+void label(StateFile& f, StateKind kind, int round) {
+    f.put(kBelongsTo, std::vector<uint64_t>{uint64_t(kind), uint64_t(round)});
+}
+
+void save_solution(const std::string& path, uint64_t fingerprint, int round, const HierarchicalSolution& sol) {
     StateFile f;
     f.fingerprint = fingerprint;
+    label(f, StateKind::Solved, round);
     f.put("radiosity", flatten_rgb(sol.radiosity));
     f.put("irradiance", flatten_rgb(sol.irradiance));
     f.put("outgoing", sol.outgoing);
@@ -45,11 +64,27 @@ HierarchicalSolution load_solution(const StateFile& f, size_t n, const std::stri
     return sol;
 }
 
-// A state file if it exists and carries the fingerprint, else nothing.
-bool load_state(const std::string& path, uint64_t fingerprint, StateFile& out) {
+// Whether a state file of this run is there: false when there is none; an error naming the
+// file when there is one that is not this step's (another kind or round: renamed or copied) or,
+// unless `other_run_ok`, not this run's (another scene, settings or materials). A resume that
+// quietly skipped a foreign file would start over in a store that still holds it.
+bool load_state(const std::string& path, uint64_t fingerprint, StateKind kind, int round, StateFile& out,
+                bool other_run_ok = false) {
     if (!fs::exists(path)) return false;
     StateFile f = StateFile::read(path);
-    if (f.fingerprint != fingerprint) return false;
+    if (!f.has(kBelongsTo) || f.u64(kBelongsTo).size() != 2)
+        throw std::runtime_error(path + ": a state file that does not say what it belongs to (written by another "
+                                 "version of hirad?); bake without --resume to start over");
+    const std::vector<uint64_t>& what = f.u64(kBelongsTo);
+    if (what[0] != uint64_t(kind) || what[1] != uint64_t(round))
+        throw std::runtime_error(path + ": holds the " + kind_name(what[0]) + " state of round " +
+                                 std::to_string(what[1]) + ", not the " + kind_name(uint64_t(kind)) + " state of round " +
+                                 std::to_string(round) + " (renamed or replaced); bake without --resume to start over");
+    if (f.fingerprint != fingerprint) {
+        if (other_run_ok) return false;
+        throw std::runtime_error(path + ": belongs to another run (another scene, settings or materials); bake "
+                                 "without --resume to start over");
+    }
     out = std::move(f);
     return true;
 }
@@ -131,14 +166,16 @@ ResumePoint RunStore::resume_point(Hierarchy& h, bool reuse_links, bool resume, 
         at.solved = true;
     };
     StateFile fin;
-    const bool have_final = load_state(final_path(), links_fp_, fin);
+    // A final state of other geometry or settings is refused on resume; for --reuse-links it
+    // means there is nothing to reuse (said just below).
+    const bool have_final = load_state(final_path(), links_fp_, StateKind::Final, 0, fin, reuse_links);
     if (reuse_links && !have_final)
         throw std::runtime_error(root_ + ": no final links of this geometry and these refinement settings to "
                                  "reuse (bake once without --reuse-links)");
     if (have_final) {
         const int r = static_cast<int>(fin.u64("round").at(0));
         StateFile ref;
-        if (!load_state(refined_path(r), links_fp_, ref))
+        if (!load_state(refined_path(r), links_fp_, StateKind::Refined, r, ref))
             throw std::runtime_error(refined_path(r) + ": missing or of another scene, though " + final_path() +
                                      " names round " + std::to_string(r));
         adopt_refined(ref, r);
@@ -147,15 +184,22 @@ ResumePoint RunStore::resume_point(Hierarchy& h, bool reuse_links, bool resume, 
         // Reuse always solves again from the links; a resumed bake that had finished takes
         // its solution as it was.
         StateFile sol;
-        if (!reuse_links && load_state(solved_path(r), run_fp_, sol)) adopt_solution(sol, r);
+        // (the solution of other materials on the same links is not this run's: solved again)
+        if (!reuse_links && load_state(solved_path(r), run_fp_, StateKind::Solved, r, sol, true)) adopt_solution(sol, r);
         return at;
     }
     for (int r = max_rounds; r >= 1 && at.round == 0; --r) {
         StateFile ref;
-        if (!load_state(refined_path(r), run_fp_, ref) || !store_committed(round_dir(r))) continue;
+        // (finish() re-stamps the last refinement with the links' fingerprint before it writes
+        // `final`: a kill between the two leaves it so, and it is still this run's)
+        const bool ours = load_state(refined_path(r), run_fp_, StateKind::Refined, r, ref, true) ||
+                          load_state(refined_path(r), links_fp_, StateKind::Refined, r, ref);
+        if (!ours || !store_committed(round_dir(r))) continue;
         adopt_refined(ref, r);
+        // Without round r's solution (killed during its solve, or the file removed) the round is
+        // solved again, from the emission as every round is: the same bits as a run never killed.
         StateFile sol;
-        if (load_state(solved_path(r), run_fp_, sol)) adopt_solution(sol, r);
+        if (load_state(solved_path(r), run_fp_, StateKind::Solved, r, sol)) adopt_solution(sol, r);
     }
     return at;
 }
@@ -165,6 +209,7 @@ void RunStore::refined(int round, const Hierarchy& h, const std::vector<uint8_t>
     if (!on_disk()) return;
     StateFile f;
     f.fingerprint = run_fp_;
+    label(f, StateKind::Refined, round);
     f.put("log", h.subdivided);
     f.put("is_source", std::vector<uint32_t>(is_source.begin(), is_source.end()));
     f.put("outgoing", outgoing);
@@ -177,7 +222,7 @@ void RunStore::discard_round(int round) const {
 
 void RunStore::solved(int round, const HierarchicalSolution& solution) const {
     if (!on_disk()) return;
-    save_solution(solved_path(round), run_fp_, solution);
+    save_solution(solved_path(round), run_fp_, round, solution);
     fs::remove(checkpoint_path());
     if (round > 1) {
         fs::remove_all(round_dir(round - 1));
@@ -194,6 +239,7 @@ void RunStore::finish(int round, bool settled) const {
     ref.write(refined_path(round));
     StateFile fin;
     fin.fingerprint = links_fp_;
+    label(fin, StateKind::Final, 0);
     fin.put("round", std::vector<uint64_t>{uint64_t(round), uint64_t(settled)});
     fin.write(final_path());
 }

@@ -271,3 +271,52 @@ def test_kill_9_then_resume_gives_the_clean_result(when, clean_run, tmp_path):
     if when == "solve":
         assert report["links"]["last_solve"]["resumed"] or report["links"]["resumed_from_round"] >= 2
     assert np.array_equal(_patch_radiance(tmp_path / "out"), clean_run)
+
+
+# ---------------------------------------------------------------------------------------------
+# resume in every phase, and state files that say what they belong to
+# ---------------------------------------------------------------------------------------------
+
+
+def _finished_store(tmp_path: Path, name: str, emission_scale: float = 1.0):
+    """A finished out-of-core run's store and its radiosity (emission scaled for a foreign run)."""
+    store = tmp_path / name
+    scene = usd.read_scene(CORNELL)
+    if emission_scale != 1.0:
+        scene.face_emission = scene.face_emission * emission_scale
+    r = solve(build_engine(scene), store)
+    rounds = sorted(int(p.name.split("-")[1]) for p in store.glob("solved-*"))
+    assert len(rounds) == 1, rounds
+    return store, np.asarray(r.radiosity), rounds[0]
+
+
+def test_resume_killed_during_a_solve_before_any_checkpoint_gives_the_same_bits(tmp_path):
+    """The phase between refined-k and solved-k with no checkpoint yet: round k is solved again,
+    from the emission as every round is, and must give exactly the uninterrupted run's values."""
+    store, clean, last = _finished_store(tmp_path, "links")
+    # what a kill at that moment leaves: round `last` refined and committed, not solved, not final
+    (store / "final").unlink()
+    (store / f"solved-{last}").unlink()
+    assert not (store / "checkpoint").exists()
+    resumed = solve(cornell_model(), store, resume=True)
+    assert resumed.resumed_from_round == last
+    assert np.array_equal(np.asarray(resumed.radiosity), clean)
+
+
+def test_resume_refuses_a_state_file_of_another_run(tmp_path):
+    store, _, last = _finished_store(tmp_path, "links")
+    other, _, other_last = _finished_store(tmp_path, "other", emission_scale=2.0)
+    assert other_last == last  # the same links: only the materials differ
+    (store / "final").unlink()
+    (store / f"solved-{last}").write_bytes((other / f"solved-{last}").read_bytes())
+    with pytest.raises(RuntimeError, match=rf"solved-{last}: belongs to another run"):
+        solve(cornell_model(), store, resume=True)
+
+
+def test_resume_refuses_a_renamed_state_file(tmp_path):
+    store, _, last = _finished_store(tmp_path, "links")
+    (store / "final").unlink()
+    # round `last`'s refinement state put where its solution belongs
+    (store / f"solved-{last}").write_bytes((store / f"refined-{last}").read_bytes())
+    with pytest.raises(RuntimeError, match=rf"solved-{last}: holds the refined state of round {last}"):
+        solve(cornell_model(), store, resume=True)
