@@ -11,8 +11,12 @@ Run as a script to (re)write the committed reference file for the bundled config
 
     .venv/bin/python tests/python/golden.py --write
 
-The file was first written *before* the redesign moved the engine's code, so the test
-that compares with it (test_golden.py) proves the move kept the physics bit for bit.
+The file was first written *before* the redesign moved the engine's code (commit 2971405),
+so the test that compares with it (test_golden.py) proved the move kept the physics bit for
+bit: all three held through the redesign. It was written again once, on purpose, for the two
+hierarchical configs when every refine round's solve began to start from the emission
+(commit d67877d, the thin-wall leak fix); cornell.yaml's values are still the originals.
+Rewrite it only for a change of the physics, and say which in the commit.
 """
 
 from __future__ import annotations

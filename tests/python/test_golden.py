@@ -1,7 +1,8 @@
 """The bundled Cornell configs give the same values as before the redesign.
 
 tests/python/data/cornell_golden.json was written by `tests/python/golden.py --write` on the
-commit *before* the engine's code was moved (see that file's docstring): the hashes of every
+commit *before* the engine's code was moved, and once more for the hierarchical configs when
+the rounds' solves began to start from the emission (see golden.py's docstring): the hashes of every
 primvar and hirad attribute array of the solution meshes, every EXR's pixels, the preview
 PNG, the volume's grids and the report's numbers other than timings. A change of any value,
 by one bit, fails here and names what changed.
