@@ -224,10 +224,10 @@ def cmd_family(args) -> None:
 
 def unsplit_model(scene_path: Path):
     from hirad import _engine, usd
+    from hirad.engine import build_engine
     s = usd.read_scene(scene_path)
-    m = _engine.Model(s.points, s.face_vertex_counts, s.face_vertex_indices, s.face_mesh, s.face_source,
-                      s.face_reflectance, s.face_emission, s.corner_uv)
-    m.mesh(1e9, 1e9)
+    m = build_engine(s)
+    m.mesh(_engine.MeshOptions(max_patch_area=1e9, max_edge_length=1e9))
     return s, m
 
 
@@ -271,8 +271,9 @@ def reference(model, points, normals, target_rel_se: float, first_paths: int, ma
         return {k: d[k] for k in d.files}
     t0 = time.perf_counter()
     ld = load()
-    r = model.reference_at(points, normals, first_paths, 3, seed, 1e-4)
-    rad, se = r["radiance"], r["standard_error"]
+    from hirad import _engine
+    r = model.reference_at(points, normals, _engine.ReferenceOptions(paths=first_paths, min_bounces=3, seed=seed), 1e-4)
+    rad, se = r.radiance, r.standard_error
     npaths = np.full(len(points), first_paths, float)
     lum, sel = rad @ LUM, se @ LUM
     rel = np.where(lum > 0, sel / np.maximum(lum, 1e-300), 0.0)
@@ -284,8 +285,9 @@ def reference(model, points, normals, target_rel_se: float, first_paths: int, ma
     for g, (paths, idx) in enumerate(sorted(groups.items())):
         idx = np.array(idx)
         paths = min(paths, max_paths - first_paths)
-        r2 = model.reference_at(np.ascontiguousarray(points[idx]), np.ascontiguousarray(normals[idx]), paths, 3,
-                                seed + 1 + g, 1e-4)
+        r2 = model.reference_at(np.ascontiguousarray(points[idx]), np.ascontiguousarray(normals[idx]),
+                                _engine.ReferenceOptions(paths=paths, min_bounces=3, seed=seed + 1 + g), 1e-4)
+        r2 = {"radiance": r2.radiance, "standard_error": r2.standard_error}
         n1, n2 = npaths[idx, None], float(paths)
         var1, var2 = se[idx] ** 2 * n1, r2["standard_error"] ** 2 * n2      # per-path variances
         mean = (rad[idx] * n1 + r2["radiance"] * n2) / (n1 + n2)
@@ -370,7 +372,8 @@ def cmd_accuracy(args) -> None:
     print(f"# 3. Cornell box: RMS relative error of luminance at {args.points} fixed surface points against "
           "the Monte Carlo reference, versus wall time of hirad.bake (in process, outputs off)")
     _, model = unsplit_model(CORNELL_SCENE)
-    patches = model.patch_arrays()
+    from hirad.engine import patch_dict
+    patches = patch_dict(model.patch_arrays())
     pts, nrm, face = sample_points(patches, args.points, seed=12345)
     ref = reference(model, pts, nrm, args.target_se, 8192, args.max_paths, 99, "cornell")
     lum = ref["radiance"] @ LUM
@@ -447,7 +450,8 @@ def cmd_hall(args) -> None:
     print(f"# 4. Modern Hall: hierarchical (epsilon {args.epsilon:g}, min_area {args.min_area:g}, samples {args.samples}, "
           f"jacobi tol 1e-4), RMS relative error of luminance at lit reflecting surface points")
     scene, model = unsplit_model(args.hall)
-    patches = model.patch_arrays()
+    from hirad.engine import patch_dict
+    patches = patch_dict(model.patch_arrays())
     cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4242)
     ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 77, "hall")
     del model

@@ -3,7 +3,7 @@
 For every surface (input mesh) of configs/cornell.yaml, the bake's area-weighted mean of
 B/pi is compared with a path-traced estimate of the mean exitant radiance over the same
 surface (a random point in every patch, weighted by its area, each with many paths;
-`Model.reference`). Prints both, the
+`Engine.reference_at`). Prints both, the
 relative difference in luminance and the reference's standard error. Usage:
 
     python bench/reference_cornell.py [CONFIG.yaml] [--points 64] [--paths 1024]
@@ -21,6 +21,7 @@ import numpy as np
 import hirad
 from hirad import _engine, usd
 from hirad.config import load_config
+from hirad.engine import build_engine
 
 ROOT = Path(__file__).resolve().parent.parent
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -46,9 +47,8 @@ def main() -> None:
     # The reference runs on the input faces (it needs no meshing): a random point in every
     # patch of the bake, repeated points // 64 times, each weighted by its patch's area.
     scene = usd.read_scene(cfg.scene)
-    model = _engine.Model(scene.points, scene.face_vertex_counts, scene.face_vertex_indices, scene.face_mesh,
-                          scene.face_source, scene.face_reflectance, scene.face_emission, scene.corner_uv)
-    model.mesh(1e9, 1e9)
+    model = build_engine(scene)
+    model.mesh(_engine.MeshOptions(max_patch_area=1e9, max_edge_length=1e9))
     rng = np.random.default_rng(1)
     reps = max(1, args.points // 64)
     ids = np.tile(np.arange(len(b)), reps)
@@ -64,7 +64,9 @@ def main() -> None:
     owner = p["mesh"][ids]
     weight = p["area"][ids]
     t0 = time.perf_counter()
-    ref = model.reference_at(points, np.ascontiguousarray(p["normal"][ids]), args.paths, 3, 7, 1e-4)
+    r = model.reference_at(points, np.ascontiguousarray(p["normal"][ids]),
+                           _engine.ReferenceOptions(paths=args.paths, min_bounces=3, seed=7), 1e-4)
+    ref = {"radiance": r.radiance, "standard_error": r.standard_error}
     ref_s = time.perf_counter() - t0
 
     print(f"bake {bake_s:.1f} s ({len(b)} patches); reference {ref_s:.1f} s "
