@@ -173,8 +173,9 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
 @app.command()
 def render(solution: Path = typer.Argument(..., help="solution.usda written by `hirad bake`"),
            camera: Optional[str] = typer.Option(None, "--camera", help="USD camera prim path"),
-           width: int = typer.Option(512, min=16), height: int = typer.Option(512, min=16),
-           samples: int = typer.Option(4, min=1, help="Samples per pixel"),
+           width: int = typer.Option(512, min=16, max=8192, help="Image width in pixels"),
+           height: int = typer.Option(512, min=16, max=8192, help="Image height in pixels"),
+           samples: int = typer.Option(4, min=1, max=4096, help="Samples per pixel"),
            output: Optional[Path] = typer.Option(None, "--output", "-o",
                                                  help="PNG, JPEG or EXR, by extension [render.png beside the solution]"),
            exposure: Optional[float] = typer.Option(None, help="Fixed exposure for PNG and JPEG, above 0 "
