@@ -12,10 +12,13 @@ using namespace nb::literals;
 void bind_options(nb::module_& m) {
     const MeshOptions mesh;
     nb::class_<MeshOptions>(m, "MeshOptions", "Flat meshing: every face is cut into patches no larger than these.")
-        .def("__init__", [](MeshOptions* o, double a, double e) { new (o) MeshOptions{a, e}; },
-             "max_patch_area"_a = mesh.max_patch_area, "max_edge_length"_a = mesh.max_edge_length)
+        .def("__init__", [](MeshOptions* o, double a, double e, uint64_t n) { new (o) MeshOptions{a, e, n}; },
+             "max_patch_area"_a = mesh.max_patch_area, "max_edge_length"_a = mesh.max_edge_length,
+             "max_patches"_a = mesh.max_patches)
         .def_rw("max_patch_area", &MeshOptions::max_patch_area, "Largest patch area, m^2.")
-        .def_rw("max_edge_length", &MeshOptions::max_edge_length, "Longest patch edge, m.");
+        .def_rw("max_edge_length", &MeshOptions::max_edge_length, "Longest patch edge, m.")
+        .def_rw("max_patches", &MeshOptions::max_patches,
+                "The most patches meshing may make; more is refused (ValueError) before anything is built.");
 
     const FormFactorOptions ff;
     nb::class_<FormFactorOptions>(m, "FormFactorOptions", "Form factors of the flat method.")

@@ -33,6 +33,8 @@ void bind_results(nb::module_& m) {
         .def_ro("faces", &Stats::faces, "Usable faces after triangulation and cleaning.")
         .def_ro("degenerate_faces", &Stats::degenerate_faces, "Dropped: zero area.")
         .def_ro("nonfinite_faces", &Stats::nonfinite_faces, "Dropped: a NaN or infinite corner.")
+        .def_ro("self_intersecting_faces", &Stats::self_intersecting_faces,
+                "Dropped: polygons whose edges cross in their plane (bow ties, pentagrams).")
         .def_ro("triangulated_faces", &Stats::triangulated_faces, "Non-quads and non-planar or concave quads split.")
         .def_ro("nonmanifold_edges", &Stats::nonmanifold_edges, "Edges of more than two faces (kept, counted).")
         .def_ro("patches", &Stats::patches, "Current patches (flat patches, or published leaves).")

@@ -94,6 +94,7 @@ Stats Engine::stats() const {
     s.faces = scene_.faces.size();
     s.degenerate_faces = scene_.stats.degenerate_faces;
     s.nonfinite_faces = scene_.stats.nonfinite_faces;
+    s.self_intersecting_faces = scene_.stats.self_intersecting_faces;
     s.triangulated_faces = scene_.stats.triangulated_faces;
     s.nonmanifold_edges = scene_.stats.nonmanifold_edges;
     s.patches = patches_.patches.size();
@@ -124,7 +125,7 @@ void Engine::mesh(const MeshOptions& o) {
     if (!(o.max_patch_area > 0) || !(o.max_edge_length > 0)) throw std::invalid_argument("meshing limits must be positive");
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     leaves_published_ = false;
-    replace_patches(mesh_patches(scene_, {o.max_patch_area, o.max_edge_length}));
+    replace_patches(mesh_patches(scene_, {o.max_patch_area, o.max_edge_length, o.max_patches}));
 }
 
 PatchArrays Engine::patch_arrays() const {

@@ -52,6 +52,7 @@ void set_threads(int threads);
 struct MeshOptions {
     double max_patch_area = 0.01;   // m^2
     double max_edge_length = 0.1;   // m
+    uint64_t max_patches = 50000000;  // more is refused before anything is built (MeshingOptions)
 };
 
 // Form factors of the flat method.
@@ -105,6 +106,7 @@ struct Stats {
     uint64_t faces = 0;               // usable faces after triangulation and cleaning
     uint64_t degenerate_faces = 0;    // dropped: zero area
     uint64_t nonfinite_faces = 0;     // dropped: a NaN or infinite corner
+    uint64_t self_intersecting_faces = 0;  // dropped: polygons whose edges cross in their plane
     uint64_t triangulated_faces = 0;  // non-quads and non-planar or concave quads split
     uint64_t nonmanifold_edges = 0;   // edges of more than two faces (kept, only counted)
     uint64_t patches = 0;             // current patches (flat patches, or published leaves)

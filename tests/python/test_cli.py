@@ -203,6 +203,7 @@ def test_some_nan_faces_are_skipped_and_counted(tmp_path):
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["counts"]["skipped"]["nonfinite_faces"] == 3
+    assert report["counts"]["skipped"]["self_intersecting_faces"] == 0
     assert report["counts"]["input_faces"] == 6 + 3
     assert report["counts"]["faces"] == 6
     warned = [w for w in report["warnings"] if "3 nonfinite faces" in w]

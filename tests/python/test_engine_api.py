@@ -30,6 +30,23 @@ def test_options_take_keywords_and_refuse_unknown_ones():
         _engine.SolveOptions(tolerance="small")
 
 
+def test_stats_count_self_intersecting_faces_and_meshing_refuses_too_many_patches():
+    # A unit square and a bow tie (edges 0-1 and 2-3 cross at (2 2/3, 2/3); lobes of area 4/3
+    # and 1/3, so its signed area is not zero and it is not merely degenerate): the bow tie is
+    # dropped and counted as self-intersecting, the square kept.
+    square = quad((0, 0, 0), (1, 0, 0), (0, 1, 0))
+    bow_tie = np.array([[2, 0, 0], [4, 2, 0], [4, 0, 0], [2, 1, 0]], dtype=np.float64)
+    m = make_model([square, bow_tie])
+    st = m.stats()
+    assert (st.input_faces, st.faces, st.self_intersecting_faces, st.degenerate_faces) == (2, 1, 1, 0)
+    assert _engine.MeshOptions().max_patches == 50_000_000
+    # 0.1 m edges on the unit square: 10 x 10 = 100 patches, refused at a limit of 99.
+    with pytest.raises(ValueError, match="more than the limit of 99"):
+        m.mesh(_engine.MeshOptions(max_patch_area=1.0, max_edge_length=0.1, max_patches=99))
+    m.mesh(_engine.MeshOptions(max_patch_area=1.0, max_edge_length=0.1, max_patches=100))
+    assert m.num_patches == 100
+
+
 def test_a_hierarchical_solve_changes_the_patches_only_when_asked():
     # The closed unit box, flat-meshed into 6 x 9 patches; a hierarchical solve leaves them
     # alone until use_leaves_as_patches(), then its leaves (one per row of its arrays) are the

@@ -48,7 +48,7 @@ def read_vdb(path: str) -> dict:
 class MeshOptions:
     """Flat meshing: every face is cut into patches no larger than these."""
 
-    def __init__(self, max_patch_area: float = 0.01, max_edge_length: float = 0.1) -> None: ...
+    def __init__(self, max_patch_area: float = 0.01, max_edge_length: float = 0.1, max_patches: int = 50000000) -> None: ...
 
     @property
     def max_patch_area(self) -> float:
@@ -63,6 +63,15 @@ class MeshOptions:
 
     @max_edge_length.setter
     def max_edge_length(self, arg: float, /) -> None: ...
+
+    @property
+    def max_patches(self) -> int:
+        """
+        The most patches meshing may make; more is refused (ValueError) before anything is built.
+        """
+
+    @max_patches.setter
+    def max_patches(self, arg: int, /) -> None: ...
 
 class FormFactorOptions:
     """Form factors of the flat method."""
@@ -306,6 +315,12 @@ class Stats:
     @property
     def nonfinite_faces(self) -> int:
         """Dropped: a NaN or infinite corner."""
+
+    @property
+    def self_intersecting_faces(self) -> int:
+        """
+        Dropped: polygons whose edges cross in their plane (bow ties, pentagrams).
+        """
 
     @property
     def triangulated_faces(self) -> int:

@@ -114,13 +114,14 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     with rep.stage("build scene"):
         model = build_engine(scene)
         stats = model.stats()
-    skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "nonmanifold_edges")
-               if getattr(stats, k)}
+    skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "self_intersecting_faces",
+                                              "nonmanifold_edges") if getattr(stats, k)}
     if skipped:
         rep.warn(f"{cfg.scene}: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in skipped.items())
-                 + " (degenerate and non-finite faces skipped; non-manifold edges kept)")
+                 + " (degenerate, non-finite and self-intersecting faces skipped; non-manifold edges kept)")
     if stats.faces == 0:
-        raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate or not finite)")
+        raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate, not finite "
+                        "or self-intersecting)")
 
 
     if cfg.method == "hierarchical":
@@ -199,7 +200,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             "links": solved.links if hierarchical else stats.links,
             "link_bytes": stats.link_bytes,
             "rays": stats.rays + (solved.rays if hierarchical else 0),
-            "skipped": {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces")},
+            "skipped": {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces",
+                                                       "self_intersecting_faces")},
             "nonmanifold_edges": stats.nonmanifold_edges,
         },
         "solver": {
