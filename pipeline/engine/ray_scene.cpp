@@ -33,12 +33,7 @@ RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const dou
             const double* c = corners + (i * 4 + k) * 3;
             p.p[k] = {c[0], c[1], c[2]};
         }
-        if (p.nv == 3) p.p[3] = p.p[2];
-        Vec3 nn;
-        for (int k = 0; k < p.nv; ++k) nn += cross(p.p[k], p.p[(k + 1) % p.nv]);
-        p.area = 0.5 * length(nn);
-        p.normal = normalize(nn);
-        p.centroid = p.p[0];
+        finish_patch(p, PatchCentroid::AreaWeighted);  // rendering and probes read no centroid
     }
     has_values_ = corner_radiance && corner_irradiance;
     radiance_ = corner_radiance ? corner_values(corner_radiance, n) : CornerValues(n);
@@ -104,6 +99,8 @@ RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<V
     r.points.assign(n, Vec3{});
     r.normals.assign(n, Vec3{});
     r.back.assign(n, 0);
+    r.u.assign(n, 0.0);
+    r.v.assign(n, 0.0);
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
         const Vec3 dir = normalize(d[q]);
         const RayHit h = visibility_->intersect(o[q], dir);
@@ -113,8 +110,21 @@ RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<V
         r.points[q] = o[q] + dir * h.t;
         r.normals[q] = patches_[h.patch].normal;
         r.back[q] = dot(r.normals[q], dir) >= 0;
+        r.u[q] = h.u;
+        r.v[q] = h.v;
     });
     return r;
+}
+
+RayCastResult RayScene::camera_rays(const Camera& cam) const {
+    if (cam.width <= 0 || cam.height <= 0 || uint64_t(cam.width) * uint64_t(cam.height) > kMaxRenderPixels)
+        throw std::length_error("camera_rays: image size " + std::to_string(cam.width) + " x " +
+                                std::to_string(cam.height) + " outside 1 .. 8192 x 8192 pixels");
+    const size_t n = size_t(cam.width) * cam.height;
+    std::vector<Vec3> o(n, cam.position), d(n);
+    for (int y = 0; y < cam.height; ++y)
+        for (int x = 0; x < cam.width; ++x) d[size_t(y) * cam.width + x] = camera_direction(cam, x + 0.5, y + 0.5);
+    return ray_cast(o, d);
 }
 
 }  // namespace hirad
