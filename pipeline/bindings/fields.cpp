@@ -78,7 +78,9 @@ void bind_fields(nb::module_& m) {
         .def_prop_ro("t", arr(&RayCastResult::t), kOwned, "(n) distance along the normalised direction (-1: none).")
         .def_prop_ro("points", vec3s(&RayCastResult::points), kOwned, "(n, 3) hit points.")
         .def_prop_ro("normals", vec3s(&RayCastResult::normals), kOwned, "(n, 3) the hit patch's normal.")
-        .def_prop_ro("back", arr(&RayCastResult::back), kOwned, "(n) 1 where a back face was hit.");
+        .def_prop_ro("back", arr(&RayCastResult::back), kOwned, "(n) 1 where a back face was hit.")
+        .def_prop_ro("u", arr(&RayCastResult::u), kOwned, "(n) the hit's first coordinate on its patch.")
+        .def_prop_ro("v", arr(&RayCastResult::v), kOwned, "(n) the hit's second coordinate on its patch.");
     nb::class_<LiftResult>(m, "LiftResult", "Lightmap sample points lifted off their surface.")
         .def_prop_ro("points", vec3s(&LiftResult::points), kOwned, "(n, 3) m.")
         .def_prop_ro("moved", arr(&LiftResult::moved), kOwned, "(n) 1 where a point was moved out of geometry.");
@@ -168,7 +170,43 @@ void bind_fields(nb::module_& m) {
                  nb::gil_scoped_release release;
                  return s.ray_cast(org, dir);
              },
-             "origins"_a, "directions"_a, "First hits of rays (RayCastResult).");
+             "origins"_a, "directions"_a, "First hits of rays (RayCastResult).")
+        .def("camera_rays",
+             [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
+                const std::vector<double>& up, double fov, int width, int height) {
+                 Camera cam;
+                 cam.position = vec3(pos, "position");
+                 cam.forward = vec3(fwd, "forward");
+                 cam.up = vec3(up, "up");
+                 cam.vertical_fov_degrees = fov;
+                 cam.width = width;
+                 cam.height = height;
+                 nb::gil_scoped_release release;
+                 return s.camera_rays(cam);
+             },
+             "position"_a, "forward"_a, "up"_a, "vertical_fov"_a, "width"_a, "height"_a,
+             "First hits of one ray through each pixel centre of the pinhole camera render uses, row 0 at the top "
+             "(RayCastResult, height * width rows).");
+    m.def("interpolate_corners",
+          [](In<int32_t> nv, In<double> values, In<double> u, In<double> v) {
+              const size_t n = nv.shape(0);
+              if (values.ndim() != 3 || values.shape(0) != n || values.shape(1) != 4 || values.shape(2) != 3 ||
+                  u.shape(0) != n || v.shape(0) != n)
+                  throw std::invalid_argument("interpolate_corners: nv (n), values (n, 4, 3), u and v (n)");
+              std::vector<double> out(n * 3);
+              for (size_t i = 0; i < n; ++i) {
+                  std::array<RGB, 4> c;
+                  for (int k = 0; k < 4; ++k)
+                      c[k] = RGB{values.data()[(i * 4 + k) * 3], values.data()[(i * 4 + k) * 3 + 1],
+                                 values.data()[(i * 4 + k) * 3 + 2]};
+                  const RGB r = interpolate_corners(nv.data()[i], c, u.data()[i], v.data()[i]);
+                  out[i * 3] = r.x; out[i * 3 + 1] = r.y; out[i * 3 + 2] = r.z;
+              }
+              return to_numpy(std::move(out), {n, 3});
+          },
+          "nv"_a, "values"_a, "u"_a, "v"_a,
+          "Values (n, 4, 3) at patch corners read at patch coordinates (u, v) by the render's rule: bilinear on "
+          "quads, barycentric on triangles (nv 3 or 4 per row).");
 }
 
 }  // namespace hirad::py

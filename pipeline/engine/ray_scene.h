@@ -35,6 +35,7 @@ struct RayCastResult {
     std::vector<Vec3> points;         // hit points
     std::vector<Vec3> normals;        // the hit patch's normal
     std::vector<uint8_t> back;        // 1 when the ray hit the patch's back face
+    std::vector<double> u, v;         // the hit's coordinates on its patch (interpolate_corners)
 };
 
 struct LiftResult {
@@ -73,6 +74,8 @@ public:
                             const std::vector<Vec3>* anchors = nullptr) const;
     VolumeProbes volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const;
     RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
+    // ray_cast of one ray through each pixel centre of the camera (row 0 at the top).
+    RayCastResult camera_rays(const Camera& camera) const;
 
 private:
     std::vector<Patch> patches_;

@@ -8,6 +8,17 @@
 
 namespace hirad {
 
+Vec3 camera_direction(const Camera& cam, double x, double y) {
+    const Vec3 forward = normalize(cam.forward);
+    const Vec3 right = normalize(cross(forward, cam.up));
+    const Vec3 up = cross(right, forward);
+    const double half_h = std::tan(cam.vertical_fov_degrees * kPi / 360.0);
+    const double half_w = half_h * double(cam.width) / cam.height;
+    const double px = x / cam.width * 2 - 1;
+    const double py = 1 - y / cam.height * 2;
+    return forward + right * (px * half_w) + up * (py * half_h);
+}
+
 std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
                                    const std::vector<std::array<RGB, 4>>& corner_radiance, const Camera& cam,
                                    int samples) {
@@ -20,20 +31,13 @@ std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visi
                                 std::to_string(uint64_t(w) * uint64_t(h)) + " pixels, more than the " +
                                 std::to_string(kMaxRenderPixels) + " (8192 x 8192) an image may have");
     std::vector<float> image(size_t(w) * h * 3, 0.0f);
-    const Vec3 forward = normalize(cam.forward);
-    const Vec3 right = normalize(cross(forward, cam.up));
-    const Vec3 up = cross(right, forward);
-    const double half_h = std::tan(cam.vertical_fov_degrees * kPi / 360.0);
-    const double half_w = half_h * double(w) / h;
     const int g = std::max(1, static_cast<int>(std::sqrt(double(std::max(samples, 1)))));
     tbb::parallel_for(0, h, [&](int y) {
         for (int x = 0; x < w; ++x) {
             RGB sum;
             for (int sy = 0; sy < g; ++sy)
                 for (int sx = 0; sx < g; ++sx) {
-                    double px = (x + (sx + 0.5) / g) / w * 2 - 1;
-                    double py = 1 - (y + (sy + 0.5) / g) / h * 2;
-                    Vec3 dir = forward + right * (px * half_w) + up * (py * half_h);
+                    const Vec3 dir = camera_direction(cam, x + (sx + 0.5) / g, y + (sy + 0.5) / g);
                     RayHit hit = visibility.intersect(cam.position, normalize(dir));
                     if (hit.patch < 0) continue;
                     const Patch& p = patches[hit.patch];

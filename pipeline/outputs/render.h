@@ -22,6 +22,11 @@ struct Camera {
 // refused with the numbers before anything is allocated.
 constexpr uint64_t kMaxRenderPixels = uint64_t(8192) * 8192;
 
+// The pinhole camera's ray direction (not normalised) through the image-plane point (x, y),
+// in pixels from the image's top-left corner (x to the right, y down): pixel (i, j)'s centre is
+// (i + 1/2, j + 1/2). The one camera model of every render (the preview, the lightmap view).
+Vec3 camera_direction(const Camera& camera, double x, double y);
+
 // Returns height*width*3 floats, row 0 at the top. Pixels that see nothing are zero.
 // `samples` per pixel on a stratified grid (rounded down to a square). Throws
 // std::invalid_argument for a size that is not positive, std::length_error for one above

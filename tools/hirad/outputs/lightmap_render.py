@@ -75,32 +75,20 @@ def render(solution: str | Path, view: View, width: int, height: int) -> np.ndar
     uvs, owner = np.asarray(uvs, dtype=np.float64), np.asarray(owner)
     quads = np.ascontiguousarray(np.concatenate([corners, corners[:, 2:3]], axis=1))
 
-    # One ray through each pixel centre of a pinhole camera.
-    fwd = view.forward / np.linalg.norm(view.forward)
-    right = np.cross(fwd, view.up)
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    t = np.tan(np.radians(view.vertical_fov_degrees) / 2)
-    ys, xs = np.mgrid[0:height, 0:width]
-    px = ((xs + 0.5) / width * 2 - 1) * t * width / height
-    py = (1 - (ys + 0.5) / height * 2) * t
-    dirs = fwd + px[..., None] * right + py[..., None] * up
-    dirs = np.ascontiguousarray(dirs.reshape(-1, 3))
-    origins = np.ascontiguousarray(np.broadcast_to(np.asarray(view.position, float), dirs.shape))
-    hit = _engine.SurfaceField(quads, np.full(len(quads), 3, np.int32)).ray_cast(origins, dirs)
-
+    # One ray through each pixel centre of the render's own pinhole camera, and the lightmap
+    # UV at each hit read by the render's own rule (barycentric on these triangles).
+    field = _engine.SurfaceField(quads, np.full(len(quads), 3, np.int32))
+    hit = field.camera_rays(list(map(float, view.position)), list(map(float, view.forward)),
+                            list(map(float, view.up)), float(view.vertical_fov_degrees), width, height)
     image = np.zeros((height * width, 3))
     patch = hit.patch
     seen = (patch >= 0) & (hit.back == 0)   # back faces show nothing, as in images.render
     tri = patch[seen]
-    p = hit.points[seen]
-    a, b, c = corners[tri, 0], corners[tri, 1], corners[tri, 2]
-    v0, v1, v2 = b - a, c - a, p - a
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = np.where(np.abs(d00 * d11 - d01 * d01) > 0, d00 * d11 - d01 * d01, 1.0)
-    wb, wc = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
-    uv = uvs[tri, 0] * (1 - wb - wc)[:, None] + uvs[tri, 1] * wb[:, None] + uvs[tri, 2] * wc[:, None]
+    corner_uv = np.zeros((len(tri), 4, 3))
+    corner_uv[:, :3, :2] = uvs[tri]
+    corner_uv[:, 3, :2] = uvs[tri, 2]
+    uv = _engine.interpolate_corners(np.full(len(tri), 3, np.int32), corner_uv,
+                                     np.ascontiguousarray(hit.u[seen]), np.ascontiguousarray(hit.v[seen]))[:, :2]
     pages: dict[str, np.ndarray] = {}
     colour = np.zeros((len(tri), 3))
     for k, m in enumerate(data.meshes):
