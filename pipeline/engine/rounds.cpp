@@ -84,20 +84,17 @@ public:
         src_.clear();
         own_.clear();
         std::vector<Link> frontier;
-        std::vector<LinkRecord> records, kept_records;
         refiner_.set_radiosity(b);
         // Kept links leave for the store a part at a time, as refinement makes them; what
         // refinement holds is bounded by kChunkLinks per level of depth.
         auto keep = [&](uint32_t g, std::vector<Link>& kept) {
             src_.resize(h_.nodes.size(), 0);
             own_.resize(h_.nodes.size(), 0.0);
-            kept_records.clear();
             for (const Link& l : kept) {
                 src_[l.source] = 1;
                 own_[l.source] += double(l.coupling) / h_.nodes[l.source].area;
-                kept_records.push_back(to_record(l));
             }
-            out_->add(g, kept_records);
+            out_->add(g, kept);
         };
         for (uint32_t g = 0; g < ng_; ++g) {
             // Round 1 starts from the link of the root to the group; later rounds re-judge the
@@ -113,8 +110,7 @@ public:
                     frontier.push_back(seed);
                     evaluated.push_back(0);
                 } else {
-                    chunks_->read(g, p, records);
-                    for (const LinkRecord& r : records) frontier.push_back(to_link(r));
+                    chunks_->read(g, p, frontier);
                     evaluated.assign(frontier.size(), 1);
                 }
                 const uint64_t held =

@@ -4,15 +4,12 @@
 
 namespace hirad {
 
-Link to_link(const LinkRecord& r) { return {r.receiver, r.source, r.coupling, r.unoccluded, r.visibility, r.error}; }
-LinkRecord to_record(const Link& l) { return {l.receiver, l.source, l.coupling, l.unoccluded, l.visibility, l.error}; }
-
 RoundWriter::RoundWriter(const std::string& dir, size_t groups, LinkStoreInfo info) : dir_(dir), memory_(groups) {
     if (!dir_.empty()) writer_ = std::make_unique<LinkStoreWriter>(dir_, info);
 }
 
-void RoundWriter::add(uint32_t group, const std::vector<LinkRecord>& links) {
-    for (const LinkRecord& l : links) {
+void RoundWriter::add(uint32_t group, const std::vector<Link>& links) {
+    for (const Link& l : links) {
         pending_.push_back(l);
         if (pending_.size() == kChunkLinks) put_part(group);
     }
@@ -41,10 +38,10 @@ void RoundWriter::put_part(uint32_t group) {
 std::vector<Link> all_links(const LinkChunks& chunks) {
     std::vector<Link> out;
     out.reserve(chunks.total_links());
-    std::vector<LinkRecord> buf;
+    std::vector<Link> buf;
     for (size_t g = 0; g < chunks.groups(); ++g) {
         chunks.read(g, buf);
-        for (const LinkRecord& r : buf) out.push_back(to_link(r));
+        out.insert(out.end(), buf.begin(), buf.end());
     }
     sort_links(out);
     return out;

@@ -19,16 +19,13 @@
 
 namespace hirad {
 
-Link to_link(const LinkRecord& r);
-LinkRecord to_record(const Link& l);
-
 // The links of one round, on disk (a link store in `dir`) or in memory (`dir` empty).
 class RoundWriter {
 public:
     RoundWriter(const std::string& dir, size_t groups, LinkStoreInfo info);
     // More of group `group`'s links (the groups one after the other): they leave in parts of
     // kChunkLinks, each sorted, the last of a group at end_group().
-    void add(uint32_t group, const std::vector<LinkRecord>& links);
+    void add(uint32_t group, const std::vector<Link>& links);
     void end_group(uint32_t group);
     // Commits the store (if any) and gives the round's links as chunks.
     std::unique_ptr<LinkChunks> finish(uint32_t nodes, uint32_t elements);
@@ -38,8 +35,8 @@ private:
 
     std::string dir_;
     std::unique_ptr<LinkStoreWriter> writer_;
-    std::vector<std::vector<LinkRecord>> memory_;
-    std::vector<LinkRecord> pending_;  // the current group's links not yet in a part
+    std::vector<std::vector<Link>> memory_;
+    std::vector<Link> pending_;  // the current group's links not yet in a part
     uint32_t parts_ = 0;               // parts of the current group written
 };
 
