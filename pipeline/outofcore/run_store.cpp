@@ -6,6 +6,7 @@
 
 #include "formats/linkstore.h"
 #include "formats/statefile.h"
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/outofcore/streaming_solver.h"
 
 namespace fs = std::filesystem;
@@ -139,14 +140,23 @@ void RunStore::open(bool keep_earlier) {
     fs::create_directories(root_);
     if (keep_earlier) return;
     // Only the names this component writes, the final marker first, so that an interrupted
-    // new run never passes for the old one.
+    // new run never passes for the old one; and their temporaries: "<name>.<pid>-<n>.tmp" of a
+    // writer killed mid-write (pipeline/core/atomic_file.h), "<name>.tmp" of older writers.
+    // Other files in the directory are left alone.
     fs::remove(final_path());
+    auto ours = [](const std::string& name) {
+        return name.rfind("round-", 0) == 0 || name.rfind("refined-", 0) == 0 || name.rfind("solved-", 0) == 0 ||
+               name == "final" || name == "checkpoint";
+    };
+    std::vector<fs::path> doomed;
     for (const auto& entry : fs::directory_iterator(root_)) {
         const std::string name = entry.path().filename().string();
-        if (name.rfind("round-", 0) == 0 || name.rfind("refined-", 0) == 0 || name.rfind("solved-", 0) == 0 ||
-            name == "checkpoint" || (name.size() > 4 && name.compare(name.size() - 4, 4, ".tmp") == 0))
-            fs::remove_all(entry.path());
+        std::string base = name;
+        if (!is_atomic_temporary(name, &base) && name.size() > 4 && name.compare(name.size() - 4, 4, ".tmp") == 0)
+            base = name.substr(0, name.size() - 4);
+        if (ours(base)) doomed.push_back(entry.path());
     }
+    for (const fs::path& p : doomed) fs::remove_all(p);  // not while iterating the directory
 }
 
 ResumePoint RunStore::resume_point(Hierarchy& h, bool reuse_links, bool resume, int max_rounds) const {
