@@ -7,6 +7,7 @@
 #include <cmath>
 #include <vector>
 
+#include "tests/cpp/test_scenes.h"
 namespace hirad {
 namespace {
 
@@ -232,25 +233,8 @@ TEST(RayCast, HalfBlockerHalvesTheExchangeBySymmetry) {
     EXPECT_NEAR(rc.coupling(0, 1), want, 0.05 * want);
 }
 
-// The six faces of the unit cube, facing inward, each meshed into 2 x 2 patches.
-std::vector<Patch> inward_cube_patches(int per_side) {
-    std::vector<std::vector<Vec3>> quads = {
-        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
-        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
-        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
-    };
-    Scene scene;
-    for (const auto& q : quads) {
-        Face f;
-        f.nv = 4;
-        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
-        scene.faces.push_back(f);
-    }
-    return mesh_patches(scene, {1.0, 1.0 / per_side}).patches;
-}
-
 TEST(RayCast, CubeRowSumsAreThePatchArea) {
-    std::vector<Patch> patches = inward_cube_patches(2);
+    std::vector<Patch> patches = test::unit_cube_patches(2);
     ASSERT_EQ(patches.size(), 24u);
     for (const Patch& p : patches) {
         ASSERT_NEAR(p.area, 0.25, 1e-15);
@@ -277,7 +261,7 @@ TEST(RayCast, CubeRowSumsAreThePatchArea) {
 }
 
 TEST(RayCast, UpperCouplingsAreTheUpperPartOfTheRow) {
-    std::vector<Patch> patches = inward_cube_patches(2);
+    std::vector<Patch> patches = test::unit_cube_patches(2);
     Visibility vis(patches);
     RayCastFormFactors rc(patches, vis, {16, 5});
     for (uint32_t i = 0; i < patches.size(); ++i) {

@@ -13,30 +13,13 @@
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
 #include "pipeline/geometry/visibility.h"
+#include "tests/cpp/test_scenes.h"
 
 namespace hirad {
 namespace {
 
-Scene cube_scene(double rho, double emission) {
-    const std::vector<std::vector<Vec3>> quads = {
-        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
-        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
-        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
-    };
-    Scene scene;
-    for (const auto& q : quads) {
-        Face f;
-        f.nv = 4;
-        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
-        f.reflectance = {rho, rho, rho};
-        f.emission = {emission, emission, emission};
-        scene.faces.push_back(f);
-    }
-    return scene;
-}
-
 TEST(Hierarchy, ClustersAboveFacesParentsFirst) {
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Hierarchy h(scene);
     size_t clusters = 0;
     for (size_t i = 0; i < h.nodes.size(); ++i) {
@@ -49,7 +32,7 @@ TEST(Hierarchy, ClustersAboveFacesParentsFirst) {
 }
 
 TEST(Hierarchy, SubdivisionTilesTheParent) {
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Hierarchy h(scene);
     const uint32_t e = h.face_node[0];
     ASSERT_TRUE(h.can_subdivide(e, 0.25));
@@ -67,7 +50,7 @@ TEST(Hierarchy, SubdivisionTilesTheParent) {
 }
 
 TEST(Hierarchy, ClusterSamplesLieOnItsFaces) {
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Hierarchy h(scene);
     Rng rng(3);
     for (int k = 0; k < 200; ++k) {
@@ -113,7 +96,7 @@ TEST(Hierarchy, BalanceLeavesAtMostOneLevelBetweenNeighbours) {
 }
 
 TEST(Refine, LinksStartAtTheRootAndNeverJoinRelatives) {
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Hierarchy h(scene);
     Visibility vis(h.faces);
     Refiner refiner(h, vis, {1e-3, 0.01, 16, 1});
@@ -138,7 +121,7 @@ class HierarchicalFurnace : public ::testing::TestWithParam<int> {};
 
 TEST_P(HierarchicalFurnace, RadiosityIsEmissionOverOneMinusRho) {
     // Closed cube, rho = 0.5, E = 1: B = 2 everywhere, for all three solvers.
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Hierarchy h(scene);
     Visibility vis(h.faces);
     Refiner refiner(h, vis, {1e-5 * 6, 0.02, 256, 1});
@@ -160,7 +143,7 @@ TEST_P(HierarchicalFurnace, RadiosityIsEmissionOverOneMinusRho) {
 
 // A NaN emission on one face: all three stop with an error at the first residual.
 TEST_P(HierarchicalFurnace, NonFiniteResidualStopsAtOnce) {
-    Scene scene = cube_scene(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     scene.faces[2].emission.x = std::nan("");
     Hierarchy h(scene);
     Visibility vis(h.faces);

@@ -8,31 +8,14 @@
 #include <cmath>
 #include <vector>
 
+#include "tests/cpp/test_scenes.h"
 namespace hirad {
 namespace {
-
-std::vector<Patch> furnace(int n, const RGB& rho, const RGB& emission) {
-    const std::vector<std::vector<Vec3>> quads = {
-        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
-        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
-        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
-    };
-    Scene scene;
-    for (const auto& q : quads) {
-        Face f;
-        f.nv = 4;
-        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
-        f.reflectance = rho;
-        f.emission = emission;
-        scene.faces.push_back(f);
-    }
-    return mesh_patches(scene, {1.0, 1.0 / n + 1e-9}).patches;
-}
 
 TEST(Reference, FurnaceRadianceIsEOverPiOneMinusRhoWithinItsStandardError) {
     const RGB rho{0.5, 0.7, 0.0};
     const RGB E{1.0, 0.5, 2.0};
-    const std::vector<Patch> patches = furnace(2, rho, E);
+    const std::vector<Patch> patches = test::unit_cube_patches(2, rho, E);
     Visibility vis(patches);
     std::vector<uint32_t> at;
     std::vector<Vec2> st;
@@ -73,7 +56,7 @@ TEST(Reference, FurnaceRadianceIsEOverPiOneMinusRhoWithinItsStandardError) {
 }
 
 TEST(Reference, DarkBoxIsBlackAndBadArgumentsAreRefused) {
-    const std::vector<Patch> patches = furnace(1, {0.5, 0.5, 0.5}, {0, 0, 0});
+    const std::vector<Patch> patches = test::unit_cube_patches(1, test::grey(0.5));
     Visibility vis(patches);
     const std::vector<ReferenceEstimate> est = reference_radiance(patches, vis, {0, 3}, {{0.5, 0.5}, {0.2, 0.2}}, {});
     for (const ReferenceEstimate& e : est) EXPECT_EQ(e.radiance.y, 0.0);

@@ -18,30 +18,12 @@
 #include "pipeline/core/checks.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
+#include "tests/cpp/test_scenes.h"
 
 namespace hirad {
 namespace {
 
 namespace fs = std::filesystem;
-
-// A closed unit cube of six inward faces, every one emitting E and reflecting rho.
-Scene cube(double rho, double emission) {
-    const std::vector<std::vector<Vec3>> quads = {
-        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
-        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
-        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
-    };
-    Scene scene;
-    for (const auto& q : quads) {
-        Face f;
-        f.nv = 4;
-        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
-        f.reflectance = {rho, rho, rho};
-        f.emission = {emission, emission, emission};
-        scene.faces.push_back(f);
-    }
-    return scene;
-}
 
 // Everything a streaming solve takes, from links made by refinement.
 struct Problem {
@@ -109,7 +91,7 @@ bool same_bits(const std::vector<RGB>& a, const std::vector<RGB>& b) {
 
 TEST(StreamingSolver, FurnaceFromMemoryAndFromTheStoreGivesEOverOneMinusRho) {
     const double rho = 0.5, E = 1.0;
-    Problem pb(cube(rho, E), 2);
+    Problem pb(test::unit_cube(test::grey(rho), test::grey(E)), 2);
     ASSERT_GT(pb.groups.count(), 1u);  // several groups: the blocks are really blocks
     StreamingOptions opt;
     opt.tolerance = 1e-10;
@@ -146,7 +128,7 @@ TEST(StreamingSolver, FurnaceFromMemoryAndFromTheStoreGivesEOverOneMinusRho) {
 
 TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
     // Uneven: one emitting face, the others grey: not a furnace, so the solution has shape.
-    Scene scene = cube(0.6, 0.0);
+    Scene scene = test::unit_cube(test::grey(0.6), test::grey(0.0));
     scene.faces[1].emission = {5.0, 2.5, 1.0};
     scene.faces[3].reflectance = {0.2, 0.7, 0.4};
     Problem pb(std::move(scene), 1);
@@ -175,7 +157,7 @@ TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
 }
 
 TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
-    Scene scene = cube(0.7, 0.0);
+    Scene scene = test::unit_cube(test::grey(0.7), test::grey(0.0));
     scene.faces[0].emission = {3, 3, 3};
     Problem pb(std::move(scene), 2);
     const MemoryChunks chunks(pb.by_group);
@@ -216,7 +198,7 @@ TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
 }
 
 TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
-    Scene scene = cube(0.5, 1.0);
+    Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Problem pb(std::move(scene), 2);
     // A NaN that got past the scene's checks (they refuse it in Scene::build).
     for (Node& n : pb.h.nodes)
@@ -240,7 +222,7 @@ TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
 // same records, bit for bit, without a copy field by field.
 TEST(StreamingSolver, RefinementsLinksAreTheStoresRecords) {
     static_assert(std::is_same_v<LinkRecord, Link>, "one record");
-    Problem pb(cube(0.5, 1.0), 3);
+    Problem pb(test::unit_cube(test::grey(0.5), test::grey(1.0)), 3);
     const std::string dir = temp_dir("records");
     pb.write_store(dir);
     const StoreChunks store(dir, pb.groups.count());

@@ -9,29 +9,12 @@
 #include <cmath>
 #include <vector>
 
+#include "tests/cpp/test_scenes.h"
 namespace hirad {
 namespace {
 
-// The unit cube's faces facing inward, each split into n x n patches.
-std::vector<Patch> inward_cube(int n) {
-    const std::vector<std::vector<Vec3>> quads = {
-        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
-        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
-        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
-    };
-    Scene scene;
-    for (const auto& q : quads) {
-        Face f;
-        f.nv = 4;
-        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
-        f.reflectance = {0.5, 0.5, 0.5};
-        scene.faces.push_back(f);
-    }
-    return mesh_patches(scene, {1.0, 1.0 / n + 1e-9}).patches;
-}
-
 TEST(VolumeProbes, UniformRadianceInAClosedBoxIntegratesToFourPiL) {
-    const std::vector<Patch> patches = inward_cube(3);
+    const std::vector<Patch> patches = test::unit_cube_patches(3, test::grey(0.5));
     Visibility vis(patches);
     const RGB L{0.5, 1.0, 2.0};
     std::vector<std::array<RGB, 4>> radiance(patches.size(), {L, L, L, L});
@@ -58,7 +41,7 @@ TEST(VolumeProbes, UniformRadianceInAClosedBoxIntegratesToFourPiL) {
 }
 
 TEST(VolumeProbes, OnlyTheCeilingLitSeenFromTheCentre) {
-    const std::vector<Patch> patches = inward_cube(2);
+    const std::vector<Patch> patches = test::unit_cube_patches(2, test::grey(0.5));
     Visibility vis(patches);
     std::vector<std::array<RGB, 4>> radiance(patches.size());
     const RGB L{1, 1, 1};
@@ -78,7 +61,7 @@ TEST(VolumeProbes, OnlyTheCeilingLitSeenFromTheCentre) {
 
 TEST(VolumeProbes, AProbeInsideASolidSeesBackFaces) {
     // Outside the inward-facing cube, every ray that hits it meets the back of a face.
-    const std::vector<Patch> patches = inward_cube(1);
+    const std::vector<Patch> patches = test::unit_cube_patches(1, test::grey(0.5));
     Visibility vis(patches);
     std::vector<std::array<RGB, 4>> radiance(patches.size(), {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}});
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, {{0.5, 0.5, 3.0}}, 4096, 1);

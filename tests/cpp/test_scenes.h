@@ -1,0 +1,39 @@
+// Test scenes shared by the C++ tests. Header-only: the build compiles tests/cpp/*_test.cpp
+// and nothing else.
+#pragma once
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/scene.h"
+
+namespace hirad::test {
+
+inline RGB grey(double v) { return {v, v, v}; }
+
+// The closed unit cube [0, 1]^3 as six quads facing inwards (-z, +z, -x, +x, -y, +y), every
+// one reflecting rho and emitting the exitance `emission` (W/m^2).
+inline Scene unit_cube(const RGB& rho = {}, const RGB& emission = {}) {
+    const std::vector<std::vector<Vec3>> quads = {
+        {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 0, 1}, {0, 1, 1}, {1, 1, 1}, {1, 0, 1}},
+        {{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, {{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}},
+        {{0, 0, 0}, {0, 0, 1}, {1, 0, 1}, {1, 0, 0}}, {{0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}},
+    };
+    Scene scene;
+    for (const auto& q : quads) {
+        Face f;
+        f.nv = 4;
+        for (int k = 0; k < 4; ++k) f.p[k] = q[k];
+        f.reflectance = rho;
+        f.emission = emission;
+        scene.faces.push_back(f);
+    }
+    return scene;
+}
+
+// The same cube with every face meshed into per_side x per_side patches (the edge limit a
+// hair above 1 / per_side, so that rounding never makes one more).
+inline std::vector<Patch> unit_cube_patches(int per_side, const RGB& rho = {}, const RGB& emission = {}) {
+    return mesh_patches(unit_cube(rho, emission), {1.0, 1.0 / per_side + 1e-9}).patches;
+}
+
+}  // namespace hirad::test
