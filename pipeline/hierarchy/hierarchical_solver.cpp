@@ -92,6 +92,22 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
     sol.irradiance = std::move(irradiance);
 }
 
+// Records step `step`'s residual (refused when not finite) and says whether the solve stops
+// there: converged (as sol.converged says), stopped by opt.on_iteration, or the last step.
+bool record_step(HierarchicalSolution& sol, const SolverOptions& opt, const char* solver, uint64_t step, double res,
+                 uint32_t face, const char* step_name = "iteration") {
+    require_finite_residual(solver, res, step, step_name);
+    sol.residual_history.push_back(res);
+    sol.iterations = step;
+    sol.residual = res;
+    const bool go_on = !opt.on_iteration || opt.on_iteration({step, res, face});
+    if (res <= opt.tolerance || !go_on || step == opt.max_iterations) {
+        sol.converged = res <= opt.tolerance;
+        return true;
+    }
+    return false;
+}
+
 }  // namespace
 
 HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& start,
@@ -122,15 +138,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             r2 += h.nodes[i].area * dot(d, d);
         }
         const double res = std::sqrt(r2) / enorm;
-        require_finite_residual("hierarchical Jacobi", res, it);
-        sol.residual_history.push_back(res);
-        sol.iterations = it;
-        sol.residual = res;
-        bool go_on = !opt.on_iteration || opt.on_iteration({it, res, UINT32_MAX});
-        if (res <= opt.tolerance || !go_on || it == opt.max_iterations) {
-            sol.converged = res <= opt.tolerance;
-            break;
-        }
+        if (record_step(sol, opt, "hierarchical Jacobi", it, res, UINT32_MAX)) break;
         b.swap(next);
     }
     finish(h, links, std::move(b), sol);
@@ -242,15 +250,7 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
         std::vector<RGB> diff(n);
         for (uint32_t i : leaves) diff[i] = tb[i] - b[i];
         const double res = leaf_norm(h, leaves, diff) / enorm;
-        require_finite_residual("hierarchical Gauss-Seidel", res, it);
-        sol.residual_history.push_back(res);
-        sol.iterations = it;
-        sol.residual = res;
-        bool go_on = !opt.on_iteration || opt.on_iteration({it, res, UINT32_MAX});
-        if (res <= opt.tolerance || !go_on || it == opt.max_iterations) {
-            sol.converged = res <= opt.tolerance;
-            break;
-        }
+        if (record_step(sol, opt, "hierarchical Gauss-Seidel", it, res, UINT32_MAX)) break;
         for (size_t f = 0; f < trees.roots.size(); ++f) {
             for (uint32_t i : trees.nodes[f]) gathered[i] = RGB{};
             for (uint32_t k : by_face[f])
@@ -375,15 +375,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
             for (uint32_t i : leaves) r2 += h.nodes[i].area * dot(r[i], r[i]);
             res = std::sqrt(r2) / enorm;
         }
-        require_finite_residual("hierarchical Southwell", res, shot, "shot");
-        sol.residual_history.push_back(res);
-        sol.iterations = shot;
-        sol.residual = res;
-        bool go_on = !opt.on_iteration || opt.on_iteration({shot, res, face_root});
-        if (res <= opt.tolerance || !go_on || shot == opt.max_iterations) {
-            sol.converged = res <= opt.tolerance;
-            break;
-        }
+        if (record_step(sol, opt, "hierarchical Southwell", shot, res, face_root, "shot")) break;
     }
     // Irradiance of the returned b, and the outgoing fractions, as for Jacobi.
     finish(h, links, std::move(b), sol);
