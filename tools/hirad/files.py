@@ -263,6 +263,25 @@ def _foreign_entries(directory: Path, marker: dict) -> list[str]:
     return sorted(rel for rel in _entries(directory) if rel not in known or (directory / rel).is_symlink())
 
 
+def _directory_entries(path: Path, label: str, made: str, whose: str) -> list[str] | None:
+    """The names in directory `path`, None when nothing is there; a symbolic link or a file
+    there is refused (hirad makes `made` itself), named by `label` (the setting)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    if stat.S_ISLNK(st.st_mode):
+        raise UnsafePathError(f"{label} {path} is a symbolic link; hirad makes {made} itself (give {whose} real path)")
+    if not stat.S_ISDIR(st.st_mode):
+        raise UnsafePathError(f"{label} {path} exists and is not a directory")
+    return os.listdir(path)
+
+
+def _shown(entries: list[str]) -> str:
+    """At most five of the names, sorted, for a message."""
+    return ", ".join(sorted(entries)[:5]) + (", ..." if len(entries) > 5 else "")
+
+
 def check_output(out_dir: str | os.PathLike, inputs: Iterable[tuple[str, str | os.PathLike]] = ()) -> None:
     """Refuses an output directory that hirad may not replace: one that is or contains an input,
     a link, a file, or a non-empty directory that hirad did not make or to which something
@@ -271,27 +290,16 @@ def check_output(out_dir: str | os.PathLike, inputs: Iterable[tuple[str, str | o
     real = _real(out)
     inputs = [(k, Path(p)) for k, p in inputs]
     _refuse_inputs("output", out, real, inputs)
-    try:
-        st = os.lstat(out)
-    except FileNotFoundError:
-        return
-    if stat.S_ISLNK(st.st_mode):
-        raise UnsafePathError(f"output {out} is a symbolic link; hirad makes its output directory itself "
-                              "(give the directory's real path)")
-    if not stat.S_ISDIR(st.st_mode):
-        raise UnsafePathError(f"output {out} exists and is not a directory")
-    entries = os.listdir(out)
+    entries = _directory_entries(out, "output", "its output directory", "the directory's")
     if not entries:
         return
     marker = _read_marker(out, OUTPUT_MARKER, _OUTPUT_FORMAT)
     if marker is None:
-        shown = ", ".join(sorted(entries)[:5]) + (", ..." if len(entries) > 5 else "")
-        raise UnsafePathError(f"output {out} is a directory hirad did not make and is not empty ({shown}); "
-                              "hirad replaces its whole output, so give a new or empty directory")
+        raise UnsafePathError(f"output {out} is a directory hirad did not make and is not empty "
+                              f"({_shown(entries)}); hirad replaces its whole output, so give a new or empty directory")
     foreign = _foreign_entries(out, marker)
     if foreign:
-        shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
-        raise UnsafePathError(f"output {out} holds files hirad did not write ({shown}); hirad replaces its "
+        raise UnsafePathError(f"output {out} holds files hirad did not write ({_shown(foreign)}); hirad replaces its "
                               "whole output, so move them out or give another output")
 
 
@@ -433,19 +441,10 @@ def check_link_store(store: str | os.PathLike, out_dir: str | os.PathLike,
     if _inside(real_out, real):
         raise UnsafePathError(f"links.store {store} contains the output {out}; put the store beside the output")
     _refuse_inputs("links.store", store, real, [(k, Path(p)) for k, p in inputs])
-    try:
-        st = os.lstat(store)
-    except FileNotFoundError:
-        return
-    if stat.S_ISLNK(st.st_mode):
-        raise UnsafePathError(f"links.store {store} is a symbolic link; hirad makes its link store itself "
-                              "(give the store's real path)")
-    if not stat.S_ISDIR(st.st_mode):
-        raise UnsafePathError(f"links.store {store} exists and is not a directory")
-    entries = os.listdir(store)
+    entries = _directory_entries(store, "links.store", "its link store", "the store's")
     if entries and _read_marker(store, STORE_MARKER, _STORE_FORMAT) is None:
-        shown = ", ".join(sorted(entries)[:5]) + (", ..." if len(entries) > 5 else "")
-        raise UnsafePathError(f"links.store {store} is a directory hirad did not make and is not empty ({shown}); "
+        raise UnsafePathError(f"links.store {store} is a directory hirad did not make and is not empty "
+                              f"({_shown(entries)}); "
                               "hirad clears its store's entries, so give a new or empty directory")
 
 
