@@ -14,6 +14,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from hirad import _engine
 
+from conftest import box_faces
+
 
 def write_box_scene(path: Path, size=(1.0, 1.5, 0.8), omit=(), reflectance=None, emission=None) -> Path:
     """A box [0,sx]x[0,sy]x[0,sz] (metres, Y up) of six quads facing inwards, named x0, x1, y0,
@@ -26,38 +28,23 @@ def write_box_scene(path: Path, size=(1.0, 1.5, 0.8), omit=(), reflectance=None,
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
-    size = np.asarray(size, dtype=np.float64)
-    centre = size / 2
-    for axis in range(3):
-        a, b = (axis + 1) % 3, (axis + 2) % 3
-        for side in (0, 1):
-            name = f"{'xyz'[axis]}{side}"
-            if name in omit:
-                continue
-            o = np.zeros(3)
-            o[axis] = side * size[axis]
-            u = np.zeros(3)
-            u[a] = size[a]
-            v = np.zeros(3)
-            v[b] = size[b]
-            q = np.array([o, o + u, o + u + v, o + v])
-            n = np.cross(q[1] - q[0], q[3] - q[0])
-            if np.dot(n, centre - q.mean(axis=0)) < 0:
-                q = q[::-1].copy()
-            mesh = UsdGeom.Mesh.Define(stage, f"/World/{name}")
-            mesh.CreatePointsAttr([Gf.Vec3f(*map(float, p)) for p in q])
-            mesh.CreateFaceVertexCountsAttr([4])
-            mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-            mesh.CreateSubdivisionSchemeAttr("none")
-            mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
-            sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/Surface")
-            sh.CreateIdAttr("UsdPreviewSurface")
-            sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(
-                Gf.Vec3f(*map(float, reflectance.get(name, (0.5, 0.5, 0.5)))))
-            if name in emission:
-                sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, emission[name])))
-            mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
-            UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    names = [f"{'xyz'[axis]}{side}" for axis in range(3) for side in (0, 1)]
+    kept = [name for name in names if name not in omit]  # box_faces' order and omissions
+    for name, q in zip(kept, box_faces(*map(float, size), omit=tuple(omit)), strict=True):
+        mesh = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        mesh.CreatePointsAttr([Gf.Vec3f(*map(float, p)) for p in q])
+        mesh.CreateFaceVertexCountsAttr([4])
+        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        mesh.CreateSubdivisionSchemeAttr("none")
+        mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+        sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/Surface")
+        sh.CreateIdAttr("UsdPreviewSurface")
+        sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(
+            Gf.Vec3f(*map(float, reflectance.get(name, (0.5, 0.5, 0.5)))))
+        if name in emission:
+            sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, emission[name])))
+        mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
     stage.GetRootLayer().Save()
     return path
 
@@ -69,9 +56,6 @@ def _ray_cast(corners, nv, origins, directions) -> tuple[np.ndarray, np.ndarray]
     nv = np.ascontiguousarray(nv, dtype=np.int32)
     o = np.ascontiguousarray(origins, dtype=np.float64)
     d = np.ascontiguousarray(directions, dtype=np.float64)
-    if hasattr(_engine, "ray_cast"):  # the engine's free function (before one scene object)
-        r = _engine.ray_cast(corners, nv, o, d)
-        return np.asarray(r["patch"]), np.asarray(r["back"]).astype(bool)
     r = _engine.SurfaceField(corners, nv).ray_cast(o, d)
     return np.asarray(r.patch), np.asarray(r.back).astype(bool)
 
