@@ -829,6 +829,14 @@ class RayCastResult:
     def back(self) -> NDArray[numpy.uint8]:
         """(n) 1 where a back face was hit."""
 
+    @property
+    def u(self) -> NDArray[numpy.float64]:
+        """(n) the hit's first coordinate on its patch."""
+
+    @property
+    def v(self) -> NDArray[numpy.float64]:
+        """(n) the hit's second coordinate on its patch."""
+
 class LiftResult:
     """Lightmap sample points lifted off their surface."""
 
@@ -895,3 +903,13 @@ class SurfaceField:
 
     def ray_cast(self, origins: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> RayCastResult:
         """First hits of rays (RayCastResult)."""
+
+    def camera_rays(self, position: Sequence[float], forward: Sequence[float], up: Sequence[float], vertical_fov: float, width: int, height: int) -> RayCastResult:
+        """
+        First hits of one ray through each pixel centre of the pinhole camera render uses, row 0 at the top (RayCastResult, height * width rows).
+        """
+
+def interpolate_corners(nv: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], values: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], u: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], v: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float64]:
+    """
+    Values (n, 4, 3) at patch corners read at patch coordinates (u, v) by the render's rule: bilinear on quads, barycentric on triangles (nv 3 or 4 per row).
+    """
