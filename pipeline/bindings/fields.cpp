@@ -40,6 +40,19 @@ auto quads(std::vector<std::array<U, 4>> C::*p) {
     };
 }
 
+// The pinhole camera of a render or camera_rays call.
+Camera camera_of(const std::vector<double>& pos, const std::vector<double>& fwd, const std::vector<double>& up,
+                 double fov, int width, int height) {
+    Camera cam;
+    cam.position = vec3(pos, "position");
+    cam.forward = vec3(fwd, "forward");
+    cam.up = vec3(up, "up");
+    cam.vertical_fov_degrees = fov;
+    cam.width = width;
+    cam.height = height;
+    return cam;
+}
+
 }  // namespace
 
 void bind_display(nb::module_& m) {
@@ -118,13 +131,7 @@ void bind_fields(nb::module_& m) {
         .def("render",
              [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
                 const std::vector<double>& up, double fov, int width, int height, int samples) {
-                 Camera cam;
-                 cam.position = vec3(pos, "position");
-                 cam.forward = vec3(fwd, "forward");
-                 cam.up = vec3(up, "up");
-                 cam.vertical_fov_degrees = fov;
-                 cam.width = width;
-                 cam.height = height;
+                 const Camera cam = camera_of(pos, fwd, up, fov, width, height);
                  std::vector<float> img;
                  {
                      nb::gil_scoped_release release;
@@ -174,13 +181,7 @@ void bind_fields(nb::module_& m) {
         .def("camera_rays",
              [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
                 const std::vector<double>& up, double fov, int width, int height) {
-                 Camera cam;
-                 cam.position = vec3(pos, "position");
-                 cam.forward = vec3(fwd, "forward");
-                 cam.up = vec3(up, "up");
-                 cam.vertical_fov_degrees = fov;
-                 cam.width = width;
-                 cam.height = height;
+                 const Camera cam = camera_of(pos, fwd, up, fov, width, height);
                  nb::gil_scoped_release release;
                  return s.camera_rays(cam);
              },
