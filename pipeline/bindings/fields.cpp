@@ -110,6 +110,13 @@ void bind_fields(nb::module_& m) {
         .def_prop_ro("hit_fraction", arr(&VolumeProbes::hit_fraction), kOwned, "(n) rays that hit anything.")
         .def_prop_ro("nearest", arr(&VolumeProbes::nearest), kOwned, "(n) closest hit, m (-1: none).");
 
+    nb::class_<Illuminance>(m, "Illuminance",
+                            "Illuminance at sensors, W/m^2 per RGB channel (lux when photometric).")
+        .def_prop_ro("direct", vec3s(&Illuminance::direct), kOwned,
+                     "(n, 3) from the emitter patches: exact contour integrals, shadowed per piece.")
+        .def_prop_ro("indirect", vec3s(&Illuminance::indirect), kOwned,
+                     "(n, 3) gathered by hemisphere rays from every surface's exitant radiance less its emission.");
+
     nb::class_<RayScene>(m, "SurfaceField",
                          "A solved surface as one Embree scene, built once: render, probe, lift_samples, "
                          "volume_probes and ray_cast query it.")
@@ -170,6 +177,19 @@ void bind_fields(nb::module_& m) {
              },
              "points"_a, "rays"_a = 256, "seed"_a = 1,
              "Full-sphere radiance moments at points in empty space (VolumeProbes).")
+        .def("illuminance",
+             [](const RayScene& s, In<double> p, In<double> nrm, In<double> emitted, int rays, uint64_t seed,
+                int emitter_samples) {
+                 auto pts = vec3_rows(p, "points");
+                 auto nor = vec3_rows(nrm, "normals", long(pts.size()));
+                 auto le = vec3_rows(emitted, "emitted_radiance", long(s.size()));
+                 nb::gil_scoped_release release;
+                 return s.illuminance(pts, nor, le, IlluminanceOptions{rays, emitter_samples, seed});
+             },
+             "points"_a, "normals"_a, "emitted_radiance"_a, "rays"_a = 512, "seed"_a = 1, "emitter_samples"_a = 4,
+             "Illuminance on small planes at points (n, 3) facing unit normals (n, 3), anywhere: the direct light "
+             "of the patches whose emitted_radiance (patches, 3) W/(m^2 sr) is positive, exact where unoccluded, "
+             "plus the indirect light of the rest by `rays` cosine-distributed hemisphere rays (Illuminance).")
         .def("ray_cast",
              [](const RayScene& s, In<double> o, In<double> d) {
                  auto org = vec3_rows(o, "origins");

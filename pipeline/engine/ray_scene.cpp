@@ -90,6 +90,11 @@ VolumeProbes RayScene::volume_probes(const std::vector<Vec3>& points, int rays, 
     return v;
 }
 
+Illuminance RayScene::illuminance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                  const std::vector<RGB>& emitted, const IlluminanceOptions& options) const {
+    return illuminance_at(patches_, *visibility_, radiance_, emitted, points, normals, options);
+}
+
 RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<Vec3>& d) const {
     if (o.size() != d.size()) throw std::invalid_argument("origins and directions differ in length");
     const size_t n = o.size();

@@ -6,6 +6,8 @@
 //   lift_samples    lightmap sample points lifted off their surface and out of geometry
 //   volume_probes   full-sphere radiance moments at points in empty space (volume.h)
 //   ray_cast        first hits of arbitrary rays
+//   illuminance     a calculation grid's sensors: exact direct light plus gathered indirect
+//                   light at points anywhere, facing any way (illuminance.h)
 // Units: metres; radiance W/(m^2 sr), irradiance W/m^2.
 #pragma once
 #include <array>
@@ -15,6 +17,7 @@
 
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/visibility.h"
+#include "pipeline/outputs/illuminance.h"
 #include "pipeline/outputs/render.h"
 #include "pipeline/outputs/volume.h"
 
@@ -73,6 +76,9 @@ public:
     LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon, double reach,
                             const std::vector<Vec3>* anchors = nullptr) const;
     VolumeProbes volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const;
+    // Illuminance at sensors (illuminance.h): `emitted` per patch is its self-emitted radiance.
+    Illuminance illuminance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                            const std::vector<RGB>& emitted, const IlluminanceOptions& options) const;
     RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
     // ray_cast of one ray through each pixel centre of the camera (row 0 at the top).
     RayCastResult camera_rays(const Camera& camera) const;

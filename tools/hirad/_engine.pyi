@@ -871,6 +871,21 @@ class VolumeProbes:
     def nearest(self) -> NDArray[numpy.float64]:
         """(n) closest hit, m (-1: none)."""
 
+class Illuminance:
+    """Illuminance at sensors, W/m^2 per RGB channel (lux when photometric)."""
+
+    @property
+    def direct(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3) from the emitter patches: exact contour integrals, shadowed per piece.
+        """
+
+    @property
+    def indirect(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3) gathered by hemisphere rays from every surface's exitant radiance less its emission.
+        """
+
 class SurfaceField:
     """
     A solved surface as one Embree scene, built once: render, probe, lift_samples, volume_probes and ray_cast query it.
@@ -900,6 +915,11 @@ class SurfaceField:
 
     def volume_probes(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int = 256, seed: int = 1) -> VolumeProbes:
         """Full-sphere radiance moments at points in empty space (VolumeProbes)."""
+
+    def illuminance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], emitted_radiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int = 512, seed: int = 1, emitter_samples: int = 4) -> Illuminance:
+        """
+        Illuminance on small planes at points (n, 3) facing unit normals (n, 3), anywhere: the direct light of the patches whose emitted_radiance (patches, 3) W/(m^2 sr) is positive, exact where unoccluded, plus the indirect light of the rest by `rays` cosine-distributed hemisphere rays (Illuminance).
+        """
 
     def ray_cast(self, origins: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> RayCastResult:
         """First hits of rays (RayCastResult)."""

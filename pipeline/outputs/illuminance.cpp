@@ -1,0 +1,139 @@
+#include "pipeline/outputs/illuminance.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "pipeline/geometry/formfactors.h"
+
+namespace hirad {
+
+namespace {
+
+void tangent_frame(const Vec3& n, Vec3& t1, Vec3& t2) {
+    const Vec3 a = std::fabs(n.x) < 0.9 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+    t1 = normalize(cross(n, a));
+    t2 = cross(n, t1);
+}
+
+Patch piece(const Patch& parent, std::array<Vec3, 4> p, int nv) {
+    Patch q = parent;
+    q.p = p;
+    q.nv = nv;
+    if (nv == 3) q.p[3] = q.p[2];
+    finish_patch(q, PatchCentroid::AreaWeighted);
+    return q;
+}
+
+}  // namespace
+
+std::vector<Patch> patch_pieces(const Patch& patch, int g) {
+    g = std::max(1, g);
+    std::vector<Patch> out;
+    out.reserve(size_t(g) * g);
+    if (patch.nv == 4) {
+        auto at = [&](int i, int j) {  // bilinear grid point: i along corner 0-1, j along 0-3
+            const double s = double(i) / g, t = double(j) / g;
+            return patch.p[0] * ((1 - s) * (1 - t)) + patch.p[1] * (s * (1 - t)) + patch.p[2] * (s * t) +
+                   patch.p[3] * ((1 - s) * t);
+        };
+        for (int j = 0; j < g; ++j)
+            for (int i = 0; i < g; ++i) out.push_back(piece(patch, {at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)}, 4));
+        return out;
+    }
+    auto at = [&](int i, int j) {  // barycentric grid: i steps towards corner 1, j towards corner 2
+        return patch.p[0] + (patch.p[1] - patch.p[0]) * (double(i) / g) + (patch.p[2] - patch.p[0]) * (double(j) / g);
+    };
+    for (int j = 0; j < g; ++j)
+        for (int i = 0; i + j < g; ++i) {
+            out.push_back(piece(patch, {at(i, j), at(i + 1, j), at(i, j + 1), Vec3{}}, 3));
+            if (i + j + 1 < g) out.push_back(piece(patch, {at(i + 1, j), at(i + 1, j + 1), at(i, j + 1), Vec3{}}, 3));
+        }
+    return out;
+}
+
+Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
+                           const std::vector<std::array<RGB, 4>>& corner_radiance, const std::vector<RGB>& emitted,
+                           const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                           const IlluminanceOptions& o) {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    if (emitted.size() != patches.size())
+        throw std::invalid_argument("emitted_radiance: " + std::to_string(emitted.size()) + " rows for " +
+                                    std::to_string(patches.size()) + " patches");
+    if (corner_radiance.size() != patches.size()) throw std::invalid_argument("corner radiance: one row per patch");
+    if (o.rays < 0 || o.emitter_samples < 1 || o.emitter_samples > 64)
+        throw std::invalid_argument("rays must be >= 0 and emitter_samples in 1 .. 64");
+    for (size_t q = 0; q < points.size(); ++q) {
+        if (!isfinite(points[q]) || !isfinite(normals[q]) || !(length(normals[q]) > 0))
+            throw std::invalid_argument("sensor " + std::to_string(q) + ": the point and a non-zero normal must be finite");
+    }
+    for (size_t i = 0; i < emitted.size(); ++i)
+        if (!isfinite(emitted[i]) || emitted[i].x < 0 || emitted[i].y < 0 || emitted[i].z < 0)
+            throw std::invalid_argument("emitted_radiance: patch " + std::to_string(i) + " is negative or not finite");
+
+    // The emitters, cut once into pieces; a piece's shadow ray ends just off its surface.
+    struct Piece { Patch shape; Vec3 target; RGB le; };
+    std::vector<Piece> pieces;
+    const double lift = 1e-7 * visibility.scene_size();
+    for (size_t i = 0; i < patches.size(); ++i) {
+        if (max_component(emitted[i]) <= 0) continue;
+        for (Patch& s : patch_pieces(patches[i], o.emitter_samples))
+            pieces.push_back({s, s.centroid + s.normal * lift, emitted[i]});
+    }
+
+    const size_t n = points.size();
+    Illuminance out;
+    out.direct.assign(n, RGB{});
+    out.indirect.assign(n, RGB{});
+    const int k = o.rays > 0 ? std::max(1, int(std::ceil(std::sqrt(double(o.rays))))) : 0;
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+        const Vec3 x = points[q], nx = normalize(normals[q]);
+        // direct: exact contour integrals, one shadow ray per piece that is seen at all
+        std::vector<double> f;
+        std::vector<uint32_t> which;
+        std::vector<Vec3> from, to;
+        for (uint32_t m = 0; m < pieces.size(); ++m) {
+            const Patch& s = pieces[m].shape;
+            const double ff = point_polygon_form_factor(x, nx, s.p.data(), s.nv, s.normal);
+            if (!(ff > 0)) continue;
+            f.push_back(ff);
+            which.push_back(m);
+            from.push_back(x);
+            to.push_back(pieces[m].target);
+        }
+        if (!from.empty()) {
+            std::vector<uint8_t> seen(from.size());
+            visibility.segments_visible(from.data(), to.data(), from.size(), seen.data());
+            RGB e{};
+            for (size_t a = 0; a < from.size(); ++a)
+                if (seen[a]) e += pieces[which[a]].le * (kPi * f[a]);
+            out.direct[q] = e;
+        }
+        if (k == 0) return;
+        // indirect: cosine-distributed stratified rays (Malley: uniform on the disk, lifted)
+        Vec3 t1, t2;
+        tangent_frame(nx, t1, t2);
+        Rng rng(hash_pair(q, 0x11C0ull, o.seed));
+        RGB sum{};
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) {
+                const double r = std::sqrt((i + rng.uniform()) / k), phi = 2 * kPi * (j + rng.uniform()) / k;
+                const double a = r * std::cos(phi), b = r * std::sin(phi), c = std::sqrt(std::max(0.0, 1 - r * r));
+                const Vec3 d = normalize(t1 * a + t2 * b + nx * c);
+                const RayHit hit = visibility.intersect(x, d, lift);
+                if (hit.patch < 0) continue;
+                const Patch& p = patches[hit.patch];
+                if (dot(p.normal, d) >= 0) continue;  // the back of a one-sided surface
+                RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) - emitted[hit.patch];
+                l = {std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
+                sum += l;
+            }
+        out.indirect[q] = sum * (kPi / (double(k) * k));
+    });
+    return out;
+}
+
+}  // namespace hirad

@@ -1,0 +1,58 @@
+// Illuminance at arbitrary points: the read-out of a lighting study's calculation grid.
+//
+// A sensor is a small plane at a point x facing a unit normal n, anywhere in the scene (in
+// free space above a floor, on a wall, at an eye). Its illuminance is
+//   E(x, n) = integral over the hemisphere of n of L(x, w) cos(n, w) dw
+// split into two parts that are evaluated differently:
+//   direct    the light of every emitter patch (a patch with self-emitted radiance Le > 0),
+//             integrated exactly: each emitter is cut into g x g pieces and each piece
+//             contributes pi Le F(dA_x -> piece) V, where F is Lambert's contour integral
+//             (formfactors.h, exact for the unoccluded polygon, clipped to the sensor's
+//             hemisphere) and V is one shadow ray from x to the piece's centre. A fully
+//             visible emitter is therefore exact to rounding; a partly hidden one is resolved
+//             to g x g pieces.
+//   indirect  everything else the surfaces send: cosine-distributed, stratified rays
+//             (k x k strata, k = ceil(sqrt(rays))) over the hemisphere; a ray that hits the
+//             front of a patch brings (L_corner interpolated - Le) of that patch, a ray that
+//             hits a back face or escapes brings nothing; E_ind = pi x the mean.
+// So the self-emission of an emitter is counted once, in the exact part, and its reflected
+// light (an emitter with a reflectance) in the sampled one. The sensor is never snapped to a
+// surface: its value is that of the point itself.
+//
+// Units: metres; radiance W/(m^2 sr); illuminance W/m^2 per RGB channel (lux when the scene's
+// quantities are photometric). Deterministic: each point draws from its own seed.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
+
+namespace hirad {
+
+struct IlluminanceOptions {
+    int rays = 512;            // hemisphere rays for the indirect part (0: direct only)
+    int emitter_samples = 4;   // g: each emitter patch cut into g x g pieces for its visibility
+    uint64_t seed = 1;
+};
+
+struct Illuminance {
+    std::vector<RGB> direct;    // from the emitter patches, exact where unoccluded, W/m^2
+    std::vector<RGB> indirect;  // from every other surface's exitant radiance, W/m^2
+};
+
+// `corner_radiance` (per patch, 4 corners) is the full exitant radiance; `emitted` (per patch)
+// its self-emitted part Le, W/(m^2 sr). Throws std::invalid_argument on mismatched lengths,
+// a zero normal or non-finite input.
+Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
+                           const std::vector<std::array<RGB, 4>>& corner_radiance, const std::vector<RGB>& emitted,
+                           const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                           const IlluminanceOptions& options);
+
+// The g x g pieces of a patch as polygons (quads: bilinear sub-quads, planar when the patch
+// is; triangles: the g^2 triangles of its barycentric grid, repeated corner 2 as corner 3).
+// Their areas sum to the patch's. Exposed for tests.
+std::vector<Patch> patch_pieces(const Patch& patch, int g);
+
+}  // namespace hirad
