@@ -24,6 +24,7 @@ from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
 from .report import Reporter, energy_balance, write_json
 from .solution import Result, SurfaceSolution, load_solution  # noqa: F401  (the API: hirad.bake.load_solution)
+from .studies import StudyError, build_grids, evaluate_grids, resolve_room
 
 
 # --------------------------------------------------------------------------------------
@@ -73,6 +74,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     # there is an existing directory that could hold them; the layers are kept open until the
     # scene is read, so reading it parses nothing twice.
     inputs: list[tuple[str, Path]] = [("scene", Path(cfg.scene))] + ([("config", source)] if source else [])
+    inputs += [("grid points file", Path(spec.file)) for spec in cfg.grids.values() if spec.kind == "points"]
     scene_layers: list = []
     if os.path.lexists(out_dir) or (store is not None and os.path.lexists(store)):
         layer_paths, scene_layers = files.scene_files(cfg.scene)
@@ -110,6 +112,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
     for w in cfg.ignored_settings():
         rep.warn(w)
+    grids = _build_config_grids(cfg, scene, source) if cfg.grids else []
 
     with rep.stage("build scene"):
         model = build_engine(scene)
@@ -146,10 +149,13 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     result = Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
                     vertex_radiance[faces], vertex_irradiance[faces],
                     cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
-                    patches=patches, _model=model, hierarchical=cfg.method == "hierarchical")
+                    patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
+                    emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi))
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
+    for pm, fids in zip(meshes, mesh_faces):  # the emitters, for `hirad grid` on the stored layer
+        pm.face_emission = patches["emission"][display["face_patch"][fids]]
     if cfg.outputs.lightmaps.enabled:
         with rep.stage("lightmaps"):
             outputs["lightmaps"], outputs["lightmap_atlas"] = write_lightmaps(
@@ -177,6 +183,20 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             outputs["preview"] = ["preview.png", "preview.exr"]
     if snapshot_cb:
         outputs["snapshots"] = "snapshots/"
+    grid_report = None
+    if grids:
+        with rep.stage("grids", total=len(grids)) as update:
+            results = evaluate_grids(grids, result.illuminance_evaluator(GRID_RAYS, cfg.seed),
+                                     maintenance_factor=cfg.maintenance_factor)
+            update(len(grids), f"{len(grids)} grids")
+            grid_report = write_grid_study(
+                results, staging / "grids", units=cfg.units, maintenance_factor=cfg.maintenance_factor,
+                seed=cfg.seed, rays=GRID_RAYS, title=f"Lighting study: {Path(cfg.scene).name}",
+                solver={"method": f"{cfg.method}, {method}", "iterations": solved.iterations,
+                        "residual": solved.residual, "tolerance": cfg.solver.tolerance,
+                        "energy balance (max relative error)": balance.get("max_relative_error")},
+                warn=rep.warn)
+        outputs["grids"] = "grids/"
 
     stats = model.stats()
     hierarchical = cfg.method == "hierarchical"
@@ -235,6 +255,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             "last_solve": streaming_dict(solved.streaming),
         },
         "energy_balance": balance,
+        "grids": grid_report,
         "outputs": outputs,
         "warnings": rep.warnings,
     }
@@ -242,6 +263,86 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         write_json(staging / "report.json", report)
     result.report = report
     return result
+
+
+# --------------------------------------------------------------------------------------
+# calculation grids
+# --------------------------------------------------------------------------------------
+
+# Hemisphere rays per sensor point for the grids' indirect light (hirad grid --rays's default).
+GRID_RAYS = 512
+UNITS = {
+    "photometric": {"illuminance": "lx", "luminance": "cd/m2", "exitance": "lm/m2"},
+    "radiometric": {"illuminance": "W/m2", "luminance": "W/(m2 sr)", "exitance": "W/m2"},
+}
+_RADIOMETRIC_TEXT = ("Radiometric units: the values labelled lx are irradiance in W/m², luminance values are "
+                     "radiance in W/(m² sr), exitance W/m²; lengths in metres (m). Each value is Y = 0.2126 R + "
+                     "0.7152 G + 0.0722 B of the linear Rec.709 channels. Maintained values are the maintenance "
+                     "factor × the values of the new installation; U0 = Emin/Em and Ud = Emin/Emax are ratios.")
+
+
+def _build_config_grids(cfg: Config, scene, source: Path | None) -> list:
+    """The config's grids, built before anything is solved (in the scene's up axis); a grid
+    that cannot be built is a ConfigError at its key (`grids.NAME`)."""
+    from .config import ConfigError
+    from .config.errors import DICT_SOURCE
+    from .config.loader import config_line
+
+    rooms = {}
+    out = []
+    for name, spec in cfg.grids.items():
+        try:
+            room = getattr(spec, "room", None)
+            if room is not None and spec.polygon is None and spec.polygons is None and room not in rooms:
+                rooms[room] = _room_polygons(cfg.scene, room, scene.up_axis)
+            out += build_grids({name: spec}, up_axis=scene.up_axis, rooms=rooms)
+        except StudyError as e:
+            line = config_line(source, ("grids", name)) if source is not None else 0
+            raise ConfigError(str(source) if source is not None else DICT_SOURCE, line, f"grids.{name}",
+                              str(e)) from None
+    return out
+
+
+def _room_polygons(stage_path, room: str, up_axis: str) -> list:
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(stage_path))
+    if stage is None:
+        raise StudyError(f"room {room}: cannot open {stage_path}")
+    return resolve_room(stage, room, up_axis)
+
+
+def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: float, seed: int, rays: int,
+                     title: str, solver: dict, subtitle: str = "", warn=None) -> dict:
+    """Writes the evaluated grids into `out_dir` (per grid NAME.csv, NAME.json, NAME.png;
+    report.html and, when WeasyPrint works, report.pdf) and returns what report.json says of
+    them: units, maintenance factor, seed, rays and each grid's statistics."""
+    from .studies.report import UNITS_TEXT, Study, pdf_engine, write_report_pdf, write_study
+
+    study = Study(results=results, maintenance_factor=maintenance_factor, title=title, subtitle=subtitle,
+                  units=UNITS_TEXT if units == "photometric" else _RADIOMETRIC_TEXT,
+                  solver={**solver, "units": units, "grid seed": seed, "rays per point": rays})
+    written = write_study(study, out_dir, pdf=False)
+    pdf = None
+    if pdf_engine("auto") == "weasyprint":
+        try:
+            pdf = write_report_pdf(study, out_dir / "report.pdf", "weasyprint")
+        except (StudyError, OSError) as e:
+            if isinstance(e, files.WriteError):
+                raise
+            if warn is not None:
+                warn(f"grids: report.pdf not written ({e})")
+    names = [Path(f).name for f in written["files"]] + (["report.pdf"] if pdf else [])
+    return {
+        "units": units,
+        "quantity": "Y = 0.2126 R + 0.7152 G + 0.0722 B of the illuminance (linear Rec.709)",
+        "unit": UNITS[units]["illuminance"],
+        "maintenance_factor": maintenance_factor,
+        "seed": seed,
+        "rays": rays,
+        "files": names,
+        "grids": {r.name: r.stats.as_dict() for r in results},
+    }
 
 
 def _thin(history: list, most: int) -> list:

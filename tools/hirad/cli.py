@@ -69,6 +69,7 @@ def _run_guarded(fn):
     from .bake import BakeError, OptionError
     from .config import ConfigError
     from .files import UnsafePathError
+    from .studies import StudyError
     from .usd import SceneError
 
     try:
@@ -89,7 +90,7 @@ def _run_guarded(fn):
             traceback.print_exc()
         if isinstance(e, KeyboardInterrupt):
             raise typer.Exit(130)
-        if isinstance(e, (ConfigError, UnsafePathError, OptionError)):
+        if isinstance(e, (ConfigError, UnsafePathError, OptionError, StudyError)):
             _fail(str(e), EXIT_USAGE)
         if isinstance(e, SceneError):
             _fail(str(e), EXIT_SCENE)
@@ -329,6 +330,78 @@ def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML confi
         write_reference_csv(scene, points, None, paths, seed, max_distance, buf)
         files.write_text(output, buf.getvalue())
         files.note_written(output)
+
+    _run_guarded(go)
+
+
+@app.command()
+def grid(solution: Path = typer.Argument(..., help="solution.usda written by `hirad bake`"),
+         study: Path = typer.Argument(..., help="YAML of maintenance_factor, up_axis and grids: (as a config's grids)"),
+         output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                               help="Directory to write [grids-<study stem> beside the solution]"),
+         units: str = typer.Option("photometric", "--units", help="photometric (lux) or radiometric (W/m^2)"),
+         rays: int = typer.Option(512, "--rays", min=1, max=65536, help="Hemisphere rays per point (indirect light)"),
+         seed: int = typer.Option(1, "--seed", min=0, help="Random seed (the bake's `seed` gives the bake's values)")):
+    """Calculation grids on a stored solution, without solving: per grid CSV, JSON and a
+    false-colour PNG, and the study report (HTML, PDF), in lux (Rec.709 Y)."""
+    from . import __version__, files
+
+    if units not in ("photometric", "radiometric"):
+        _fail(f"--units {units!r}: photometric or radiometric")
+    out = output or solution.parent / f"grids-{study.stem}"
+
+    def go():
+        import json
+
+        from .bake import write_grid_study
+        from .solution import load_solution
+        from .studies import build_grids, evaluate_grids, load_study, resolve_room
+
+        spec = load_study(study)
+        inputs = _solution_inputs(solution) + [("grid file", study)]
+        inputs += [("grid points file", (study.parent / g.file)) for g in spec.grids.values() if g.kind == "points"]
+        files.check_output(out, inputs)
+        sol = load_solution(solution)
+        if sol.emitted_radiance is None:
+            sol.illuminance(np.zeros((0, 3)), np.zeros((0, 3)))  # the layer predates emission: say so
+        up_axis = spec.up_axis if "up_axis" in spec.model_fields_set else sol.up_axis
+        rooms = {}
+        for g in spec.grids.values():
+            room = getattr(g, "room", None)
+            if room is not None and g.polygon is None and g.polygons is None and room not in rooms:
+                from pxr import Usd
+
+                rooms[room] = resolve_room(Usd.Stage.Open(str(solution)), room, up_axis)
+        grids = build_grids(spec, up_axis=up_axis, base_dir=study.parent.absolute(), rooms=rooms)
+        results = evaluate_grids(grids, sol.illuminance_evaluator(rays, seed),
+                                 maintenance_factor=spec.maintenance_factor)
+        solver = {}
+        report_path = solution.parent / "report.json"
+        try:
+            rep = json.loads(report_path.read_text(encoding="utf-8"))
+            solver = {"method": f"{rep['method']}, {rep['solver']['method']}",
+                      "iterations": rep["solver"]["iterations"], "residual": rep["solver"]["residual"],
+                      "tolerance": rep["solver"]["tolerance"],
+                      "energy balance (max relative error)": rep["energy_balance"]["max_relative_error"],
+                      "baked by hirad": rep.get("hirad_version")}
+        except (OSError, ValueError, KeyError, TypeError):
+            solver = {"solver figures": f"not known ({report_path} not readable)"}
+        staging = files.make_staging(out, __version__)
+        with files.removed_on_failure(staging):
+            summary = write_grid_study(results, staging, units=units, maintenance_factor=spec.maintenance_factor,
+                                       seed=seed, rays=rays, title=f"Lighting study: {study.stem}",
+                                       subtitle=f"solution {solution}", solver=solver,
+                                       warn=lambda w: print(f"hirad: warning: {w}", file=sys.stderr))
+            files.write_json(staging / "grids.json", {"hirad_version": __version__, "solution": str(solution),
+                                                      "study": str(study), **summary})
+            files.finish_staging(staging, __version__)
+            files.replace_output(staging, out, inputs)
+        files.remove_stale_staging(out)
+        for name, st in summary["grids"].items():
+            u0 = "-" if st["u0"] is None else f"{st['u0']:.3f}"
+            print(f"{name}: Em {st['em']:.4g} {summary['unit']}, Emin {st['emin']:.4g}, Emax {st['emax']:.4g}, "
+                  f"U0 {u0}")
+        print(out)
 
     _run_guarded(go)
 

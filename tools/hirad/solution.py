@@ -17,6 +17,16 @@ from .errors import BakeError
 # default, and the API's.
 PROBE_MAX_DISTANCE = 0.05
 
+# Rec.709 / sRGB primaries: the photometric Y of linear RGB (the grids report Y).
+REC709_Y = np.array([0.2126, 0.7152, 0.0722])
+# Hemisphere rays per sensor point for the indirect light of `illuminance` (the grids' default).
+ILLUMINANCE_RAYS = 512
+
+
+def luminance_y(rgb) -> np.ndarray:
+    """Y = 0.2126 R + 0.7152 G + 0.0722 B of linear Rec.709 RGB (..., 3) -> (...)."""
+    return np.asarray(rgb, dtype=np.float64) @ REC709_Y
+
 
 # --------------------------------------------------------------------------------------
 # results
@@ -33,7 +43,11 @@ class SurfaceSolution:
     corner_irradiance: np.ndarray  # (P,4,3) W/m^2
     cameras: list = field(default_factory=list)
     up_axis: str = "Y"
+    # (P,3) self-emitted radiance E/pi of each patch, W/(m^2 sr), 0 for non-emitters; None when
+    # unknown (a solution layer written before hirad stored primvars:hirad:emission)
+    emitted_radiance: np.ndarray | None = None
     _field: object = None
+    source: str | None = None  # the solution layer this was read from, for messages
 
     @property
     def field(self) -> "_engine.SurfaceField":
@@ -81,6 +95,37 @@ class SurfaceSolution:
         `points`; NaN for a point with no surface within `max_distance` metres (default 0.05,
         as `hirad probe`). See `query`."""
         return self.query(points, normals, max_distance)["radiance"]
+
+    def illuminance(self, points, normals, rays: int = ILLUMINANCE_RAYS, seed: int = 1,
+                    emitter_samples: int = 4) -> np.ndarray:
+        """Illuminance (W/m^2 per RGB channel; lux read photometrically) on small planes at
+        `points` (K,3) facing the unit `normals` (K,3), at the points themselves (no snapping
+        to a surface): the direct light of the emitting patches exactly (contour integrals,
+        with visibility) plus the indirect light of every other surface by `rays` hemisphere
+        rays (seeded: the same seed gives the same values). Returns (K,3) direct + indirect."""
+        if self.emitted_radiance is None:
+            from .usd import SceneError
+
+            where = f"{self.source}: " if self.source else ""
+            raise SceneError(f"{where}the solution layer predates primvars:hirad:emission (the emission of each "
+                             "face, which tells the emitters from the lit surfaces); bake the scene again with this "
+                             "hirad to evaluate grids on it")
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals: {len(nrm)} rows for {len(pts)} points")
+        emitted = np.ascontiguousarray(self.emitted_radiance, dtype=np.float64)
+        if emitted.shape != (len(self.corners), 3):
+            raise ValueError(f"emitted_radiance has shape {emitted.shape}, expected ({len(self.corners)}, 3)")
+        res = self.field.illuminance(pts, nrm, emitted, int(rays), int(seed), int(emitter_samples))
+        return np.asarray(res.direct, dtype=np.float64) + np.asarray(res.indirect, dtype=np.float64)
+
+    def illuminance_evaluator(self, rays: int = ILLUMINANCE_RAYS, seed: int = 1):
+        """`evaluate(points, normals) -> (K,)`, Rec.709 Y of `illuminance`, for
+        hirad.studies.evaluate_grids."""
+        def evaluate(points, normals):
+            return luminance_y(self.illuminance(points, normals, rays=rays, seed=seed))
+        return evaluate
 
     def render(self, camera: str | None = None, width: int = 512, height: int = 512,
                samples: int = 4) -> np.ndarray:
@@ -133,7 +178,8 @@ class Result(SurfaceSolution):
 def load_solution(path: str | os.PathLike) -> SurfaceSolution:
     """Opens a solution layer written by a bake, for rendering or probing without solving."""
     data = usd.read_solution_layer(path)
-    corners, nv, rad, irr = [], [], [], []
+    corners, nv, rad, irr, emitted = [], [], [], [], []
+    has_emission = all(m.face_emission is not None for m in data.meshes)
     for m in data.meshes:
         counts = np.asarray(m.face_vertex_counts)
         offsets = np.concatenate([[0], np.cumsum(counts)])
@@ -147,8 +193,12 @@ def load_solution(path: str | os.PathLike) -> SurfaceSolution:
             rad.append(m.vertex_radiance[ids4])
             irr.append(m.vertex_irradiance[ids4])
             nv.append(c)
+            if has_emission:
+                emitted.append(m.face_emission[f] / np.pi)
     if not corners:
         raise BakeError(f"{path}: the solution has no faces")
     return SurfaceSolution(np.ascontiguousarray(corners, dtype=np.float64), np.asarray(nv, dtype=np.int32),
                            np.ascontiguousarray(rad, dtype=np.float64), np.ascontiguousarray(irr, dtype=np.float64),
-                           cameras=data.cameras, up_axis=data.up_axis)
+                           cameras=data.cameras, up_axis=data.up_axis,
+                           emitted_radiance=np.ascontiguousarray(emitted, dtype=np.float64) if has_emission else None,
+                           source=str(path))

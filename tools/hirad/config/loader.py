@@ -17,6 +17,7 @@ from pydantic import (
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from .errors import ConfigError, DICT_SOURCE
 from .schema import Config
+from hirad.studies.spec import CorridorGrid, PointsGrid, RectangleGrid, WorkplaneGrid
 
 
 # --------------------------------------------------------------------------
@@ -177,7 +178,28 @@ def _check_keys(node: Optional[Node], loc: tuple[Any, ...], found: list[tuple[in
             _check_keys(item, loc + (i,), found, seen_nodes)
 
 
+# A grid's error location from pydantic carries the discriminator's tag after the grid's name
+# (grids.office.workplane.spacing); the YAML has no such key.
+_GRID_TAGS = {"workplane": WorkplaneGrid, "corridor": CorridorGrid, "rectangle": RectangleGrid, "points": PointsGrid}
+
+
+def _grid_loc(loc: tuple[Any, ...]) -> tuple[tuple[Any, ...], Optional[type[BaseModel]]]:
+    """`loc` without a grid's discriminator tag, and the grid model the tag names (or None)."""
+    if len(loc) >= 3 and loc[0] == "grids" and loc[2] in _GRID_TAGS:
+        return loc[:2] + loc[3:], _GRID_TAGS[loc[2]]
+    return loc, None
+
+
 def _model_at(loc: tuple[Any, ...]) -> Optional[type[BaseModel]]:
+    loc, grid = _grid_loc(loc)
+    if grid is not None:
+        loc, model = loc[2:], grid
+        for part in loc:
+            field = model.model_fields.get(part) if isinstance(part, str) else None
+            if field is None or not (isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel)):
+                return None
+            model = field.annotation
+        return model
     model: Any = Config
     for part in loc:
         if not (isinstance(model, type) and issubclass(model, BaseModel)):
@@ -198,7 +220,7 @@ def _describe(err: dict[str, Any]) -> str:
         return "required key is missing"
     if kind == "extra_forbidden":
         problem = "unknown key"
-        model = _model_at(loc[:-1])
+        model = _model_at(loc[:-1]) if not (len(loc) == 4 and loc[0] == "grids") else _GRID_TAGS.get(loc[2])
         if model is not None and isinstance(loc[-1], str):
             close = difflib.get_close_matches(loc[-1], list(model.model_fields), n=1)
             if close:
@@ -236,14 +258,46 @@ def _validate(
         config = Config.model_validate(data, context={"base_dir": base_dir, "name": name})
     except ValidationError as exc:
         for err in exc.errors(include_url=False):
-            loc = tuple(err["loc"])
+            loc = _grid_loc(tuple(err["loc"]))[0]
             line = _locate(root, loc) if root is not None else 0
             problems.append(ConfigError(file, line, _format_key(loc), _describe(err)))
+    else:
+        for loc, problem in _grid_file_problems(config):
+            problems.append(ConfigError(file, _locate(root, loc) if root is not None else 0, _format_key(loc), problem))
+    if problems:
         problems.sort(key=lambda e: e.line)
         first = problems[0]
         first.errors = problems
         raise first from None
     return config
+
+
+def _grid_file_problems(config: Config) -> list[tuple[tuple[Any, ...], str]]:
+    """Points grids whose file (resolved against the config's folder) is not a readable file."""
+    out = []
+    for name, spec in config.grids.items():
+        if isinstance(spec, PointsGrid):
+            path = Path(spec.file)
+            if not path.exists():
+                out.append((("grids", name, "file"), f"grid points file not found: {path}"))
+            elif not path.is_file():
+                out.append((("grids", name, "file"), f"grid points file is not a file: {path}"))
+    return out
+
+
+def config_line(file: Union[str, os.PathLike[str]], loc: tuple[Any, ...]) -> int:
+    """The line of the key at `loc` in a config file (its deepest existing ancestor's; 0 when
+    the file cannot be read again), for errors found after loading (a grid that has no
+    point, found when the scene's up axis is known)."""
+    try:
+        loader = _Loader(_read_text(os.fspath(file)))
+        try:
+            root = loader.get_single_node()
+        finally:
+            loader.dispose()
+    except (ConfigError, yaml.YAMLError, _TooBig, RecursionError):
+        return 0
+    return _locate(root, loc) if root is not None else 0
 
 
 # --------------------------------------------------------------------------

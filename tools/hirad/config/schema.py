@@ -19,6 +19,9 @@ from pydantic import (
     field_validator,
 )
 
+from hirad.studies.spec import GridSpec, PointsGrid
+from hirad.studies.spec import _NAME as _GRID_NAME
+
 
 # --------------------------------------------------------------------------
 # Schema
@@ -569,6 +572,43 @@ class Config(BaseModel):
         default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
     )
     outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="What to write.")
+    grids: dict[StrictStr, GridSpec] = Field(
+        default_factory=dict,
+        description=(
+            "Calculation grids evaluated after the solve (hirad.studies.spec: workplane, corridor,"
+            " rectangle, points), by name (letters, digits, _ . -; the name names the files in"
+            " OUT/grids/). Each point's illuminance is computed at the point itself (direct light"
+            " of the emitters exactly, indirect light gathered from the solution), as Rec.709 Y."
+            " A points grid's `file` is relative to the config file's directory."
+        ),
+    )
+    maintenance_factor: Annotated[float, Strict(), Field(gt=0.0, le=1.0)] = Field(
+        default=1.0,
+        description=(
+            "Maintenance factor MF in (0, 1] of the grids: maintained illuminance = MF x the"
+            " illuminance of the new installation (EN 12464-1; 1.0 reports the new values)."
+        ),
+    )
+    units: Literal["photometric", "radiometric"] = Field(
+        default="photometric",
+        description=(
+            "How the grids and the study report name the numbers: photometric (exitance lm/m^2,"
+            " illuminance lux, luminance cd/m^2) or radiometric (the same numbers as W/m^2 and"
+            " W/(m^2 sr)). Grids report Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear RGB."
+        ),
+    )
+
+    @field_validator("grids", mode="after")
+    @classmethod
+    def _grid_files(cls, value: dict, info: ValidationInfo) -> dict:
+        out = {}
+        for name, spec in value.items():
+            if not _GRID_NAME.match(name):
+                raise ValueError(f"grid name {name!r}: use letters, digits, '_', '.' and '-' (it names files)")
+            if isinstance(spec, PointsGrid):
+                spec = spec.model_copy(update={"file": str(_absolute(Path(spec.file), info))})
+            out[name] = spec
+        return out
 
     @field_validator("scene", mode="after")
     @classmethod

@@ -45,6 +45,9 @@ class PatchMeshData:
     # the mesh's (area-weighted) reflectance and emitted radiance E/pi, RGB
     lightmap_albedo: tuple[float, float, float] | None = None
     lightmap_emission: tuple[float, float, float] | None = None
+    # (F,3) self-emitted exitance E of each face, W/m^2 (primvars:hirad:emission, uniform):
+    # what `hirad grid` needs to tell the emitters from the rest; None in layers written before
+    face_emission: np.ndarray | None = None
 
 
 @dataclass
@@ -113,6 +116,8 @@ def _check_patch(pm: PatchMeshData, n_meshes: int):
     shape(pm.vertex_irradiance, P, "vertex_irradiance")
     shape(pm.face_radiance, F, "face_radiance")
     shape(pm.face_irradiance, F, "face_irradiance")
+    if pm.face_emission is not None:
+        shape(pm.face_emission, F, "face_emission")
     if pm.lightmap_uv is not None and np.asarray(pm.lightmap_uv).shape != (C, 2):
         raise ValueError(f"patch mesh {pm.mesh_index}: lightmap_uv must have shape ({C}, 2)")
 
@@ -212,6 +217,8 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
     color_pv("hirad:irradiance", pm.vertex_irradiance, UsdGeom.Tokens.vertex)
     color_pv("hirad:patchRadiance", pm.face_radiance, UsdGeom.Tokens.uniform)
     color_pv("hirad:patchIrradiance", pm.face_irradiance, UsdGeom.Tokens.uniform)
+    if pm.face_emission is not None:
+        color_pv("hirad:emission", pm.face_emission, UsdGeom.Tokens.uniform)
     color_pv("displayColor", np.clip(np.nan_to_num(np.asarray(pm.vertex_radiance)), 0.0, 1.0), UsdGeom.Tokens.vertex)
 
     prim = mesh.GetPrim()
@@ -442,6 +449,7 @@ def read_solution_layer(path: str | Path) -> SolutionData:
                     vertex_irradiance=arr("hirad:irradiance", P),
                     face_radiance=arr("hirad:patchRadiance", F),
                     face_irradiance=arr("hirad:patchIrradiance", F),
+                    face_emission=_get_array(prim, "hirad:emission", time, 3),
                     lightmap_uv=_get_array(prim, "hirad:lightmapUV", time, 2),
                     lightmap_path=lm_path,
                     name=prim.GetName(),
