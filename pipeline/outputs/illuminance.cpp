@@ -74,15 +74,24 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
         if (!isfinite(emitted[i]) || emitted[i].x < 0 || emitted[i].y < 0 || emitted[i].z < 0)
             throw std::invalid_argument("emitted_radiance: patch " + std::to_string(i) + " is negative or not finite");
 
-    // The emitters, cut once into pieces; a piece's shadow ray ends just off its surface.
-    struct Piece { Patch shape; Vec3 target; RGB le; };
-    std::vector<Piece> pieces;
+    // The emitters, each whole and cut once into pieces; a shadow ray ends just off the surface.
+    // A sensor farther than kNear emitter diameters from an emitter reads it whole, with one
+    // shadow ray to its centre; a nearer one reads its pieces, one ray each.
+    struct Piece { Patch shape; Vec3 target; };
+    struct Emitter { Piece whole; std::vector<Piece> pieces; RGB le; double diameter; };
+    std::vector<Emitter> emitters;
     const double lift = 1e-7 * visibility.scene_size();
     for (size_t i = 0; i < patches.size(); ++i) {
         if (max_component(emitted[i]) <= 0) continue;
-        for (Patch& s : patch_pieces(patches[i], o.emitter_samples))
-            pieces.push_back({s, s.centroid + s.normal * lift, emitted[i]});
+        const Patch& w = patches[i];
+        Emitter e{{w, w.centroid + w.normal * lift}, {}, emitted[i], 0};
+        for (int a = 0; a < w.nv; ++a)
+            for (int b = a + 1; b < w.nv; ++b) e.diameter = std::max(e.diameter, length(w.p[a] - w.p[b]));
+        if (o.emitter_samples > 1)
+            for (Patch& s : patch_pieces(w, o.emitter_samples)) e.pieces.push_back({s, s.centroid + s.normal * lift});
+        emitters.push_back(std::move(e));
     }
+    constexpr double kNear = 4;
 
     const size_t n = points.size();
     Illuminance out;
@@ -93,23 +102,30 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
         const Vec3 x = points[q], nx = normalize(normals[q]);
         // direct: exact contour integrals, one shadow ray per piece that is seen at all
         std::vector<double> f;
-        std::vector<uint32_t> which;
+        std::vector<RGB> le;
         std::vector<Vec3> from, to;
-        for (uint32_t m = 0; m < pieces.size(); ++m) {
-            const Patch& s = pieces[m].shape;
+        auto add = [&](const Piece& piece, const RGB& l) {
+            const Patch& s = piece.shape;
             const double ff = point_polygon_form_factor(x, nx, s.p.data(), s.nv, s.normal);
-            if (!(ff > 0)) continue;
+            if (!(ff > 0)) return;
             f.push_back(ff);
-            which.push_back(m);
+            le.push_back(l);
             from.push_back(x);
-            to.push_back(pieces[m].target);
+            to.push_back(piece.target);
+        };
+        for (const Emitter& e : emitters) {
+            if (e.pieces.empty() || length(e.whole.shape.centroid - x) > kNear * e.diameter) {
+                add(e.whole, e.le);
+            } else {
+                for (const Piece& piece : e.pieces) add(piece, e.le);
+            }
         }
         if (!from.empty()) {
             std::vector<uint8_t> seen(from.size());
             visibility.segments_visible(from.data(), to.data(), from.size(), seen.data());
             RGB e{};
             for (size_t a = 0; a < from.size(); ++a)
-                if (seen[a]) e += pieces[which[a]].le * (kPi * f[a]);
+                if (seen[a]) e += le[a] * (kPi * f[a]);
             out.direct[q] = e;
         }
         if (k == 0) return;

@@ -5,12 +5,13 @@
 //   E(x, n) = integral over the hemisphere of n of L(x, w) cos(n, w) dw
 // split into two parts that are evaluated differently:
 //   direct    the light of every emitter patch (a patch with self-emitted radiance Le > 0),
-//             integrated exactly: each emitter is cut into g x g pieces and each piece
-//             contributes pi Le F(dA_x -> piece) V, where F is Lambert's contour integral
-//             (formfactors.h, exact for the unoccluded polygon, clipped to the sensor's
-//             hemisphere) and V is one shadow ray from x to the piece's centre. A fully
-//             visible emitter is therefore exact to rounding; a partly hidden one is resolved
-//             to g x g pieces.
+//             integrated exactly: an emitter contributes pi Le F(dA_x -> emitter) V, where F
+//             is Lambert's contour integral (formfactors.h, exact for the unoccluded polygon,
+//             clipped to the sensor's hemisphere) and V is one shadow ray from x to the
+//             emitter's centre; within 4 of its diameters of x it is cut into g x g pieces,
+//             each with its own F and shadow ray. A fully visible emitter is therefore exact
+//             to rounding; a partly hidden one is resolved to its pieces (near) or to whole
+//             emitter patches (far: the patches are small against their distance there).
 //   indirect  everything else the surfaces send: cosine-distributed, stratified rays
 //             (k x k strata, k = ceil(sqrt(rays))) over the hemisphere; a ray that hits the
 //             front of a patch brings (L_corner interpolated - Le) of that patch, a ray that
