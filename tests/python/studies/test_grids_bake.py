@@ -181,3 +181,27 @@ def test_hirad_grid_refuses_a_layer_without_emission(baked, tmp_path):
     proc = run_cli("grid", old, study)
     assert proc.returncode == 3 and "predates primvars:hirad:emission" in proc.stderr
     assert not (tmp_path / "grids-s").exists()
+
+
+def test_study_report_states_units_version_residual_and_balance(baked):
+    from hirad import __version__
+
+    html = (baked["out"] / "grids" / "report.html").read_text()
+    for text in (__version__, "residual", "energy balance", "lux"):
+        assert text in html, text
+
+
+def test_radiometric_units_and_a_bad_study_key(baked, tmp_path):
+    solution = baked["out"] / "solution.usda"
+    study = tmp_path / "r.yaml"
+    study.write_text(yaml.safe_dump({"maintenance_factor": 0.8, "grids": {"plane": GRIDS["plane"]}}))
+    proc = run_cli("grid", solution, study, "--units", "radiometric", "--output", tmp_path / "r")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "r" / "grids.json").read_text())
+    assert summary["units"] == "radiometric" and summary["unit"] == "W/m2"
+    assert "W/m²" in (tmp_path / "r" / "report.html").read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"grids": {"plane": {**GRIDS["plane"], "heigth": 1.0}}}))
+    proc = run_cli("grid", solution, bad, "--output", tmp_path / "b")
+    assert proc.returncode == 2 and "grids.plane.heigth" in proc.stderr
+    assert not (tmp_path / "b").exists()
