@@ -205,3 +205,20 @@ def timed(fn, *args, **kwargs):
     t = time.perf_counter()
     out = fn(*args, **kwargs)
     return out, time.perf_counter() - t
+
+
+def run_case_58_sensors(rho: float, rays: int = 256) -> tuple:
+    """(expected lx, hirad lx, sensors): the same closed cube solved flat, then
+    SurfaceField.illuminance (direct + indirect) at one sensor 1 mm off every patch's
+    centroid facing its normal, averaged weighted by patch area: the binding's reading of
+    the same closed-form mean (a midpoint rule over the patches, so only loosely)."""
+    polys, panel = room_with_panel(4.0, 4.0, 4.0, 1.0)
+    emission = np.zeros(len(polys))
+    emission[panel] = math.pi * LUMINANCE
+    _, patches, b, _ = flat_solve(scene_of(polys, rho, emission), max_patch_area=0.25, max_edge=0.5, samples=16)
+    field, emitted = field_of(patches, b)
+    pts = np.ascontiguousarray(patches["centroid"] + OFFSET * patches["normal"])
+    ill = field.illuminance(pts, np.ascontiguousarray(patches["normal"]), emitted, rays=rays, seed=1)
+    area = patches["area"]
+    mean = float(((luminous(ill.direct) + luminous(ill.indirect)) * area).sum() / area.sum())
+    return case_58_expected(rho), mean, len(area)
