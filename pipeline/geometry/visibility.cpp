@@ -81,7 +81,11 @@ bool point_query(RTCPointQueryFunctionArguments* args) {
 }  // namespace
 
 Visibility::Visibility(const std::vector<Patch>& patches) : patches_(patches) {
-    device_ = rtcNewDevice(nullptr);
+    // The same kernels on every machine that has them: Embree would pick AVX-512 where the CPU
+    // has it, and its wider traversal reports hits that differ from the AVX2 kernels' in the
+    // last bits of t, u and v, so a render (and anything read at a hit) would change bits
+    // between machines. AVX2 is the widest ISA hirad lets Embree use.
+    device_ = rtcNewDevice("isa=avx2");
     if (!device_) throw std::runtime_error("Embree: could not create a device");
     scene_ = rtcNewScene(device_);
     // Medium quality: the high-quality builder's spatial splits abort (an assertion on empty

@@ -44,16 +44,35 @@ def render(field: "_engine.SurfaceField", view: View, width: int, height: int, s
                         list(map(float, view.up)), view.vertical_fov_degrees, width, height, samples)
 
 
+def _srgb_thresholds() -> np.ndarray:
+    """The linear values at which the 8-bit sRGB code steps up: code k for x in
+    [t[k-1], t[k]). Computed once with the scalar libm (math.pow), so that the codes depend
+    on exact comparisons only, never on which SIMD kernels numpy picks for the machine's CPU
+    (numpy's vectorised power differs in the last bit between AVX2 and AVX-512)."""
+    import math
+
+    out = []
+    for k in range(255):
+        c = (k + 0.5) / 255  # the sRGB value halfway between codes k and k + 1
+        out.append(c / 12.92 if c <= 0.04045 else math.pow((c + 0.055) / 1.055, 2.4))
+    return np.asarray(out, dtype=np.float64)
+
+
+_SRGB_THRESHOLDS = _srgb_thresholds()
+
+
 def tonemap(radiance: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """8-bit sRGB for looking at: a fixed exposure that maps the 97th percentile of the lit
-    pixels' luminance to 0.9 (or the given exposure), then the sRGB curve."""
-    lum = radiance @ np.array([0.2126, 0.7152, 0.0722])
+    pixels' luminance to 0.9 (or the given exposure), then the sRGB curve. The luminance is
+    summed channel by channel (not a BLAS product) and the curve read from thresholds, so the
+    bytes are the same on every CPU."""
+    radiance = np.asarray(radiance, dtype=np.float64)
+    lum = radiance[..., 0] * 0.2126 + radiance[..., 1] * 0.7152 + radiance[..., 2] * 0.0722
     if exposure is None:
         lit = lum[lum > 0]
         exposure = 0.9 / float(np.percentile(lit, 97)) if lit.size else 1.0
     x = np.clip(radiance * exposure, 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return (srgb * 255 + 0.5).astype(np.uint8)
+    return np.searchsorted(_SRGB_THRESHOLDS, x, side="right").astype(np.uint8)
 
 
 def write_png(path: Path, radiance: np.ndarray, exposure: float | None = None) -> None:
