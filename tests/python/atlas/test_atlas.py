@@ -596,3 +596,26 @@ def test_isolated_returns_the_childs_result_and_reports_its_failures():
         A._isolated(_raise_value_error)
     with pytest.raises(RuntimeError, match="ended without a result"):
         A._isolated(_die_without_result)
+
+
+def _stuck_once(flag, x):
+    """Sleeps far past its attempt's time limit the first time (as a lost xatlas wake-up
+    would hang), answers at once after."""
+    import os
+    import time
+
+    if not os.path.exists(flag):
+        open(flag, "w").close()
+        time.sleep(30)
+    return 2 * x
+
+
+def test_a_stuck_charting_child_is_killed_and_the_work_done_again(tmp_path, monkeypatch):
+    import time
+
+    from hirad.atlas import charts
+
+    monkeypatch.setattr(charts, "_ATTEMPT_SECONDS", (0.5, None))
+    t0 = time.monotonic()
+    assert charts._isolated(_stuck_once, str(tmp_path / "flag"), 21) == 42
+    assert time.monotonic() - t0 < 10  # the first child was killed, not waited for

@@ -155,6 +155,12 @@ def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit
     return blocks, warnings
 
 
+# Seconds each forked attempt may take before it is killed and started again (the last has no
+# limit): xatlas's scheduler can also lose a wake-up while it computes, and a child stuck that
+# way would block the bake forever. The result is deterministic, so a retry gives the same bits.
+_ATTEMPT_SECONDS = (30.0, 120.0, 600.0, None)
+
+
 def _isolated(fn, *args):
     """fn(*args) computed in a forked child process, its result returned through a pipe.
 
@@ -162,8 +168,20 @@ def _isolated(fn, *args):
     destroyed (the notify is sent without the worker's mutex, so it can fall between the
     worker's predicate check and its wait), and the destructor then joins that worker
     forever. The child never destroys its Atlas: it writes the result and leaves with
-    os._exit, which runs no destructors. The child's exception is raised here; a child that
-    dies without a result is an error."""
+    os._exit, which runs no destructors. A child that gives no result within its attempt's
+    time is killed and the work started again (_ATTEMPT_SECONDS). The child's exception is
+    raised here; a child that dies without a result is an error."""
+    for limit in _ATTEMPT_SECONDS:
+        done, value = _attempt(fn, args, limit)
+        if done:
+            return value
+    raise AssertionError("unreachable: the last attempt has no time limit")
+
+
+def _attempt(fn, args, limit):
+    import select
+    import time
+
     read_fd, write_fd = os.pipe()
     pid = os.fork()
     if pid == 0:  # child: compute, send, leave without any teardown
@@ -183,20 +201,33 @@ def _isolated(fn, *args):
             code = 1
         os._exit(code)
     os.close(write_fd)
+    chunks = []
     try:
-        with os.fdopen(read_fd, "rb") as result:
-            data = result.read()
+        with os.fdopen(read_fd, "rb", buffering=0) as result:
+            deadline = None if limit is None else time.monotonic() + limit
+            while True:
+                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                ready, _, _ = select.select([result], [], [], wait)
+                if not ready:  # no result in time: a stuck child
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)
+                    return False, None
+                chunk = result.read(1 << 20)
+                if not chunk:
+                    break
+                chunks.append(chunk)
     except BaseException:
         os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)
         raise
     _, status = os.waitpid(pid, 0)
+    data = b"".join(chunks)
     if not data:
         raise RuntimeError(f"the xatlas child process ended without a result (wait status {status})")
     ok, value = pickle.loads(data)
     if not ok:
         raise value
-    return value
+    return True, value
 
 
 def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding):
