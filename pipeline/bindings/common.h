@@ -113,5 +113,6 @@ void bind_results(nb::module_& m);
 void bind_fields(nb::module_& m);
 void bind_formats(nb::module_& m);
 void bind_formfactors(nb::module_& m);
+void bind_luminaires(nb::module_& m);
 
 }  // namespace hirad::py

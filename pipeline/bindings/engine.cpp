@@ -116,6 +116,12 @@ void bind_engine(nb::module_& m) {
              "The scene as flat arrays in metres: points (P, 3), counts (F), indices (sum of counts), per face "
              "mesh, authored face, reflectance (F, 3), emission (F, 3) W/m^2, optional corner_uv (sum of counts, 2).")
         .def("stats", &Engine::stats, "Counts of the scene and of what is built (Stats).")
+        .def("set_luminaires", &Engine::set_luminaires, "luminaires"_a,
+             "Luminaires (list of Luminaire) whose light reaches the surfaces as an exact first bounce (their "
+             "direct irradiance, re-emitted as rho x direct); replaces earlier ones; lights the flat patches now, a "
+             "hierarchical solve from its start.")
+        .def_prop_ro("luminaire_flux", [](const Engine& e) { return rows3({e.luminaire_flux()}); }, kOwned,
+                     "(1, 3) the luminaires' total exact flux, lm (or W).")
         .def("mesh", &Engine::mesh, "options"_a, "Flat meshing: cuts every face into patches (MeshOptions).")
         .def_prop_ro("num_patches", &Engine::num_patches)
         .def("patch_arrays", &Engine::patch_arrays, "The current patches (PatchArrays).")

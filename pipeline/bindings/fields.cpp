@@ -113,7 +113,8 @@ void bind_fields(nb::module_& m) {
     nb::class_<Illuminance>(m, "Illuminance",
                             "Illuminance at sensors, W/m^2 per RGB channel (lux when photometric).")
         .def_prop_ro("direct", vec3s(&Illuminance::direct), kOwned,
-                     "(n, 3) from the emitter patches: exact contour integrals, shadowed per piece.")
+                     "(n, 3) from the emitter patches (exact contour integrals, shadowed per piece) and the "
+                     "luminaires (exact, one shadow ray per luminaire point).")
         .def_prop_ro("indirect", vec3s(&Illuminance::indirect), kOwned,
                      "(n, 3) gathered by hemisphere rays from every surface's exitant radiance less its emission.");
 
@@ -135,6 +136,9 @@ void bind_fields(nb::module_& m) {
              "Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner "
              "(n, 4, 3), optional (zero without).")
         .def("__len__", &RayScene::size)
+        .def("set_luminaires", &RayScene::set_luminaires, "luminaires"_a,
+             "Luminaires (list of Luminaire) that illuminance (in `direct`) and volume_probes add, exactly at "
+             "their points; render does not show them.")
         .def("render",
              [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
                 const std::vector<double>& up, double fov, int width, int height, int samples) {

@@ -6,6 +6,7 @@
 //   fields.cpp       SurfaceField (one ray-tracing scene per solution) and DisplayMesh
 //   formats.cpp      EXR and OpenVDB files
 //   formfactors.cpp  closed-form form factors, set_threads
+//   luminaires.cpp   Luminaire (point, spot, IES, sphere and cylinder lights)
 // The generated stub tools/hirad/_engine.pyi lists every signature (make engine-stubs).
 #include "pipeline/bindings/common.h"
 
@@ -13,6 +14,7 @@ NB_MODULE(_engine, m) {
     m.doc() = "hirad's C++ engine: meshing, form factors, solvers, hierarchy, reconstruction, rendering, files";
     hirad::py::bind_formfactors(m);
     hirad::py::bind_formats(m);
+    hirad::py::bind_luminaires(m);
     hirad::py::bind_options(m);
     hirad::py::bind_results(m);
     hirad::py::bind_engine(m);

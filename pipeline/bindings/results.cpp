@@ -53,7 +53,10 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("centroid", rows(&PatchArrays::centroid, &PatchArrays::count, {3}), kOwned, "(n, 3) m.")
         .def_prop_ro("reflectance", rows(&PatchArrays::reflectance, &PatchArrays::count, {3}), kOwned, "(n, 3).")
         .def_prop_ro("emission", rows(&PatchArrays::emission, &PatchArrays::count, {3}), kOwned,
-                     "(n, 3) exitance, W/m^2.")
+                     "(n, 3) self-emitted exitance, W/m^2.")
+        .def_prop_ro("direct", rows(&PatchArrays::direct, &PatchArrays::count, {3}), kOwned,
+                     "(n, 3) the luminaires' irradiance, mean over the patch, W/m^2 (the solvers' source term is "
+                     "emission + reflectance x direct).")
         .def_prop_ro("nv", arr(&PatchArrays::nv), kOwned, "(n) 3 or 4 corners.")
         .def_prop_ro("mesh", arr(&PatchArrays::mesh), kOwned, "(n) input mesh index.")
         .def_prop_ro("face", arr(&PatchArrays::face), kOwned, "(n) engine face (after triangulation).")

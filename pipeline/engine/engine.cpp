@@ -49,8 +49,13 @@ LinkMatrix symmetric_hemicube_links(const std::vector<Patch>& patches, const Hem
     return LinkMatrix::from_upper(n, upper);
 }
 
-// Exitant radiance of a surface with irradiance e: (E + rho H) / pi.
-RGB exitant(const Patch& s, const RGB& e) { return (s.emission + mul(s.reflectance, e)) / kPi; }
+// Exitant radiance of a surface with irradiance e (from the surfaces and the luminaires):
+// (E_self + rho H) / pi, E_self its emission without the luminaires' part rho x direct.
+RGB self_emission(const Patch& s) { return s.emission - mul(s.reflectance, s.direct); }
+RGB exitant(const Patch& s, const RGB& e) { return (self_emission(s) + mul(s.reflectance, e)) / kPi; }
+
+// Element samples per side for the luminaires' light over a patch or element (g x g points).
+constexpr int kLuminaireSamples = 3;
 
 void require_points(const std::vector<Vec3>& points, const std::vector<Vec3>& normals) {
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
@@ -126,6 +131,87 @@ void Engine::mesh(const MeshOptions& o) {
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     leaves_published_ = false;
     replace_patches(mesh_patches(scene_, {o.max_patch_area, o.max_edge_length, o.max_patches}));
+    if (!luminaires_.empty()) {
+        std::vector<Patch*> all;
+        for (Patch& p : patches_.patches) all.push_back(&p);
+        light_patches(all, *visibility_, nullptr);
+    }
+}
+
+void Engine::set_luminaires(std::vector<Luminaire> luminaires) {
+    for (const Luminaire& l : luminaires) l.validate();
+    luminaires_ = std::move(luminaires);
+    if (visibility_ && !leaves_published_) {
+        std::vector<Patch*> all;
+        for (Patch& p : patches_.patches) all.push_back(&p);
+        light_patches(all, *visibility_, nullptr);
+    }
+}
+
+RGB Engine::luminaire_flux() const {
+    RGB f{};
+    for (const Luminaire& l : luminaires_) f += l.flux();
+    return f;
+}
+
+void Engine::light_patches(std::vector<Patch*>& patches, const Visibility& vis, std::vector<double>* spread) const {
+    std::vector<RGB> mean;
+    std::vector<double> sp;
+    if (luminaires_.empty()) {
+        mean.assign(patches.size(), RGB{});
+        sp.assign(patches.size(), 0.0);
+    } else {
+        element_luminaire_irradiance(luminaires_, vis, patches.data(), patches.size(), kLuminaireSamples, mean, sp);
+    }
+    for (size_t k = 0; k < patches.size(); ++k) {
+        Patch& p = *patches[k];
+        p.direct = mean[k];
+        p.emission = scene_.faces[p.face].emission + mul(p.reflectance, mean[k]);
+    }
+    if (spread) *spread = std::move(sp);
+}
+
+void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector<uint32_t>* fresh,
+                                std::vector<double>* spread) const {
+    std::vector<uint32_t> ids;
+    std::vector<Patch*> shapes;
+    for (uint32_t i = 0; i < h.nodes.size(); ++i)
+        if (!h.nodes[i].cluster && !h.nodes[i].lit) {
+            ids.push_back(i);
+            shapes.push_back(&h.nodes[i].shape);
+        }
+    light_patches(shapes, vis, spread);
+    for (uint32_t i : ids) h.nodes[i].lit = true;
+    if (fresh) *fresh = std::move(ids);
+}
+
+void Engine::split_for_luminaires(Hierarchy& h, const Visibility& vis, double epsilon_watts, double min_area) const {
+    // Breadth first, in node order: each pass lights the new elements and splits those whose
+    // light varies by more than epsilon_watts over their area. The same scene and luminaires
+    // give the same splits in the same order (the run store's log replays them).
+    for (;;) {
+        std::vector<uint32_t> fresh;
+        std::vector<double> spread;
+        light_new_elements(h, vis, &fresh, &spread);
+        if (fresh.empty() || luminaires_.empty()) return;
+        bool split = false;
+        for (size_t k = 0; k < fresh.size(); ++k) {
+            const uint32_t i = fresh[k];
+            if (spread[k] * h.nodes[i].area > epsilon_watts && h.can_subdivide(i, min_area)) {
+                h.subdivide(i);
+                split = true;
+            }
+        }
+        if (!split) return;
+    }
+}
+
+std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::vector<Vec3>& n,
+                                         const Visibility& vis) const {
+    std::vector<RGB> out(x.size());
+    if (luminaires_.empty()) return out;
+    luminaire_irradiance(luminaires_, &vis, x.data(), n.data(), x.size(), out.data(), 1e-5 * vis.scene_size());
+    return out;
 }
 
 PatchArrays Engine::patch_arrays() const {
@@ -140,6 +226,7 @@ PatchArrays Engine::patch_arrays() const {
     a.centroid.resize(n * 3);
     a.reflectance.resize(n * 3);
     a.emission.resize(n * 3);
+    a.direct.resize(n * 3);
     a.nv.resize(n);
     a.mesh.resize(n);
     a.face.resize(n);
@@ -155,7 +242,8 @@ PatchArrays Engine::patch_arrays() const {
             a.normal[i * 3 + c] = p.normal[c];
             a.centroid[i * 3 + c] = p.centroid[c];
             a.reflectance[i * 3 + c] = p.reflectance[c];
-            a.emission[i * 3 + c] = p.emission[c];
+            a.emission[i * 3 + c] = scene_.faces[p.face].emission[c];
+            a.direct[i * 3 + c] = p.direct[c];
         }
         a.area[i] = p.area;
         a.nv[i] = p.nv;
@@ -296,6 +384,8 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     state->visibility = std::make_unique<Visibility>(state->hierarchy.faces);
     emitted = 0;
     for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
+    emitted += luminance(luminaire_flux());
+    split_for_luminaires(state->hierarchy, *state->visibility, o.epsilon * emitted, o.min_area);
     return state;
 }
 
@@ -313,7 +403,9 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
     SolverOptions so;
     so.tolerance = s.tolerance;
     so.max_iterations = s.max_iterations;
-    RoundsRun run = run_in_memory(state->hierarchy, *state->visibility, ropt, o.max_rounds, kind, so, progress);
+    Solved* st = state.get();
+    RoundsRun run = run_in_memory(state->hierarchy, *state->visibility, ropt, o.max_rounds, kind, so, progress,
+                                  [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
     HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
     if (run.log.refine_splits.size() > 1)
         r.splits_per_round.assign(run.log.refine_splits.begin() + 1, run.log.refine_splits.end());
@@ -333,10 +425,13 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     so.checkpoint_seconds = c.checkpoint_seconds;
     const SourceGroups groups = SourceGroups::cut(h, c.group_faces);
     RunStore store(c.store,
-                   StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces),
+                   StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
+                                         luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_)),
                    groups.count());
+    Solved* st = state.get();
     RoundsRun run = run_streamed(h, *state->visibility, ropt, o.max_rounds, groups, so, store, c.resume,
-                                 c.reuse_links, progress);
+                                 c.reuse_links, progress,
+                                 [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
     state->store_round = run.store_round;
     state->groups = run.groups;
     HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
@@ -362,6 +457,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     const std::vector<Link>& links = state->links;
     HierarchicalResult r;
     r.balance_splits = h.balance();
+    light_new_elements(h, *state->visibility, nullptr, nullptr);
     for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
         const uint32_t parent = h.nodes[i].parent;
         sol.radiosity.push_back(sol.radiosity[parent]);
@@ -475,6 +571,12 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     Gatherer g(solved_->hierarchy, solved_->links, solved_->radiosity, *solved_->visibility, options);
     std::vector<RGB> e(leaf.size());
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data());
+    if (!luminaires_.empty()) {
+        std::vector<Vec3> ln(leaf.size());
+        for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.nodes[leaf[k]].shape.normal;
+        const std::vector<RGB> d = luminaire_light(x, ln, *solved_->visibility);
+        for (size_t k = 0; k < leaf.size(); ++k) e[k] += d[k];
+    }
     for (size_t k = 0; k < leaf.size(); ++k) {
         out.irradiance[slot[k]] = e[k];
         out.radiance[slot[k]] = exitant(solved_->hierarchy.nodes[leaf[k]].shape, e[k]);
@@ -502,6 +604,8 @@ PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vect
     }
     std::vector<RGB> e(n);
     hirad::gather_flat(patches_.patches, radiosity, *visibility_, x.data(), nn.data(), n, rays, seed, e.data());
+    const std::vector<RGB> d = luminaire_light(x, nn, *visibility_);
+    for (size_t q = 0; q < n; ++q) e[q] += d[q];
     for (size_t q = 0; q < n; ++q) {
         if (out.patch[q] < 0) continue;
         out.irradiance[q] = e[q];
@@ -516,7 +620,7 @@ ReferenceResult Engine::reference(const std::vector<uint32_t>& patch, const std:
     if (st.size() != patch.size()) throw std::invalid_argument("patch and st differ in length");
     for (uint32_t p : patch)
         if (p >= patches_.patches.size()) throw std::out_of_range("patch index out of range");
-    std::vector<ReferenceEstimate> est = reference_radiance(patches_.patches, *visibility_, patch, st, options);
+    std::vector<ReferenceEstimate> est = reference_radiance(patches_.patches, *visibility_, patch, st, options, luminaires_);
     ReferenceResult r;
     r.radiance.resize(est.size());
     r.standard_error.resize(est.size());

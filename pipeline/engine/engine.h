@@ -16,6 +16,16 @@
 // (Gouraud reconstruction), gather / gather_flat (final gather at points) and reference (the
 // Monte Carlo path tracer, independent of links and solution).
 //
+// Luminaires (set_luminaires, luminaire.h: point, spot, IES, sphere and cylinder lights) are
+// not surfaces: their light reaches the surfaces as a first, exact bounce, the direct
+// irradiance `direct` of every patch or element (the mean of g x g points over it, with
+// visibility), and a surface re-emits rho x direct as a source term like self-emission. So
+// the flat, hierarchical and out-of-core solvers solve B = E + rho direct + rho F B unchanged.
+// Before a hierarchy is linked, its elements are split where the luminaires' light varies
+// across them by more than epsilon x the emitted power (over their area, W), down to
+// min_area; elements made later by refinement are lit before each solve. The final gather
+// and the reference evaluate the luminaires exactly at their points.
+//
 // Units: metres, m^2; radiosity B, irradiance H and emission E (exitance) in W/m^2 per RGB
 // channel; radiance L = B / pi in W/(m^2 sr); power in W. Colours are linear RGB.
 //
@@ -33,6 +43,7 @@
 #include "pipeline/engine/rounds.h"
 #include "pipeline/flat/links.h"
 #include "pipeline/flat/solvers.h"
+#include "pipeline/geometry/luminaire.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/scene.h"
 #include "pipeline/geometry/visibility.h"
@@ -124,7 +135,8 @@ struct PatchArrays {
     std::vector<double> normal;       // (n, 3) unit
     std::vector<double> centroid;     // (n, 3) m
     std::vector<double> reflectance;  // (n, 3)
-    std::vector<double> emission;     // (n, 3) W/m^2
+    std::vector<double> emission;     // (n, 3) self-emitted exitance, W/m^2
+    std::vector<double> direct;       // (n, 3) the luminaires' irradiance (mean over the patch), W/m^2
     std::vector<int32_t> nv;          // (n) 3 or 4
     std::vector<int32_t> mesh;        // (n) input mesh
     std::vector<int32_t> face;        // (n) engine face (after triangulation)
@@ -217,6 +229,12 @@ public:
 
     Stats stats() const;
 
+    // Luminaires replace any earlier ones; the current flat patches (if any) are lit at once,
+    // a hierarchical solve uses them from its start. Each is validated (std::invalid_argument).
+    void set_luminaires(std::vector<Luminaire> luminaires);
+    const std::vector<Luminaire>& luminaires() const { return luminaires_; }
+    RGB luminaire_flux() const;  // their total flux (lm or W)
+
     // ---- flat method
     void mesh(const MeshOptions& options);
     size_t num_patches() const { return patches_.patches.size(); }
@@ -273,8 +291,16 @@ private:
     void replace_patches(PatchSet patches);
     std::unique_ptr<Solved> fresh_hierarchy(const HierarchyOptions& options, double& emitted);
     HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts);
+    // The source term of patches lit by the luminaires: direct and emission = E_self + rho direct.
+    void light_patches(std::vector<Patch*>& patches, const Visibility& visibility, std::vector<double>* spread) const;
+    void light_new_elements(Hierarchy& h, const Visibility& visibility, std::vector<uint32_t>* fresh,
+                            std::vector<double>* spread) const;
+    void split_for_luminaires(Hierarchy& h, const Visibility& visibility, double epsilon_watts, double min_area) const;
+    // Luminaire irradiance at points x with unit normals n (zero without luminaires).
+    std::vector<RGB> luminaire_light(const std::vector<Vec3>& x, const std::vector<Vec3>& n, const Visibility& vis) const;
 
     Scene scene_;
+    std::vector<Luminaire> luminaires_;
     PatchSet patches_;
     std::unique_ptr<Visibility> visibility_;   // over patches_
     std::unique_ptr<LinkMatrix> links_;

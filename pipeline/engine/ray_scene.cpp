@@ -77,8 +77,22 @@ LiftResult RayScene::lift_samples(std::vector<Vec3> points, const std::vector<Ve
     return r;
 }
 
+void RayScene::set_luminaires(std::vector<Luminaire> luminaires) {
+    for (const Luminaire& l : luminaires) l.validate();
+    luminaires_ = std::move(luminaires);
+}
+
 VolumeProbes RayScene::volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const {
-    const std::vector<ProbeMoments> m = probe_moments(patches_, *visibility_, radiance_, points, rays, seed);
+    std::vector<ProbeMoments> m = probe_moments(patches_, *visibility_, radiance_, points, rays, seed);
+    if (!luminaires_.empty()) {
+        std::vector<RGB> s0(m.size());
+        std::vector<std::array<RGB, 3>> s1(m.size());
+        luminaire_moments(luminaires_, visibility_.get(), points.data(), points.size(), s0.data(), s1.data());
+        for (size_t q = 0; q < m.size(); ++q) {
+            m[q].s0 += s0[q];
+            for (int a = 0; a < 3; ++a) m[q].s1[a] += s1[q][a];
+        }
+    }
     VolumeProbes v;
     for (const ProbeMoments& p : m) {
         v.s0.push_back(p.s0);
@@ -92,7 +106,16 @@ VolumeProbes RayScene::volume_probes(const std::vector<Vec3>& points, int rays, 
 
 Illuminance RayScene::illuminance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                                   const std::vector<RGB>& emitted, const IlluminanceOptions& options) const {
-    return illuminance_at(patches_, *visibility_, radiance_, emitted, points, normals, options);
+    Illuminance e = illuminance_at(patches_, *visibility_, radiance_, emitted, points, normals, options);
+    if (!luminaires_.empty()) {
+        std::vector<RGB> d(points.size());
+        std::vector<Vec3> unit(normals.size());
+        for (size_t q = 0; q < unit.size(); ++q) unit[q] = normalize(normals[q]);
+        luminaire_irradiance(luminaires_, visibility_.get(), points.data(), unit.data(), points.size(), d.data(),
+                             1e-7 * visibility_->scene_size());
+        for (size_t q = 0; q < d.size(); ++q) e.direct[q] += d[q];
+    }
+    return e;
 }
 
 RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<Vec3>& d) const {

@@ -15,6 +15,7 @@
 #include <memory>
 #include <vector>
 
+#include "pipeline/geometry/luminaire.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/visibility.h"
 #include "pipeline/outputs/illuminance.h"
@@ -67,6 +68,9 @@ public:
 
     size_t size() const { return patches_.size(); }
     bool has_values() const { return has_values_; }
+    // Luminaires (luminaire.h) whose light illuminance and volume_probes add, exactly at
+    // their points; render does not show them (they are not surfaces).
+    void set_luminaires(std::vector<Luminaire> luminaires);
 
     std::vector<float> render(const Camera& camera, int samples) const;  // (height, width, 3)
     // With a non-zero normal, only surfaces facing the same way qualify.
@@ -76,7 +80,8 @@ public:
     LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon, double reach,
                             const std::vector<Vec3>* anchors = nullptr) const;
     VolumeProbes volume_probes(const std::vector<Vec3>& points, int rays, uint64_t seed) const;
-    // Illuminance at sensors (illuminance.h): `emitted` per patch is its self-emitted radiance.
+    // Illuminance at sensors (illuminance.h): `emitted` per patch is its self-emitted radiance;
+    // the luminaires' light is part of `direct`.
     Illuminance illuminance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                             const std::vector<RGB>& emitted, const IlluminanceOptions& options) const;
     RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
@@ -88,6 +93,7 @@ private:
     CornerValues radiance_, irradiance_;
     bool has_values_ = false;
     std::unique_ptr<Visibility> visibility_;   // over patches_, built once
+    std::vector<Luminaire> luminaires_;
 };
 
 }  // namespace hirad

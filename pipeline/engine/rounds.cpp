@@ -179,7 +179,8 @@ private:
 
 }  // namespace
 
-void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsState& s, RoundsLog& log) {
+void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsState& s, RoundsLog& log,
+                const PrepareFn& prepare) {
     if (max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
     auto now = [] { return std::chrono::steady_clock::now(); };
     for (;;) {
@@ -191,6 +192,7 @@ void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsS
             // start kept round 1's coarse light behind walls that later rounds closed (stale
             // light within the tolerance, 2e-3 of the lit side on the thin-wall test). It also
             // makes a resumed round the same computation as one never interrupted.
+            if (prepare) prepare();
             std::vector<RGB> start = node_emission(h);
             for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
             const auto t0 = now();
@@ -220,10 +222,11 @@ void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsS
 }
 
 RoundsRun run_in_memory(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
-                        PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress) {
+                        PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress,
+                        const PrepareFn& prepare) {
     RoundsRun run;
     MemoryStages stages(h, vis, refine, solver, solve, progress, run);
-    run_rounds(h, stages, max_rounds, run.state, run.log);
+    run_rounds(h, stages, max_rounds, run.state, run.log, prepare);
     run.solution = run.state.solution;
     run.link_count = run.links.size();
     return run;
@@ -231,8 +234,7 @@ RoundsRun run_in_memory(Hierarchy& h, const Visibility& vis, const RefineOptions
 
 RoundsRun run_streamed(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
                        const SourceGroups& groups, const StreamingOptions& solve, RunStore& store, bool resume,
-                       bool reuse_links, const RoundProgressFn& progress) {
-    if (!h.subdivided.empty()) throw std::invalid_argument("out-of-core run: the hierarchy must be fresh");
+                       bool reuse_links, const RoundProgressFn& progress, const PrepareFn& prepare) {
     RoundsRun run;
     run.groups = groups.count();
     store.open(resume || reuse_links);
@@ -248,7 +250,7 @@ RoundsRun run_streamed(Hierarchy& h, const Visibility& vis, const RefineOptions&
         run.state.stop_after_solve = at.reused;
         if (!at.reused) run.resumed_from_round = at.round;
     }
-    run_rounds(h, stages, max_rounds, run.state, run.log);
+    run_rounds(h, stages, max_rounds, run.state, run.log, prepare);
     run.solution = run.state.solution;
     run.iterations = run.solution.iterations;
     run.residual_history = run.solution.residual_history;

@@ -73,8 +73,13 @@ struct RoundsLog {
     std::vector<double> solve_seconds;     // per solve
 };
 
+// Called before every solve, when refinement may have made new elements: gives them their
+// source terms (the luminaires' light, luminaire.h). Empty: nothing to do.
+using PrepareFn = std::function<void()>;
+
 // The loop. On return `state.solved` holds (a logic error otherwise).
-void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsState& state, RoundsLog& log);
+void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsState& state, RoundsLog& log,
+                const PrepareFn& prepare = {});
 
 // A finished hierarchical solve, before it is published (engine.h).
 struct RoundsRun {
@@ -101,12 +106,13 @@ enum class PushPull { Jacobi, GaussSeidel, Southwell };
 
 // In memory: push-pull solves of `solver` kind.
 RoundsRun run_in_memory(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
-                        PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress);
+                        PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress,
+                        const PrepareFn& prepare = {});
 
-// Streamed through the run store (in memory when the store has no root): `h` must be fresh,
-// `groups` cut from it (SourceGroups::cut), `store` made for that many groups.
+// Streamed through the run store (in memory when the store has no root): `h` must be fresh
+// (or only split for its luminaires, before any links), `groups` cut from it (SourceGroups::cut), `store` made for that many groups.
 RoundsRun run_streamed(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
                        const SourceGroups& groups, const StreamingOptions& solve, RunStore& store, bool resume,
-                       bool reuse_links, const RoundProgressFn& progress);
+                       bool reuse_links, const RoundProgressFn& progress, const PrepareFn& prepare = {});
 
 }  // namespace hirad

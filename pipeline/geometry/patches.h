@@ -27,7 +27,8 @@ struct Patch {
     Vec3 centroid;
     double area = 0;
     RGB reflectance;
-    RGB emission;            // exitance, W/m^2
+    RGB emission;            // the source term, W/m^2: self-emitted exitance + rho x direct
+    RGB direct;              // luminaires' irradiance, mean over the patch (luminaire.h), W/m^2
     uint32_t mesh = 0;
     uint32_t face = 0;       // index into Scene::faces
     std::array<uint32_t, 4> vertex;  // indices into PatchSet::vertices (welded per mesh)

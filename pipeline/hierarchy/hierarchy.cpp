@@ -162,7 +162,11 @@ void Hierarchy::subdivide(uint32_t i) {
 }
 
 void Hierarchy::replay(const std::vector<uint32_t>& log) {
-    for (size_t k = 0; k < log.size(); ++k) {
+    const size_t own = subdivided.size();
+    if (own > 0 && (log.size() < own || !std::equal(subdivided.begin(), subdivided.end(), log.begin())))
+        throw std::runtime_error("hierarchy log: it does not start with this hierarchy's own " + std::to_string(own) +
+                                 " subdivisions (other luminaires or geometry)");
+    for (size_t k = own; k < log.size(); ++k) {
         const uint32_t i = log[k];
         if (i >= nodes.size() || nodes[i].cluster || !nodes[i].leaf())
             throw std::runtime_error("hierarchy log entry " + std::to_string(k) + ": node " + std::to_string(i) +

@@ -25,6 +25,7 @@ struct Node {
     uint32_t first_child = kNoNode;
     uint8_t child_count = 0;
     bool cluster = false;
+    bool lit = false;        // elements: shape.direct computed for this element (luminaire.h)
     uint16_t level = 0;      // depth below the element root (elements only)
     uint32_t face_begin = 0, face_end = 0;  // clusters: their faces in Hierarchy::face_order
     bool leaf() const { return child_count == 0; }
@@ -51,6 +52,8 @@ public:
     bool can_subdivide(uint32_t node, double min_area) const;
     void subdivide(uint32_t node);
     // Subdivides the elements of a log in its order; throws if an entry is not a leaf element.
+    // A hierarchy already subdivided (split for its luminaires) replays a log that starts
+    // with its own, from where its own ends; any other log is refused.
     void replay(const std::vector<uint32_t>& log);
 
     // A point on the surfaces below `node` and the normal there: stratified (s, t) on an

@@ -38,8 +38,10 @@ struct StoreFingerprints {
     uint64_t materials = 0;  // every face's reflectance and emission
 
     // `epsilon` is the relative threshold as configured (not yet scaled by the emitted power).
+    // `luminaires` (luminaires_fingerprint, 0 for none) enters the geometry too: the
+    // hierarchy is split for the luminaires' light before any link is made.
     static StoreFingerprints of(const Scene& scene, double epsilon, double min_area, int samples, uint64_t seed,
-                                int max_rounds, uint32_t group_faces);
+                                int max_rounds, uint32_t group_faces, uint64_t luminaires = 0);
 };
 
 // Where a run starts: round 0 (fresh) or a stored round whose refinement was replayed into

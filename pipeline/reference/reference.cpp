@@ -16,10 +16,17 @@ struct Emitters {
     double total = 0;
 };
 
+// The patch's own emission, without the luminaires' share rho x direct (evaluated exactly).
+RGB self_emission(const Patch& p) {
+    RGB e = p.emission - mul(p.reflectance, p.direct);
+    return {std::max(e.x, 0.0), std::max(e.y, 0.0), std::max(e.z, 0.0)};
+}
+
 Emitters collect_emitters(const std::vector<Patch>& patches) {
     Emitters e;
     for (uint32_t i = 0; i < patches.size(); ++i) {
-        double power = (patches[i].emission.x + patches[i].emission.y + patches[i].emission.z) * patches[i].area;
+        const RGB s = self_emission(patches[i]);
+        double power = (s.x + s.y + s.z) * patches[i].area;
         if (power <= 0) continue;
         e.total += power;
         e.patch.push_back(i);
@@ -39,7 +46,8 @@ RGB direct(const std::vector<Patch>& patches, const Visibility& vis, const Emitt
     const double u = rng.uniform() * em.total;
     const size_t k = std::min<size_t>(std::upper_bound(em.cdf.begin(), em.cdf.end(), u) - em.cdf.begin(), em.patch.size() - 1);
     const Patch& q = patches[em.patch[k]];
-    const double pick = ((q.emission.x + q.emission.y + q.emission.z) * q.area) / em.total;
+    const RGB qe = self_emission(q);
+    const double pick = ((qe.x + qe.y + qe.z) * q.area) / em.total;
     Vec3 y = q.point(rng.uniform(), rng.uniform());
     Vec3 d = y - x;
     double r2 = dot(d, d);
@@ -52,14 +60,15 @@ RGB direct(const std::vector<Patch>& patches, const Visibility& vis, const Emitt
     vis.segments_visible(&from, &to, 1, &visible);
     if (!visible) return {};
     // L_e = E / pi; pdf of y is pick / A_q.
-    return q.emission * (cos_x * cos_y / (r2 * kPi) * q.area / pick);
+    return qe * (cos_x * cos_y / (r2 * kPi) * q.area / pick);
 }
 
 }  // namespace
 
 std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patches, const Visibility& vis,
                                                   const std::vector<uint32_t>& patch, const std::vector<Vec2>& st,
-                                                  const ReferenceOptions& opt) {
+                                                  const ReferenceOptions& opt,
+                                                  const std::vector<Luminaire>& luminaires) {
     if (patch.size() != st.size()) throw std::invalid_argument("reference: one (s, t) per patch index");
     const Emitters em = collect_emitters(patches);
     const double lift = 1e-5 * vis.scene_size();
@@ -76,8 +85,14 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
             RGB l;
             RGB beta = p0.reflectance / kPi;
             Vec3 x = x0, n = p0.normal;
-            for (int bounce = 0; em.total > 0 || bounce == 0; ++bounce) {
+            const bool lit = em.total > 0 || !luminaires.empty();
+            for (int bounce = 0; lit || bounce == 0; ++bounce) {
                 if (em.total > 0) l += mul(beta, direct(patches, vis, em, x, n, lift, rng));
+                if (!luminaires.empty()) {
+                    RGB h;
+                    luminaire_irradiance(luminaires, &vis, &x, &n, 1, &h, lift);
+                    l += mul(beta, h);
+                }
                 Vec3 t, b;
                 frame(n, t, b);
                 double r1 = rng.uniform(), r2 = rng.uniform();
@@ -98,7 +113,7 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
                 x = x + dir * hit.t;
                 n = h.normal;
             }
-            RGB value = p0.emission / kPi + l;
+            RGB value = self_emission(p0) / kPi + l;
             sum += value;
             sum2 += mul(value, value);
         }

@@ -2,10 +2,14 @@
 // meshing (in the spirit of Ward, Rubinstein and Clear 1988): exitant radiance at surface
 // points by path tracing diffuse interreflection with Embree, with next-event estimation
 // towards the emitting patches and Russian roulette, each estimate with its standard error.
+// Luminaires (luminaire.h) are evaluated exactly at every path vertex (their light is a
+// point-to-point term with one shadow ray per luminaire point), never through the patches'
+// averaged `direct`; a patch's self-emission is its emission less rho x direct.
 #pragma once
 #include <cstdint>
 #include <vector>
 
+#include "pipeline/geometry/luminaire.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/visibility.h"
 
@@ -25,6 +29,7 @@ struct ReferenceEstimate {
 // Exitant radiance at the point (s, t) of each given patch (Patch::point coordinates).
 std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
                                                   const std::vector<uint32_t>& patch, const std::vector<Vec2>& st,
-                                                  const ReferenceOptions& options);
+                                                  const ReferenceOptions& options,
+                                                  const std::vector<Luminaire>& luminaires = {});
 
 }  // namespace hirad

@@ -45,6 +45,59 @@ def read_vdb(path: str) -> dict:
     An OpenVDB file written by write_vdb: {'metadata': {...}, 'grids': {name: {'coords', 'values', 'voxel_size', 'origin', 'metadata'}}}.
     """
 
+class Luminaire:
+    """
+    A luminaire (luminaire.h): points over its luminous opening with weights, its frame and a candela table I(C, gamma), gamma 0 = local -Z, C0 = +X, C90 = +Y, bilinear between nodes.
+    """
+
+    def __init__(self, name: str, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], frame: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], candela: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> None:
+        """
+        points (k, 3) m in world space, weights (k) summing to 1, frame (3, 3) whose rows are the local X, Y, Z axes in world space, candela (nc, ng) at C_i = 360 i / nc degrees and gamma_j = 180 j / (ng - 1) degrees, colour (1, 3): channel c emits candela x colour[c]. Invalid data: ValueError.
+        """
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def points(self) -> NDArray[numpy.float64]:
+        """(k, 3) m."""
+
+    @property
+    def weights(self) -> NDArray[numpy.float64]:
+        """(k) summing to 1."""
+
+    @property
+    def frame(self) -> NDArray[numpy.float64]:
+        """(3, 3) rows: local X, Y, Z in world space."""
+
+    @property
+    def candela(self) -> NDArray[numpy.float64]:
+        """(nc, ng) cd (or W/sr)."""
+
+    @property
+    def colour(self) -> NDArray[numpy.float64]:
+        """(1, 3)."""
+
+    @property
+    def flux(self) -> NDArray[numpy.float64]:
+        """
+        (1, 3) the exact integral of the bilinear table times colour over the sphere, lm (or W).
+        """
+
+    @property
+    def table_flux(self) -> float:
+        """The table's exact flux per unit colour, lm (or W)."""
+
+    def intensity(self, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float64]:
+        """
+        Intensity (n, 3) toward world directions (n, 3), per channel, cd (or W/sr).
+        """
+
+    def irradiance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float64]:
+        """
+        Unoccluded direct irradiance (n, 3) at points facing normals, lux (or W/m^2).
+        """
+
 class MeshOptions:
     """Flat meshing: every face is cut into patches no larger than these."""
 
@@ -378,7 +431,13 @@ class PatchArrays:
 
     @property
     def emission(self) -> NDArray[numpy.float64]:
-        """(n, 3) exitance, W/m^2."""
+        """(n, 3) self-emitted exitance, W/m^2."""
+
+    @property
+    def direct(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3) the luminaires' irradiance, mean over the patch, W/m^2 (the solvers' source term is emission + reflectance x direct).
+        """
 
     @property
     def nv(self) -> NDArray[numpy.int32]:
@@ -663,6 +722,15 @@ class Engine:
     def stats(self) -> Stats:
         """Counts of the scene and of what is built (Stats)."""
 
+    def set_luminaires(self, luminaires: Sequence[Luminaire]) -> None:
+        """
+        Luminaires (list of Luminaire) whose light reaches the surfaces as an exact first bounce (their direct irradiance, re-emitted as rho x direct); replaces earlier ones; lights the flat patches now, a hierarchical solve from its start.
+        """
+
+    @property
+    def luminaire_flux(self) -> NDArray[numpy.float64]:
+        """(1, 3) the luminaires' total exact flux, lm (or W)."""
+
     def mesh(self, options: MeshOptions) -> None:
         """Flat meshing: cuts every face into patches (MeshOptions)."""
 
@@ -877,7 +945,7 @@ class Illuminance:
     @property
     def direct(self) -> NDArray[numpy.float64]:
         """
-        (n, 3) from the emitter patches: exact contour integrals, shadowed per piece.
+        (n, 3) from the emitter patches (exact contour integrals, shadowed per piece) and the luminaires (exact, one shadow ray per luminaire point).
         """
 
     @property
@@ -897,6 +965,11 @@ class SurfaceField:
         """
 
     def __len__(self) -> int: ...
+
+    def set_luminaires(self, luminaires: Sequence[Luminaire]) -> None:
+        """
+        Luminaires (list of Luminaire) that illuminance (in `direct`) and volume_probes add, exactly at their points; render does not show them.
+        """
 
     def render(self, position: Sequence[float], forward: Sequence[float], up: Sequence[float], vertical_fov: float, width: int, height: int, samples: int) -> NDArray[numpy.float32]:
         """

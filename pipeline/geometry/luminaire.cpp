@@ -1,0 +1,231 @@
+#include "pipeline/geometry/luminaire.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+
+#include "pipeline/geometry/patches.h"
+#include "pipeline/geometry/visibility.h"
+
+namespace hirad {
+
+namespace {
+
+constexpr double kDeg = kPi / 180.0;
+
+uint64_t bits(double v) {
+    uint64_t b;
+    std::memcpy(&b, &v, sizeof b);
+    return b;
+}
+
+[[noreturn]] void refuse(const Luminaire& l, const std::string& problem) {
+    throw std::invalid_argument("luminaire '" + l.name + "': " + problem);
+}
+
+}  // namespace
+
+void Luminaire::validate() const {
+    if (points.empty()) refuse(*this, "no emitting points");
+    if (weights.size() != points.size()) refuse(*this, "weights and points differ in number");
+    double sum = 0;
+    for (size_t k = 0; k < points.size(); ++k) {
+        if (!isfinite(points[k])) refuse(*this, "point " + std::to_string(k) + " is not finite");
+        if (!(weights[k] >= 0) || !std::isfinite(weights[k])) refuse(*this, "weight " + std::to_string(k) + " is negative or not finite");
+        sum += weights[k];
+    }
+    if (std::fabs(sum - 1) > 1e-9) refuse(*this, "weights sum to " + std::to_string(sum) + ", not 1");
+    for (int a = 0; a < 3; ++a)
+        if (!isfinite(axis[a]) || std::fabs(length(axis[a]) - 1) > 1e-9) refuse(*this, "frame axis " + std::to_string(a) + " is not a unit vector");
+    if (std::fabs(dot(axis[0], axis[1])) > 1e-9 || std::fabs(dot(axis[1], axis[2])) > 1e-9 ||
+        std::fabs(dot(axis[0], axis[2])) > 1e-9)
+        refuse(*this, "frame axes are not orthogonal");
+    if (dot(cross(axis[0], axis[1]), axis[2]) < 0) refuse(*this, "frame is not right-handed");
+    if (nc < 1 || ng < 2) refuse(*this, "the candela table needs at least 1 C plane and 2 gamma angles");
+    if (candela.size() != size_t(nc) * size_t(ng)) refuse(*this, "the candela table is not nc x ng");
+    for (double v : candela)
+        if (!(v >= 0) || !std::isfinite(v)) refuse(*this, "a candela value is negative or not finite");
+    if (!isfinite(colour) || colour.x < 0 || colour.y < 0 || colour.z < 0) refuse(*this, "colour is negative or not finite");
+}
+
+double Luminaire::intensity(const Vec3& d) const {
+    const double len = length(d);
+    if (!(len > 0)) return 0;
+    const double lx = dot(d, axis[0]) / len, ly = dot(d, axis[1]) / len, lz = dot(d, axis[2]) / len;
+    const double gamma = std::acos(std::clamp(-lz, -1.0, 1.0));  // 0 .. pi
+    const double gj = gamma / kPi * (ng - 1);
+    const int j0 = std::min(int(gj), ng - 2);
+    const double v = gj - j0;
+    if (nc == 1) return candela[j0] * (1 - v) + candela[j0 + 1] * v;
+    double c = std::atan2(ly, lx);  // -pi .. pi
+    if (c < 0) c += 2 * kPi;
+    double ci = c / (2 * kPi) * nc;
+    int i0 = int(ci);
+    double u = ci - i0;
+    if (i0 >= nc) { i0 = 0; u = 0; }
+    const int i1 = (i0 + 1) % nc;
+    const double* a = &candela[size_t(i0) * ng];
+    const double* b = &candela[size_t(i1) * ng];
+    const double ea = a[j0] * (1 - v) + a[j0 + 1] * v, eb = b[j0] * (1 - v) + b[j0 + 1] * v;
+    return ea * (1 - u) + eb * u;
+}
+
+double Luminaire::table_flux() const {
+    const double h = kPi / (ng - 1);
+    const double dc = 2 * kPi / nc;
+    double total = 0;
+    for (int j = 0; j + 1 < ng; ++j) {
+        const double g0 = j * h, g1 = (j + 1) * h;
+        const double S = std::cos(g0) - std::cos(g1);
+        const double B = (std::sin(g1) - std::sin(g0) - h * std::cos(g1)) / h;
+        for (int i = 0; i < nc; ++i) {
+            const int i1 = (i + 1) % nc;
+            const double m0 = 0.5 * (candela[size_t(i) * ng + j] + candela[size_t(i1) * ng + j]);
+            const double m1 = 0.5 * (candela[size_t(i) * ng + j + 1] + candela[size_t(i1) * ng + j + 1]);
+            total += dc * (m0 * (S - B) + m1 * B);
+        }
+    }
+    return total;
+}
+
+uint64_t Luminaire::fingerprint() const {
+    uint64_t f = 0x1A77ull;
+    for (size_t k = 0; k < points.size(); ++k) {
+        for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(points[k][a]), 11);
+        f = hash_pair(f, bits(weights[k]), 12);
+    }
+    for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) f = hash_pair(f, bits(axis[a][b]), 13);
+    f = hash_pair(f, (uint64_t(nc) << 32) | uint64_t(ng), 14);
+    for (double v : candela) f = hash_pair(f, bits(v), 15);
+    for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(colour[a]), 16);
+    return f;
+}
+
+uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires) {
+    uint64_t f = 0x10Eull;
+    for (const Luminaire& l : luminaires) f = hash_pair(f, l.fingerprint(), 17);
+    return f;
+}
+
+void luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
+                          const Vec3* n, size_t count, RGB* out, double lift) {
+    size_t per = 0;
+    for (const Luminaire& l : luminaires) per += l.points.size();
+    if (per == 0) {
+        std::fill(out, out + count, RGB{});
+        return;
+    }
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 64), [&](const tbb::blocked_range<size_t>& r) {
+        std::vector<Vec3> from, to;
+        std::vector<double> value;   // unoccluded contribution per segment (per unit colour)
+        std::vector<uint32_t> owner; // luminaire of each segment
+        std::vector<uint8_t> seen;
+        for (size_t q = r.begin(); q < r.end(); ++q) {
+            from.clear();
+            to.clear();
+            value.clear();
+            owner.clear();
+            const Vec3 xq = x[q], nq = n[q];
+            const Vec3 start = xq + nq * lift;
+            for (uint32_t li = 0; li < luminaires.size(); ++li) {
+                const Luminaire& l = luminaires[li];
+                for (size_t k = 0; k < l.points.size(); ++k) {
+                    if (!(l.weights[k] > 0)) continue;
+                    const Vec3 d = l.points[k] - xq;  // receiver -> light
+                    const double r2 = dot(d, d);
+                    if (!(r2 > 0)) continue;
+                    const double rr = std::sqrt(r2);
+                    const double cosr = dot(nq, d) / rr;
+                    if (!(cosr > 0)) continue;
+                    const double i = l.intensity(-d);  // light -> receiver
+                    if (!(i > 0)) continue;
+                    from.push_back(start);
+                    to.push_back(l.points[k]);
+                    value.push_back(l.weights[k] * i * cosr / r2);
+                    owner.push_back(li);
+                }
+            }
+            seen.assign(from.size(), 1);
+            if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
+            RGB sum{};
+            for (size_t s = 0; s < from.size(); ++s)
+                if (seen[s]) sum += luminaires[owner[s]].colour * value[s];
+            out[q] = sum;
+        }
+    });
+}
+
+void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
+                       size_t count, RGB* s0, std::array<RGB, 3>* s1) {
+    if (luminaires.empty()) return;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 64), [&](const tbb::blocked_range<size_t>& r) {
+        std::vector<Vec3> from, to, dir;
+        std::vector<RGB> value;
+        std::vector<uint8_t> seen;
+        for (size_t q = r.begin(); q < r.end(); ++q) {
+            from.clear();
+            to.clear();
+            dir.clear();
+            value.clear();
+            for (const Luminaire& l : luminaires)
+                for (size_t k = 0; k < l.points.size(); ++k) {
+                    const Vec3 d = l.points[k] - x[q];
+                    const double r2 = dot(d, d);
+                    if (!(r2 > 0) || !(l.weights[k] > 0)) continue;
+                    const double i = l.intensity(-d);
+                    if (!(i > 0)) continue;
+                    from.push_back(x[q]);
+                    to.push_back(l.points[k]);
+                    dir.push_back(d / std::sqrt(r2));
+                    value.push_back(l.colour * (l.weights[k] * i / r2));
+                }
+            seen.assign(from.size(), 1);
+            if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
+            for (size_t s = 0; s < from.size(); ++s) {
+                if (!seen[s]) continue;
+                s0[q] += value[s];
+                for (int a = 0; a < 3; ++a) s1[q][a] += value[s] * dir[s][a];
+            }
+        }
+    });
+}
+
+void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility& visibility,
+                                  const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
+                                  std::vector<double>& spread) {
+    if (g < 1) throw std::invalid_argument("element_luminaire_irradiance: g must be at least 1");
+    mean.assign(count, RGB{});
+    spread.assign(count, 0.0);
+    const double lift = 1e-5 * visibility.scene_size();
+    const size_t m = size_t(g) * size_t(g);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 16), [&](const tbb::blocked_range<size_t>& r) {
+        std::vector<Vec3> xs(m), ns(m);
+        std::vector<RGB> hs(m);
+        for (size_t e = r.begin(); e < r.end(); ++e) {
+            const Patch& p = *elements[e];
+            for (int a = 0; a < g; ++a)
+                for (int b = 0; b < g; ++b) {
+                    xs[size_t(a) * g + b] = p.point((a + 0.5) / g, (b + 0.5) / g);
+                    ns[size_t(a) * g + b] = p.normal;
+                }
+            luminaire_irradiance(luminaires, &visibility, xs.data(), ns.data(), m, hs.data(), lift);
+            RGB sum{};
+            double lo = 1e300, hi = -1e300;
+            for (const RGB& h : hs) {
+                sum += h;
+                const double y = luminance(h);
+                lo = std::min(lo, y);
+                hi = std::max(hi, y);
+            }
+            mean[e] = sum / double(m);
+            spread[e] = hi - lo;
+        }
+    });
+}
+
+}  // namespace hirad

@@ -1,0 +1,86 @@
+// Luminaires: light sources that are not Lambertian surfaces (point lights, spots, IES
+// profiles, sphere and cylinder lights, shaped area lights). A luminaire is a table of
+// luminous intensity I(C, gamma) in its own frame, emitted from a few points over its luminous
+// opening; it is not part of the surfaces and reflects nothing.
+//
+// Frame and angles (the IES LM-63 type C convention, as hirad.photometry.ies):
+//   gamma = 0 is the light's local -Z (nadir), gamma = 180 its +Z;
+//   C = 0 is local +X, C = 90 local +Y (C turns counter-clockwise seen from +Z);
+//   local direction (gamma, C) = (sin gamma cos C, sin gamma sin C, -cos gamma).
+// The table holds I at C_i = 360 i / nc (i < nc, periodic) and gamma_j = 180 j / (ng - 1) and
+// is bilinear in (C, gamma) between its nodes; nc = 1 is a rotationally symmetric profile.
+//
+// The flux of the table is integrated exactly: in a cell [C_i, C_i+1] x [g_j, g_j+1] the C
+// integral of the bilinear I is dC times the mean of the two C edges, m(gamma), linear in
+// gamma; with h = g_j+1 - g_j,
+//   integral of m(gamma) sin(gamma) over the cell = m_j (S - B) + m_j+1 B,
+//   S = cos g_j - cos g_j+1,  B = (sin g_j+1 - sin g_j - h cos g_j+1) / h.
+// So the flux the engine emits is the flux it accounts for, and the energy balance closes.
+//
+// Direct light at a receiver x with normal n (the first bounce, the only non-diffuse one):
+//   H(x, n) = sum_k w_k I(R^T (x - p_k) / r_k) max(0, n . (p_k - x) / r_k) / r_k^2 V(x, p_k)
+// over the luminaire's points p_k with weights w_k (sum 1), r_k = |x - p_k|, V one Embree
+// shadow ray. It is exact for a point source and converges with the points for an extended
+// one (the near field of a long cylinder or a large panel). After that bounce, everything is
+// diffuse: a surface that receives H re-emits rho H like self-emission.
+//
+// Units: metres; intensity in cd (photometric scenes) or W/sr (radiometric), per RGB
+// channel = candela x colour; flux in lm or W; irradiance in lux or W/m^2.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/vecmath.h"
+
+namespace hirad {
+
+class Visibility;
+
+struct Luminaire {
+    std::string name;
+    std::vector<Vec3> points;     // world positions, m
+    std::vector<double> weights;  // per point, >= 0, sum 1
+    Vec3 axis[3];                 // local X, Y, Z in world space (orthonormal, right-handed)
+    int nc = 1, ng = 2;           // table size
+    std::vector<double> candela;  // nc x ng, row-major: candela[i * ng + j] = I(C_i, gamma_j)
+    RGB colour{1, 1, 1};          // channel multiplier
+
+    // Checks the data (sizes, finiteness, weights, frame); throws std::invalid_argument
+    // naming the luminaire and the problem.
+    void validate() const;
+    // I (per unit colour) toward a world direction (any length > 0).
+    double intensity(const Vec3& world_direction) const;
+    // The exact flux of the table per unit colour (lm or W); times colour for RGB.
+    double table_flux() const;
+    RGB flux() const { return colour * table_flux(); }
+    // A 64-bit hash of everything that determines the light (for the run store).
+    uint64_t fingerprint() const;
+};
+
+// Direct irradiance from every luminaire at receivers x[k] facing n[k] (unit). Receivers are
+// lifted by `lift` along their normal before the shadow rays (a surface point does not shadow
+// itself). Parallel over receivers; deterministic. `visibility` may be null (no occlusion).
+void luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
+                          const Vec3* n, size_t count, RGB* out, double lift);
+
+// The luminaires' light arriving at points in free space (irradiance probes), as full-sphere
+// moments: s0 = sum_k w_k I / r_k^2 V (the cosine-free integral of a point source's delta of
+// radiance) and s1_a = the same sum times the unit direction towards the light, component a.
+// Adds to s0 and s1 (they hold the surfaces' part already).
+void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
+                       size_t count, RGB* s0, std::array<RGB, 3>* s1);
+
+// The luminaires' light over a surface element: the mean of H at the g x g stratum centres
+// of the element (Patch::point), and the spread (max - min of the luminance Y of H over
+// those points, W/m^2 or lux), which says whether the element resolves the light. For many
+// elements at once (parallel over elements): `mean` and `spread` are resized to the count.
+struct Patch;
+void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility& visibility,
+                                  const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
+                                  std::vector<double>& spread);
+
+uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires);
+
+}  // namespace hirad
