@@ -9,6 +9,13 @@
   logarithmic over ``decades`` decades below it (falsecolor -s, -n, -log), with a colour scale
   in cd/m^2 and optional contour lines between the bands (falsecolor -cl). Pixels that are NaN
   (no surface) are grey.
+* :func:`camera_luminance_picture`: that picture of a bake's camera view: the solution rendered
+  (``Result.render``: exitant radiance, linear RGB) and reduced to Y = 0.2126 R + 0.7152 G +
+  0.0722 B, which is luminance in cd/m^2 read photometrically (radiance in W/(m^2 sr) read
+  radiometrically, and the legend says so).
+
+Every legend and label names the unit of the study's ``units``: lux and cd/m^2 (photometric,
+the default) or W/m^2 and W/(m^2 sr) (radiometric).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import numpy as np
 from hirad.files import write_bytes
 
 from .evaluate import GridResult
+from .outputs import unit_system
 from .spec import StudyError
 
 _PNG_METADATA = {"Software": None}  # the same bytes whatever the matplotlib build
@@ -64,13 +72,16 @@ def _isolux_levels(lo: float, hi: float, count: int = 8) -> np.ndarray:
 
 
 def grid_picture(result: GridResult, *, title: Optional[str] = None, maintained: bool = False,
-                 cmap: str = "viridis", width: float = 7.0) -> bytes:
-    """A PNG of the grid's values (lux; the maintained ones if `maintained`)."""
+                 cmap: str = "viridis", width: float = 7.0, units: str = "photometric") -> bytes:
+    """A PNG of the grid's values (lux, or W/m^2 for radiometric `units`; the maintained ones
+    if `maintained`)."""
     from matplotlib import colors
 
+    us = unit_system(units)
+    unit = us["unit_text"]
     g = result.grid
     values = result.maintained if maintained else result.values
-    what = "maintained illuminance" if maintained else "illuminance"
+    what = f"maintained {us['quantity']}" if maintained else us["quantity"]
     st = result.stats
     lo, hi = float(np.min(values)), float(np.max(values))
     vmin, vmax = (lo, hi) if hi > lo else (lo - 0.5 if lo >= 0.5 else 0.0, lo + 0.5)
@@ -97,7 +108,7 @@ def grid_picture(result: GridResult, *, title: Optional[str] = None, maintained:
             uc = lay.u0 + lay.du * np.arange(lay.nu)
             vc = lay.v0 + lay.dv * np.arange(lay.nv)
             cs = ax.contour(uc, vc, np.ma.masked_invalid(arr), levels=levels, colors="white", linewidths=0.9)
-            ax.clabel(cs, fmt=lambda v: f"{v:g} lx", fontsize=7, inline=True)
+            ax.clabel(cs, fmt=lambda v: f"{v:g} {unit}", fontsize=7, inline=True)
         for o in lay.outlines:
             o = np.asarray(o)
             ax.plot(np.r_[o[:, 0], o[0, 0]], np.r_[o[:, 1], o[0, 1]], color="black", linewidth=1.0)
@@ -118,19 +129,23 @@ def grid_picture(result: GridResult, *, title: Optional[str] = None, maintained:
         ax.set_xlabel(f"{'xyz'[a]} (m)")
         ax.set_ylabel(f"{'xyz'[b]} (m)")
     cb = fig.colorbar(mesh, ax=ax, shrink=0.85)
-    cb.set_label(f"{what} (lx)")
+    cb.set_label(f"{what} ({unit})")
     u0 = "-" if st.u0 is None else f"{st.u0:.3f}"
     em = st.em_maintained if maintained else st.em
-    ax.set_title(title or f"{g.name}: {g.measure.type.replace('_', '-')} {what}, Em {em:.4g} lx, U0 {u0}", fontsize=9)
+    ax.set_title(title or f"{g.name}: {g.measure.type.replace('_', '-')} {what}, Em {em:.4g} {unit}, U0 {u0}", fontsize=9)
     return _png(fig)
 
 
 def luminance_picture(luminance, *, maximum: Optional[float] = None, scale: str = "linear", decades: int = 4,
-                      steps: int = 8, contours: bool = False, cmap: str = "turbo", title: Optional[str] = None) -> bytes:
-    """A PNG false-colour picture of a luminance image (H, W) in cd/m^2. `maximum` defaults
-    to the nice ceiling (1, 2, 2.5, 5 x 10^k) of the largest finite value; values above it
-    take the top band."""
+                      steps: int = 8, contours: bool = False, cmap: str = "turbo", title: Optional[str] = None,
+                      units: str = "photometric") -> bytes:
+    """A PNG false-colour picture of a luminance image (H, W) in cd/m^2 (radiance in
+    W/(m^2 sr) for radiometric `units`). `maximum` defaults to the nice ceiling (1, 2, 2.5,
+    5 x 10^k) of the largest finite value; values above it take the top band."""
     from matplotlib import colors
+
+    unit = unit_system(units)["luminance_text"]
+    quantity = "luminance" if units == "photometric" else "radiance"
 
     L = np.asarray(luminance, dtype=np.float64)
     if L.ndim != 2 or L.shape[0] < 1 or L.shape[1] < 1:
@@ -168,9 +183,54 @@ def luminance_picture(luminance, *, maximum: Optional[float] = None, scale: str 
     ax.set_yticks([])
     cb = fig.colorbar(im, ax=ax, shrink=0.9, ticks=bounds)
     cb.ax.set_yticklabels([f"{b:.3g}" for b in bounds])
-    cb.set_label("luminance (cd/m²)")
-    ax.set_title(title or f"luminance, {scale} scale to {top:g} cd/m²", fontsize=9)
+    cb.set_label(f"{quantity} ({unit})")
+    ax.set_title(title or f"{quantity}, {scale} scale to {top:g} {unit}", fontsize=9)
     return _png(fig)
+
+
+def camera_luminance(result, camera: Optional[str] = None, *, width: int = 480, height: int = 360,
+                     samples: int = 4) -> np.ndarray:
+    """The luminance image (height, width) of a bake's camera view: ``result.render(camera,
+    width, height, samples)`` (exitant radiance, linear RGB, W/(m^2 sr)) reduced to Y =
+    0.2126 R + 0.7152 G + 0.0722 B: cd/m^2 read photometrically. `camera` is a camera prim
+    path of the scene, None for the first camera (or hirad's default view)."""
+    for name, v, lo in (("width", width, 1), ("height", height, 1), ("samples", samples, 1)):
+        if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+            raise StudyError(f"luminance image: {name} {v!r} (a positive integer)")
+    try:
+        rgb = np.asarray(result.render(camera, width, height, samples), dtype=np.float64)
+    except Exception as e:  # noqa: BLE001 - a camera that does not exist, an engine error
+        from hirad.errors import BakeError
+
+        if isinstance(e, BakeError):
+            raise StudyError(f"luminance image: {e}") from None
+        raise
+    if rgb.shape != (height, width, 3):
+        raise StudyError(f"luminance image: the render gave shape {rgb.shape}, expected ({height}, {width}, 3)")
+    return rgb @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def camera_luminance_picture(result, camera: Optional[str] = None, *, width: int = 480, height: int = 360,
+                             samples: int = 4, units: str = "photometric", scale: str = "log", decades: int = 3,
+                             steps: int = 9, maximum: Optional[float] = None, contours: bool = False,
+                             cmap: str = "turbo", title: Optional[str] = None) -> bytes:
+    """PNG bytes: the false-colour luminance picture (the counterpart of Radiance's
+    ``falsecolor``) of the camera view of a bake's Result (or a stored solution,
+    ``hirad.bake.load_solution``), with its legend in cd/m^2 (W/(m^2 sr) when `units` is
+    radiometric). Log scale over `decades` decades below `maximum` by default (a room's
+    luminances span decades: the emitters and the dark corners); see luminance_picture."""
+    unit_system(units)
+    lum = camera_luminance(result, camera, width=width, height=height, samples=samples)
+    cams = getattr(result, "cameras", None) or []
+    where = camera if camera else (cams[0].path if cams else "the default view")
+    if title is None:
+        q = "luminance" if units == "photometric" else "radiance"
+        u = unit_system(units)["luminance_text"]
+        finite = lum[np.isfinite(lum)]
+        top = maximum if maximum is not None else nice_ceiling(float(finite.max()) if finite.size else 1.0)
+        title = f"{q} of {where}, {scale} scale to {top:g} {u}"
+    return luminance_picture(lum, maximum=maximum, scale=scale, decades=decades, steps=steps, contours=contours,
+                             cmap=cmap, title=title, units=units)
 
 
 def write_png(path, data: bytes) -> None:

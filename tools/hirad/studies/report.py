@@ -27,6 +27,7 @@ from hirad import __version__
 from hirad.files import atomic_path, write_text
 
 from .evaluate import GridResult
+from .outputs import UNIT_SYSTEMS, unit_system
 from .pictures import grid_picture
 from .spec import StudyError
 
@@ -35,16 +36,40 @@ LUMINAIRE_COLUMNS = (("type", "Type"), ("count", "Count"), ("lumens", "Lumens pe
 UNITS_TEXT = ("Illuminance E in lux (lx = lm/m²), luminance in cd/m², luminous flux in lumens (lm), "
               "lengths in metres (m). Maintained values are the maintenance factor × the values of the new "
               "installation; U0 = Emin/Em and Ud = Emin/Emax are ratios.")
-STAT_ROWS = (("em", "Em (lx)"), ("emin", "Emin (lx)"), ("emax", "Emax (lx)"), ("u0", "U0 = Emin/Em"),
-             ("ud", "Ud = Emin/Emax"), ("em_maintained", "maintained Em (lx)"),
-             ("emin_maintained", "maintained Emin (lx)"), ("emax_maintained", "maintained Emax (lx)"))
+RADIOMETRIC_TEXT = ("Radiometric units: irradiance E in W/m², radiance in W/(m² sr), exitance in W/m², lengths in "
+                    "metres (m). Each value is Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear Rec.709 channels. "
+                    "Maintained values are the maintenance factor × the values of the new installation; "
+                    "U0 = Emin/Em and Ud = Emin/Emax are ratios.")
+
+
+def units_text(units: str) -> str:
+    """The report's units paragraph for "photometric" or "radiometric"."""
+    unit_system(units)
+    return UNITS_TEXT if units == "photometric" else RADIOMETRIC_TEXT
+
+
+def stat_rows(units: str = "photometric") -> tuple:
+    """(key, label) of the statistics, labels in the unit system's unit."""
+    u = unit_system(units)["unit_text"]
+    return (("em", f"Em ({u})"), ("emin", f"Emin ({u})"), ("emax", f"Emax ({u})"), ("u0", "U0 = Emin/Em"),
+            ("ud", "Ud = Emin/Emax"), ("em_maintained", f"maintained Em ({u})"),
+            ("emin_maintained", f"maintained Emin ({u})"), ("emax_maintained", f"maintained Emax ({u})"))
+
+
+STAT_ROWS = stat_rows("photometric")
+LUMINANCE_FILE = "luminance.camera.png"  # the camera luminance image beside the grids
 
 
 @dataclass
 class Study:
     """What a report shows. `luminaires`: dicts with type, count, lumens, ies (other keys
     become further columns); `solver`: the solver's figures (residual, energy_balance, and
-    anything else to show), values numbers or text; `pictures`: extra (caption, PNG bytes)."""
+    anything else to show), values numbers or text; `pictures`: extra (caption, PNG bytes).
+    `unit_system`: "photometric" (lux, cd/m^2) or "radiometric" (W/m^2, W/(m^2 sr)): the labels
+    of the tables, the grid pictures' legends and the per-grid CSV and JSON; None reads it from
+    `units` (a text starting "Radiometric" is radiometric), and `units` left at its default
+    follows `unit_system`. `luminance`: an optional (caption, PNG bytes) luminance image of a
+    camera view (pictures.camera_luminance_picture), shown after the grids."""
 
     results: Sequence[GridResult]
     maintenance_factor: float
@@ -56,11 +81,33 @@ class Study:
     pictures: Sequence[tuple[str, bytes]] = ()
     version: str = __version__
     grid_pictures: Optional[Mapping[str, bytes]] = None  # name -> PNG; drawn when absent
+    unit_system: Optional[str] = None
+    luminance: Optional[tuple[str, bytes]] = None
+
+    def __post_init__(self):
+        if self.unit_system is None:
+            self.unit_system = "radiometric" if str(self.units).lstrip().lower().startswith("radiometric") else "photometric"
+        unit_system(self.unit_system)
+        if self.units == UNITS_TEXT and self.unit_system == "radiometric":
+            self.units = RADIOMETRIC_TEXT
+        if self.luminance is not None:
+            if (not isinstance(self.luminance, (tuple, list)) or len(self.luminance) != 2
+                    or not isinstance(self.luminance[1], (bytes, bytearray))):
+                raise StudyError("report: luminance must be (caption, PNG bytes)")
+
+    @property
+    def unit(self) -> str:
+        return UNIT_SYSTEMS[self.unit_system]["unit_text"]
 
     def picture_of(self, result: GridResult) -> bytes:
         if self.grid_pictures and result.name in self.grid_pictures:
             return self.grid_pictures[result.name]
-        return grid_picture(result)
+        return grid_picture(result, units=self.unit_system)
+
+    def all_pictures(self) -> list[tuple[str, bytes]]:
+        """The luminance image (if any) and then the extra pictures, as (caption, PNG)."""
+        out = [tuple(self.luminance)] if self.luminance is not None else []
+        return out + [tuple(p) for p in self.pictures]
 
 
 def _fmt(v: Any) -> str:
@@ -183,11 +230,12 @@ def render_html(study: Study) -> str:
         out.append(f"<tr><th>{html.escape(str(k))}</th><td>{_esc(v)}</td></tr>")
     out.append("</table>")
 
+    rows = stat_rows(study.unit_system)
     out.append("<h2>Grids</h2>")
-    out.append('<table id="grid-summary"><tr><th>grid</th>' + "".join(f"<th>{t}</th>" for _, t in STAT_ROWS) + "</tr>")
+    out.append('<table id="grid-summary"><tr><th>grid</th>' + "".join(f"<th>{t}</th>" for _, t in rows) + "</tr>")
     for r in study.results:
         st = r.stats.as_dict()
-        out.append(f"<tr><td>{html.escape(r.name)}</td>" + "".join(f'<td class="n">{_esc(st[k])}</td>' for k, _ in STAT_ROWS) + "</tr>")
+        out.append(f"<tr><td>{html.escape(r.name)}</td>" + "".join(f'<td class="n">{_esc(st[k])}</td>' for k, _ in rows) + "</tr>")
     out.append("</table>")
     for r in study.results:
         st = r.stats.as_dict()
@@ -195,11 +243,16 @@ def render_html(study: Study) -> str:
         out.append(f'<div class="grid" id="grid-{gid}"><h3>{html.escape(r.name)}</h3><table>')
         for label, value in grid_summary(r):
             out.append(f"<tr><th>{html.escape(label)}</th><td>{html.escape(value)}</td></tr>")
-        for k, label in STAT_ROWS:
+        for k, label in rows:
             out.append(f'<tr><th>{label}</th><td class="n" data-key="{k}">{_esc(st[k])}</td></tr>')
         out.append("</table>")
-        out.append(f'<img alt="false-colour illuminance of {gid}" src="{_data_uri(study.picture_of(r))}">')
+        what = UNIT_SYSTEMS[study.unit_system]["quantity"]
+        out.append(f'<img alt="false-colour {what} of {gid}" src="{_data_uri(study.picture_of(r))}">')
         out.append("</div>")
+    if study.luminance is not None:
+        caption, png = study.luminance
+        out.append(f'<h2>Luminance</h2><div class="grid" id="luminance"><h3>{html.escape(caption)}</h3>'
+                   f'<img alt="{html.escape(caption, quote=True)}" src="{_data_uri(png)}"></div>')
     for caption, png in study.pictures:
         out.append(f'<div class="grid"><h3>{html.escape(caption)}</h3>'
                    f'<img alt="{html.escape(caption, quote=True)}" src="{_data_uri(png)}"></div>')
@@ -305,9 +358,10 @@ def _pdf_matplotlib(study: Study) -> bytes:
         table(ax, srows)
         ax = fig.add_axes((0.08, 0.05, 0.84, 0.28))
         ax.set_title("Grids", loc="left", fontsize=11)
-        table(ax, [[r.name] + [_fmt(r.stats.as_dict()[k]) for k, _ in STAT_ROWS] for r in study.results],
+        rows = stat_rows(study.unit_system)
+        table(ax, [[r.name] + [_fmt(r.stats.as_dict()[k]) for k, _ in rows] for r in study.results],
               ["grid"] + list(_SHORT_LABELS), fontsize=6)
-        ax.text(0.0, -0.02, "Em, Emin, Emax in lx; maint. = maintained (MF x the new installation's value)",
+        ax.text(0.0, -0.02, f"Em, Emin, Emax in {study.unit}; maint. = maintained (MF x the new installation's value)",
                 transform=ax.transAxes, fontsize=6, va="top")
         pdf.savefig(fig)
         for r in study.results:
@@ -315,12 +369,12 @@ def _pdf_matplotlib(study: Study) -> bytes:
             fig.text(0.08, 0.95, f"Grid {r.name}", fontsize=14, weight="bold")
             st = r.stats.as_dict()
             ax = fig.add_axes((0.08, 0.62, 0.84, 0.3))
-            table(ax, [[a, b] for a, b in grid_summary(r)] + [[t, _fmt(st[k])] for k, t in STAT_ROWS])
+            table(ax, [[a, b] for a, b in grid_summary(r)] + [[t, _fmt(st[k])] for k, t in rows])
             ax = fig.add_axes((0.05, 0.04, 0.9, 0.55))
             ax.imshow(imread(io.BytesIO(study.picture_of(r)), format="png"))
             ax.axis("off")
             pdf.savefig(fig)
-        for caption, png in study.pictures:
+        for caption, png in study.all_pictures():
             fig = Figure(figsize=a4)
             fig.text(0.08, 0.95, caption, fontsize=14, weight="bold")
             ax = fig.add_axes((0.05, 0.3, 0.9, 0.6))
@@ -332,8 +386,9 @@ def _pdf_matplotlib(study: Study) -> bytes:
 
 def write_study(study: Study, out_dir, *, pdf: bool = True, engine: str = "auto") -> dict:
     """Writes every output of a study into the directory `out_dir` (made if missing), each
-    file atomically: per grid NAME.csv, NAME.json and NAME.png; report.html and (if `pdf`)
-    report.pdf. Returns {"files": [paths], "pdf_engine": name or None}."""
+    file atomically: per grid NAME.csv, NAME.json and NAME.png (in the study's unit system);
+    luminance.camera.png when the study has a luminance image; report.html and (if `pdf`) report.pdf.
+    Returns {"files": [paths], "pdf_engine": name or None}."""
     from pathlib import Path
 
     from .outputs import write_grid_csv, write_grid_json
@@ -347,13 +402,18 @@ def write_study(study: Study, out_dir, *, pdf: bool = True, engine: str = "auto"
     pictures = dict(study.grid_pictures or {})
     files = []
     for r in study.results:
-        png = pictures.get(r.name) or grid_picture(r)
+        png = pictures.get(r.name) or grid_picture(r, units=study.unit_system)
         pictures[r.name] = png
         for suffix, write in (("csv", write_grid_csv), ("json", write_grid_json)):
-            write(r, out / f"{r.name}.{suffix}")
+            write(r, out / f"{r.name}.{suffix}", study.unit_system)
             files.append(out / f"{r.name}.{suffix}")
         write_png(out / f"{r.name}.png", png)
         files.append(out / f"{r.name}.png")
+    if study.luminance is not None:
+        if any(f"{r.name}.png" == LUMINANCE_FILE for r in study.results):
+            raise StudyError(f"report: a grid named {LUMINANCE_FILE[:-4]!r} would overwrite the luminance image; rename the grid")
+        write_png(out / LUMINANCE_FILE, study.luminance[1])
+        files.append(out / LUMINANCE_FILE)
     drawn = Study(**{**study.__dict__, "grid_pictures": pictures})
     write_report_html(drawn, out / "report.html")
     files.append(out / "report.html")

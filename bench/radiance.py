@@ -1,0 +1,266 @@
+"""hirad and Radiance side by side on the Modern Hall work plane: time and agreement, in one run.
+
+    python bench/radiance.py [--points 10000] [--quick] [--ab 5 --ad 2048 --as 1024 --aa 0.1 --ar 512]
+
+1. Reads ../shared/data/modern_hall with `hirad.usd.read_scene` (the bake's own reader and
+   settings: metres, the bound materials' reflectance, area-light emission) and writes the
+   very same polygons as a Radiance scene: one `polygon` per face, `plastic` (no specular,
+   roughness 0) of the face's RGB reflectance, or `light` of radiance = hirad emission / pi
+   per channel (hirad's emission is exitance in W/m^2, Radiance's `light` is radiance in
+   W/(m^2 sr)). Both programs see identical geometry. Emitter faces larger than
+   --light-split metres on a side are cut into equal sub-polygons (quads into a grid, triangles
+   4-split), so Radiance samples its sources finely (its direct light in partial shadow is off
+   otherwise); this changes no emitted power and no geometry.
+2. Bakes the hall with hirad (hierarchical, the bench/grids.py settings, solution.usda on,
+   other outputs off), opens the stored solution (`hirad.bake.load_solution`, as `hirad grid`
+   does) and times the grid evaluation: `illuminance_evaluator(512 rays)`, the calculation
+   grids' read-out (exact direct light of the emitter faces with visibility, indirect light
+   gathered from the stored solution), on the 10,000-point work plane of bench/grids.py (a
+   regular grid over the floor's bounding box 0.80 m above the floor, facing up).
+3. Runs `oconv` and `rtrace -I` (irradiance at each point facing its normal, W/m^2 per
+   channel; `-n` processes, one shared ambient file) on the same points, timed (wall).
+4. Prints both timings and the agreement of the photometric Y = 0.2126 R + 0.7152 G +
+   0.0722 B (Rec.709, the weights hirad's grids use; Radiance's own `179 lm/W x (0.265, 0.670,
+   0.065)` is not used, so both are the same quantity in W/m^2): mean and RMS of the per-point
+   relative difference (hirad - Radiance) / Radiance, Em, Emin and U0 = Emin/Em of each, and
+   the same over the points Radiance finds lit (Y > 1 % of its median).
+Every timing line states the 1-minute load average at its start (the machine may be shared).
+Radiance's binaries come with PyPI `pyradiance` (the `bench` extra of pyproject.toml).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+HALL = ROOT.parent / "shared/data/modern_hall/usd/modern_hall.usda"
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+
+def load() -> str:
+    return f"load {os.getloadavg()[0]:.2f}"
+
+
+def radiance_env() -> dict:
+    """The environment in which pyradiance's bundled binaries run (RAYPATH: its lib)."""
+    import importlib.util
+
+    # located, not imported: its extension modules are not wanted in the engine's process
+    spec = importlib.util.find_spec("pyradiance")
+    if spec is None or spec.origin is None:
+        raise SystemExit("pyradiance is not installed (pip install 'pyradiance>=1.3.1', the bench extra)")
+    base = Path(spec.origin).resolve().parent
+    env = dict(os.environ)
+    env["PATH"] = f"{base / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    env["RAYPATH"] = f".{os.pathsep}{base / 'lib'}"
+    return env
+
+
+def _split(poly: np.ndarray, most: float) -> list[np.ndarray]:
+    """Equal sub-polygons of a triangle (4-split) or quad (an n x m grid, bilinear) whose edges
+    are at most `most` metres; the union is the polygon."""
+    edges = np.linalg.norm(poly - np.roll(poly, -1, axis=0), axis=1)
+    if edges.max() <= most:
+        return [poly]
+    if len(poly) == 3:
+        a, b, c = poly
+        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+        return [q for t in ([a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca])
+                for q in _split(np.array(t), most)]
+    if len(poly) == 4:
+        p0, p1, p2, p3 = poly
+        nu = int(np.ceil(max(edges[0], edges[2]) / most))
+        nv = int(np.ceil(max(edges[1], edges[3]) / most))
+
+        def at(s, t):
+            return (1 - s) * (1 - t) * p0 + s * (1 - t) * p1 + s * t * p2 + (1 - s) * t * p3
+        return [np.array([at(i / nu, j / nv), at((i + 1) / nu, j / nv), at((i + 1) / nu, (j + 1) / nv),
+                          at(i / nu, (j + 1) / nv)]) for i in range(nu) for j in range(nv)]
+    return [poly]
+
+
+def write_rad(scene, path: Path, light_split: float) -> dict:
+    """The scene's faces as a Radiance scene file; returns counts."""
+    counts = scene.face_vertex_counts
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    materials: dict[tuple, str] = {}
+    lines = []
+    n_poly = n_light = 0
+    emitted_power = 0.0
+    for f in range(scene.num_faces):
+        c = int(counts[f])
+        poly = scene.points[scene.face_vertex_indices[starts[f]:starts[f] + c]]
+        e = scene.face_emission[f]
+        if e.max() > 0:
+            key = ("light",) + tuple(np.round(e / np.pi, 9))
+        else:
+            key = ("plastic",) + tuple(np.round(scene.face_reflectance[f], 6))
+        name = materials.get(key)
+        if name is None:
+            name = materials[key] = f"m{len(materials)}"
+            if key[0] == "light":
+                lines.append(f"void light {name}\n0\n0\n3 {key[1]:.9g} {key[2]:.9g} {key[3]:.9g}\n")
+            else:
+                lines.append(f"void plastic {name}\n0\n0\n5 {key[1]:.6g} {key[2]:.6g} {key[3]:.6g} 0 0\n")
+        pieces = _split(poly, light_split) if key[0] == "light" else [poly]
+        if key[0] == "light":
+            n_light += len(pieces)
+            nrm = np.zeros(3)
+            for i in range(c):
+                nrm += np.cross(poly[i], poly[(i + 1) % c])
+            emitted_power += 0.5 * float(np.linalg.norm(nrm)) * float(e @ LUM)
+        for q in pieces:
+            lines.append(f"{name} polygon f{n_poly}\n0\n0\n{3 * len(q)} " + " ".join(f"{v:.9g}" for v in q.ravel()) + "\n")
+            n_poly += 1
+    path.write_text("".join(lines))
+    return {"polygons": n_poly, "light_polygons": n_light, "materials": len(materials), "emitted_Y_W": emitted_power}
+
+
+def work_plane(res, n_points: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """bench/grids.py's work plane: a regular grid over the bounding box of the floor's leaves
+    (the lowest 1 cm height bin holding a tenth of the upward-facing area), 0.80 m above it."""
+    p = res.patches
+    up = 2 if res.up_axis == "Z" else 1
+    normal = np.zeros(3)
+    normal[up] = 1
+    facing_up = p["normal"][:, up] > 0.99
+    heights = np.round(p["centroid"][:, up] / 0.01).astype(np.int64)
+    levels, inverse = np.unique(heights[facing_up], return_inverse=True)
+    area_at = np.bincount(inverse, weights=p["area"][facing_up])
+    floor_bin = levels[np.flatnonzero(area_at >= 0.1 * area_at.sum())[0]]
+    floor = facing_up & (heights == floor_bin)
+    floor_level = float(p["centroid"][floor, up].max())
+    lo, hi = p["corners"][floor].reshape(-1, 3).min(0), p["corners"][floor].reshape(-1, 3).max(0)
+    axes = [a for a in range(3) if a != up]
+    n_side = int(np.ceil(np.sqrt(n_points)))
+    u = np.linspace(lo[axes[0]], hi[axes[0]], n_side + 2)[1:-1]
+    v = np.linspace(lo[axes[1]], hi[axes[1]], n_side + 2)[1:-1]
+    uu, vv = np.meshgrid(u, v)
+    pts = np.zeros((uu.size, 3))
+    pts[:, axes[0]], pts[:, axes[1]], pts[:, up] = uu.ravel(), vv.ravel(), floor_level + 0.80
+    pts = np.ascontiguousarray(pts[:n_points])
+    return pts, np.ascontiguousarray(np.tile(normal, (len(pts), 1))), floor_level
+
+
+def rtrace(octree: Path, pts: np.ndarray, nrm: np.ndarray, opts: list[str], env: dict, cwd: Path) -> np.ndarray:
+    text = "".join(f"{a:.9g} {b:.9g} {c:.9g} {d:.9g} {e:.9g} {f:.9g}\n" for (a, b, c), (d, e, f) in zip(pts, nrm))
+    run = subprocess.run(["rtrace", "-h", "-I+", "-ov", "-fad", *opts, str(octree)], input=text.encode(),
+                         capture_output=True, env=env, cwd=cwd, check=False)
+    if run.returncode != 0:
+        raise SystemExit(f"rtrace failed ({run.returncode}): {run.stderr.decode(errors='replace')[-2000:]}")
+    out = np.frombuffer(run.stdout, dtype=np.float64).reshape(-1, 3)
+    if len(out) != len(pts):
+        raise SystemExit(f"rtrace returned {len(out)} values for {len(pts)} points")
+    return out
+
+
+def stats(y: np.ndarray) -> str:
+    em = float(y.mean())
+    return f"Em {em:8.4f}  Emin {float(y.min()):8.4f}  Emax {float(y.max()):8.4f}  U0 {float(y.min()) / em:.4f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=10000)
+    ap.add_argument("--quick", action="store_true",
+                    help="a quick look: 900 points, a coarser bake (eps 1e-4, min_area 0.02), -ab 3 -ad 512 -as 256")
+    ap.add_argument("--rays", type=int, default=512, help="hirad's hemisphere rays per point (the grids' default)")
+    ap.add_argument("--epsilon", type=float, default=1e-5)
+    ap.add_argument("--min-area", type=float, default=0.005)
+    ap.add_argument("--ab", type=int, default=5)
+    ap.add_argument("--ad", type=int, default=2048)
+    ap.add_argument("--as", dest="as_", type=int, default=1024)
+    ap.add_argument("--aa", type=float, default=0.1)
+    ap.add_argument("--ar", type=int, default=512)
+    ap.add_argument("--lw", type=float, default=1e-4)
+    ap.add_argument("--ds", type=float, default=0.02, help="rtrace -ds (source subdivision)")
+    ap.add_argument("--light-split", type=float, default=0.1, help="largest emitter edge in the Radiance scene, m")
+    ap.add_argument("--processes", type=int, default=os.cpu_count() or 1, help="rtrace -n")
+    args = ap.parse_args()
+    if args.quick:
+        args.points, args.epsilon, args.min_area = min(args.points, 900), 1e-4, 0.02
+        args.ab, args.ad, args.as_ = 3, 512, 256
+    if not HALL.exists():
+        raise SystemExit(f"{HALL} is absent: nothing to measure")
+
+    from hirad import usd
+    from hirad.bake import bake, load_solution
+    from hirad.config import config_from_dict
+
+    env = radiance_env()
+    version = subprocess.run(["rtrace", "-version"], capture_output=True, env=env, text=True).stdout.strip()
+    print(f"machine: nproc {os.cpu_count()}, load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {version}")
+    with tempfile.TemporaryDirectory() as tmp_:
+        tmp = Path(tmp_)
+        cfg = config_from_dict({
+            "scene": str(HALL), "output": str(tmp / "out"), "method": "hierarchical",
+            "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": 16},
+            "solver": {"method": "jacobi", "tolerance": 1e-4},
+            "outputs": {"usd": True, "lightmaps": {"enabled": False}, "preview": {"enabled": False}, "report": True}})
+        scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
+                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=True)
+        ld = load()
+        t0 = time.perf_counter()
+        res = bake(cfg)
+        print(f"hirad bake: {time.perf_counter() - t0:.1f} s ({ld}), eps {args.epsilon:g}, min_area {args.min_area:g}, "
+              f"{len(res.patches['area'])} leaves, residual {res.report['solver']['residual']:.2e}")
+        pts, nrm, floor = work_plane(res, args.points)
+        print(f"work plane: {len(pts)} points 0.80 m over the floor at {floor:.3f} m ({res.up_axis} up), facing up")
+        del res
+
+        ld = load()
+        t0 = time.perf_counter()
+        stored = load_solution(tmp / "out" / "solution.usda")
+        t_load = time.perf_counter() - t0
+        evaluate = stored.illuminance_evaluator(args.rays, 1)
+        t0 = time.perf_counter()
+        y_h = np.asarray(evaluate(pts, nrm))
+        t_hirad = time.perf_counter() - t0
+        print(f"hirad grid evaluation on the stored bake: {t_hirad:.2f} s ({ld}; opening solution.usda "
+              f"{t_load:.2f} s more), {args.rays} rays per point")
+
+        rad = tmp / "hall.rad"
+        counts = write_rad(scene, rad, args.light_split)
+        ld = load()
+        t0 = time.perf_counter()
+        with open(tmp / "hall.oct", "wb") as f:
+            run = subprocess.run(["oconv", "-f", str(rad)], stdout=f, stderr=subprocess.PIPE, env=env, cwd=tmp)
+        if run.returncode != 0:
+            raise SystemExit(f"oconv failed: {run.stderr.decode(errors='replace')[-2000:]}")
+        t_oconv = time.perf_counter() - t0
+        opts = ["-ab", str(args.ab), "-ad", str(args.ad), "-as", str(args.as_), "-aa", f"{args.aa:g}",
+                "-ar", str(args.ar), "-lw", f"{args.lw:g}", "-ds", f"{args.ds:g}", "-dj", "0", "-dc", "1",
+                "-dt", "0", "-st", "0", "-lr", "-10", "-af", str(tmp / "hall.amb"), "-n", str(args.processes)]
+        print(f"Radiance scene: {counts['polygons']} polygons ({counts['light_polygons']} light pieces), "
+              f"{counts['materials']} materials, oconv {t_oconv:.2f} s ({ld})")
+        ld = load()
+        t0 = time.perf_counter()
+        rgb_r = rtrace(tmp / "hall.oct", pts, nrm, opts, env, tmp)
+        t_rad = time.perf_counter() - t0
+        print(f"rtrace -I {' '.join(opts[:-4])} -n {args.processes}: {t_rad:.1f} s ({ld})")
+    y_r = rgb_r @ LUM
+
+    print()
+    print(f"{'':10s} {'time s':>8s}   work plane, Y (W/m^2; lux when read photometrically)")
+    print(f"{'hirad':10s} {t_hirad:8.2f}   {stats(y_h)}")
+    print(f"{'Radiance':10s} {t_rad:8.2f}   {stats(y_r)}")
+    lit = y_r > 0.01 * np.median(y_r)
+    for label, m in (("all points", np.ones(len(y_r), bool)), ("lit (Y_rad > 1 % of median)", lit)):
+        rel = (y_h[m] - y_r[m]) / np.where(y_r[m] > 0, y_r[m], np.nan)
+        rel = rel[np.isfinite(rel)]
+        print(f"{label} ({int(m.sum())}): relative difference hirad vs Radiance mean {rel.mean():+.2%}, "
+              f"RMS {np.sqrt(np.mean(rel ** 2)):.2%}, median |.| {np.median(np.abs(rel)):.2%}; "
+              f"Em ratio {y_h[m].mean() / y_r[m].mean() - 1:+.2%}")
+    print(f"speed: hirad {t_rad / t_hirad:.1f}x faster than rtrace (both on {os.cpu_count()} cores); "
+          f"load at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()
