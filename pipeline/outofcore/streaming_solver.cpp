@@ -145,7 +145,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     const size_t n = h.nodes.size();
     const size_t ng = chunks.groups();
     if (is_source.size() != n || outgoing.size() != n)
-        throw std::invalid_argument("streaming solve: per-node source flags and outgoing sums must cover the hierarchy");
+        throw std::invalid_argument("streaming solve: per-node source flags and outgoing sums must cover the hierarchy (" + std::to_string(is_source.size()) + ", " + std::to_string(outgoing.size()) + " for " + std::to_string(n) + " nodes)");
     if (ng != groups.count()) throw std::invalid_argument("streaming solve: the links' groups are not the hierarchy's");
 
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);

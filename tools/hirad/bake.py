@@ -23,7 +23,7 @@ from .outputs.lightmaps import write_lightmaps
 from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
 from .report import Reporter, energy_balance, write_json
-from .solution import Result, SurfaceSolution, load_solution  # noqa: F401  (the API: hirad.bake.load_solution)
+from .solution import LUMINAIRES_FILE, Result, SurfaceSolution, load_solution, luminance_y, save_luminaires  # noqa: F401  (the API: hirad.bake.load_solution)
 from .studies import StudyError, build_grids, evaluate_grids, resolve_room
 
 
@@ -117,6 +117,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     with rep.stage("build scene"):
         model = build_engine(scene)
         stats = model.stats()
+    specs = list(getattr(scene, "luminaires", None) or [])
+    luminaires = [s.to_engine() for s in specs]
+    if luminaires:
+        model.set_luminaires(luminaires)
     skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "self_intersecting_faces",
                                               "nonmanifold_edges") if getattr(stats, k)}
     if skipped:
@@ -133,13 +137,16 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         snapshot_cb = None
     else:
         solved, patches, b, h, escaped, snapshot_cb = _solve_flat(cfg, model, scene, staging, rep)
+    # The irradiance from the surfaces plus the luminaires' direct light (their first bounce).
+    h = np.asarray(h) + patches["direct"]
     n = model.num_patches
     method = cfg.solver.method
     ff = cfg.formfactors
     if not solved.converged:
         rep.warn(f"solver stopped after {solved.iterations} iterations at residual "
                  f"{solved.residual:.3e}, above the tolerance {cfg.solver.tolerance:g}")
-    balance = energy_balance(patches, b, h, escaped)
+    balance = energy_balance(patches, b, h, escaped,
+                             luminaire_flux=np.asarray(model.luminaire_flux)[0] if luminaires else None)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
@@ -150,7 +157,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                     vertex_radiance[faces], vertex_irradiance[faces],
                     cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
                     patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
-                    emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi))
+                    emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
+                    luminaires=luminaires)
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
@@ -166,9 +174,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if cfg.outputs.usd:
         with rep.stage("write USD"):
             path = staging / "solution.usda"
-            usd.write_solution_layer(cfg.scene, path, scene, meshes, {
-                "hirad:version": __version__, "hirad:config": cfg.fingerprint(),
-                "hirad:units": "radiance W/(m^2 sr), irradiance W/m^2"})
+            meta = {"hirad:version": __version__, "hirad:config": cfg.fingerprint(),
+                    "hirad:units": "radiance W/(m^2 sr), irradiance W/m^2"}
+            if luminaires:
+                save_luminaires(luminaires, staging / LUMINAIRES_FILE)
+                meta["hirad:luminaires"] = LUMINAIRES_FILE
+            usd.write_solution_layer(cfg.scene, path, scene, meshes, meta)
             outputs["usd"] = "solution.usda"
     if cfg.outputs.preview.enabled:
         with rep.stage("preview"):
@@ -195,7 +206,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                 solver={"method": f"{cfg.method}, {method}", "iterations": solved.iterations,
                         "residual": solved.residual, "tolerance": cfg.solver.tolerance,
                         "energy balance (max relative error)": balance.get("max_relative_error")},
-                warn=rep.warn)
+                warn=rep.warn, luminaires=_luminaire_schedule(specs, patches))
         outputs["grids"] = "grids/"
 
     stats = model.stats()
@@ -313,13 +324,14 @@ def _room_polygons(stage_path, room: str, up_axis: str) -> list:
 
 
 def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: float, seed: int, rays: int,
-                     title: str, solver: dict, subtitle: str = "", warn=None) -> dict:
+                     title: str, solver: dict, subtitle: str = "", warn=None, luminaires=()) -> dict:
     """Writes the evaluated grids into `out_dir` (per grid NAME.csv, NAME.json, NAME.png;
     report.html and, when WeasyPrint works, report.pdf) and returns what report.json says of
     them: units, maintenance factor, seed, rays and each grid's statistics."""
     from .studies.report import UNITS_TEXT, Study, pdf_engine, write_report_pdf, write_study
 
     study = Study(results=results, maintenance_factor=maintenance_factor, title=title, subtitle=subtitle,
+                  luminaires=list(luminaires),
                   units=UNITS_TEXT if units == "photometric" else _RADIOMETRIC_TEXT,
                   solver={**solver, "units": units, "grid seed": seed, "rays per point": rays})
     written = write_study(study, out_dir, pdf=False)
@@ -343,6 +355,20 @@ def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: 
         "files": names,
         "grids": {r.name: r.stats.as_dict() for r in results},
     }
+
+
+def _luminaire_schedule(specs, patches: dict) -> list[dict]:
+    """The report's luminaire schedule: the luminaires by type (photometry.luminaires.schedule)
+    and the area emitters (emissive surfaces, Rect/Disk/Mesh lights) as one row with their flux."""
+    from .photometry.luminaires import schedule
+
+    rows = schedule(specs) if specs else []
+    emitting = (patches["emission"] > 0).any(axis=1)
+    if emitting.any():
+        flux = float(luminance_y((patches["emission"][emitting] * patches["area"][emitting, None]).sum(axis=0)))
+        rows.append({"type": "area emitters (Lambertian surfaces)", "count": 1, "lumens": flux, "ies": None,
+                     "name": "emissive surfaces"})
+    return rows
 
 
 def _thin(history: list, most: int) -> list:

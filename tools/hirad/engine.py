@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _engine
 
-PATCH_FIELDS = ("corners", "uv", "area", "normal", "centroid", "reflectance", "emission", "nv", "mesh", "face",
+PATCH_FIELDS = ("corners", "uv", "area", "normal", "centroid", "reflectance", "emission", "direct", "nv", "mesh", "face",
                 "source_face")
 DISPLAY_FIELDS = ("points", "point_mesh", "corners", "boundary", "faces", "face_nv", "face_patch", "face_code",
                   "anchored")

@@ -125,16 +125,28 @@ def _is_terminal(stream) -> bool:
         return False
 
 
-def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray) -> dict:
-    """Emitted power against absorbed plus escaped (through openings), per channel, in W."""
+def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray, luminaire_flux=None) -> dict:
+    """Emitted power against absorbed plus escaped (through openings), per channel, in W (lm
+    when photometric). `h` is the whole irradiance (from the surfaces and the luminaires).
+    With luminaires, their exact flux is emitted too, and what of it reaches no surface (the
+    flux less the direct light the patches receive, sum of direct x area) escapes: in a closed
+    room that part is the discretisation's error of the direct light alone."""
     area = patches["area"][:, None]
     emitted = (patches["emission"] * area).sum(axis=0)
     absorbed = ((1 - patches["reflectance"]) * h * area).sum(axis=0)
-    lost = escaped.sum(axis=0)
+    lost = np.asarray(escaped).sum(axis=0)
+    out = {}
+    if luminaire_flux is not None:
+        flux = np.asarray(luminaire_flux, dtype=np.float64).reshape(3)
+        received = (patches["direct"] * area).sum(axis=0)
+        emitted = emitted + flux
+        lost = lost + (flux - received)
+        out = {"luminaire_flux_W": flux.tolist(), "luminaire_received_W": received.tolist(),
+               "luminaire_unreceived_W": (flux - received).tolist()}
     scale = np.where(emitted > 0, emitted, 1.0)
     error = np.abs(emitted - absorbed - lost) / scale
     return {"emitted_W": emitted.tolist(), "absorbed_W": absorbed.tolist(), "escaped_W": lost.tolist(),
-            "relative_error": error.tolist(), "max_relative_error": float(error.max())}
+            "relative_error": error.tolist(), "max_relative_error": float(error.max()), **out}
 
 
 def write_json(path: Path, data: dict) -> None:

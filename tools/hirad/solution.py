@@ -46,6 +46,9 @@ class SurfaceSolution:
     # (P,3) self-emitted radiance E/pi of each patch, W/(m^2 sr), 0 for non-emitters; None when
     # unknown (a solution layer written before hirad stored primvars:hirad:emission)
     emitted_radiance: np.ndarray | None = None
+    # the luminaires (hirad._engine.Luminaire) whose exact direct light illuminance and the
+    # volume probes add; stored beside the layer as luminaires.npz (save_luminaires)
+    luminaires: list = field(default_factory=list)
     _field: object = None
     source: str | None = None  # the solution layer this was read from, for messages
 
@@ -54,6 +57,8 @@ class SurfaceSolution:
         if self._field is None:
             self._field = _engine.SurfaceField(self.corners, self.nv.astype(np.int32),
                                                self.corner_radiance, self.corner_irradiance)
+            if self.luminaires:
+                self._field.set_luminaires(list(self.luminaires))
         return self._field
 
     def query(self, points, normals=None, max_distance: float = PROBE_MAX_DISTANCE) -> dict:
@@ -175,6 +180,41 @@ class Result(SurfaceSolution):
         return {k: getattr(g, k) for k in ("patch", "irradiance", "radiance")}
 
 
+LUMINAIRES_FILE = "luminaires.npz"
+_LUMINAIRE_ARRAYS = ("points", "weights", "frame", "candela", "colour")
+
+
+def save_luminaires(luminaires, path) -> None:
+    """The engine luminaires as one .npz (arrays l<k>_<name>, names in `names`), so that
+    `hirad grid` on a stored bake evaluates their direct light exactly as the bake did."""
+    import io
+
+    from .files import write_bytes
+
+    arrays = {"names": np.array([l.name for l in luminaires], dtype=object).astype(str)}
+    for k, l in enumerate(luminaires):
+        for a in _LUMINAIRE_ARRAYS:
+            arrays[f"l{k}_{a}"] = np.asarray(getattr(l, a), dtype=np.float64)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    write_bytes(Path(path), buf.getvalue())
+
+
+def load_luminaires(path) -> list:
+    """The luminaires save_luminaires wrote (a BakeError naming the file if it is not one)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            names = [str(n) for n in z["names"]]
+            out = []
+            for k, name in enumerate(names):
+                a = {n: np.ascontiguousarray(z[f"l{k}_{n}"], dtype=np.float64) for n in _LUMINAIRE_ARRAYS}
+                out.append(_engine.Luminaire(name, a["points"], a["weights"], a["frame"], a["candela"],
+                                             a["colour"].reshape(1, 3)))
+            return out
+    except (OSError, KeyError, ValueError) as e:
+        raise BakeError(f"{path}: not a hirad luminaires file ({e})") from None
+
+
 def load_solution(path: str | os.PathLike) -> SurfaceSolution:
     """Opens a solution layer written by a bake, for rendering or probing without solving."""
     data = usd.read_solution_layer(path)
@@ -201,4 +241,16 @@ def load_solution(path: str | os.PathLike) -> SurfaceSolution:
                            np.ascontiguousarray(rad, dtype=np.float64), np.ascontiguousarray(irr, dtype=np.float64),
                            cameras=data.cameras, up_axis=data.up_axis,
                            emitted_radiance=np.ascontiguousarray(emitted, dtype=np.float64) if has_emission else None,
-                           source=str(path))
+                           luminaires=_stored_luminaires(path, data), source=str(path))
+
+
+def _stored_luminaires(path, data) -> list:
+    """The luminaires a bake stored beside its layer (the layer names the file); none when
+    the layer names none. A named file that is missing is an error: its light would be lost."""
+    name = (getattr(data, "metadata", None) or {}).get("hirad:luminaires")
+    if not name:
+        return []
+    file = Path(path).parent / str(name)
+    if not file.is_file():
+        raise BakeError(f"{path}: names its luminaires file {name}, which is missing beside it")
+    return load_luminaires(file)
