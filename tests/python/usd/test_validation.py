@@ -324,19 +324,28 @@ def test_clean_scene_has_no_composition_warning(tmp_path):
 # --------------------------------------------------------------------------------------------
 
 
-def test_shaping_attributes_are_named_in_a_warning(tmp_path):
+def test_shaping_attributes_are_honoured_on_a_rect_light(tmp_path):
+    """Issue 13: ShapingAPI on a RectLight is honoured: the light becomes a luminaire (no warning,
+    no emitting polygon); see tests/python/photometry/test_luminaires.py for its flux."""
     attrs = ("float inputs:width = 1\n float inputs:height = 1\n float inputs:shaping:cone:angle = 30\n"
              " float inputs:shaping:cone:softness = 0.2\n float inputs:shaping:focus = 2\n"
-             " color3f inputs:shaping:focusTint = (1, 0, 0)\n asset inputs:shaping:ies:file = @spot.ies@")
+             " color3f inputs:shaping:focusTint = (1, 0, 0)")
     path = write(tmp_path, quad() + light(attrs=attrs, schemas='"ShapingAPI"'))
     scene = hu.read_scene(path)
-    hits = [w for w in scene.warnings if w.startswith("/lamp:")]
-    assert len(hits) == 1, scene.warnings
-    for name in ("inputs:shaping:cone:angle = 30", "inputs:shaping:cone:softness", "inputs:shaping:focus =",
-                 "inputs:shaping:focusTint", "inputs:shaping:ies:file"):
-        assert name in hits[0]
-    # the light itself still emits as a RectLight
-    assert scene.face_emission[scene.face_mesh == mesh_of(scene, "/lamp")].max() > 0
+    assert scene.warnings == []
+    assert [m.path for m in scene.meshes] == ["/floor"]
+    assert {lum.source for lum in scene.luminaires} == {"/lamp"}
+
+
+def test_shaping_on_a_mesh_light_or_dome_light_is_named(tmp_path):
+    mesh_light = quad("panel", extra='float inputs:intensity = 3\n    float inputs:shaping:cone:angle = 20')
+    mesh_light = mesh_light.replace('def Mesh "panel" {', 'def Mesh "panel" (prepend apiSchemas = ["MeshLightAPI", '
+                                    '"ShapingAPI"]) {')
+    dome = light(kind="DomeLight", name="sky", attrs="float inputs:shaping:cone:angle = 30", schemas='"ShapingAPI"')
+    scene = hu.read_scene(write(tmp_path, quad() + mesh_light + dome))
+    assert any(w.startswith("/panel:") and "inputs:shaping:cone:angle = 20" in w and "not honoured" in w
+               for w in scene.warnings), scene.warnings
+    assert any(w.startswith("/sky:") and "inputs:shaping:cone:angle = 30" in w for w in scene.warnings)
 
 
 def test_shaping_at_its_fallback_value_changes_nothing_and_gives_no_warning(tmp_path):
@@ -351,8 +360,7 @@ def test_old_style_shaping_names_are_named_too(tmp_path):
     assert any("/lamp" in w and "shaping:cone:angle = 20" in w for w in scene.warnings)
 
 
-@pytest.mark.parametrize("kind", ["DomeLight", "DistantLight", "CylinderLight", "PortalLight", "GeometryLight",
-                                  "PluginLight"])
+@pytest.mark.parametrize("kind", ["DomeLight", "DistantLight", "PortalLight", "GeometryLight", "PluginLight"])
 def test_light_types_hirad_does_not_read_are_named(tmp_path, kind):
     path = write(tmp_path, quad() + light(kind=kind, name="other", attrs="float inputs:intensity = 5"))
     scene = hu.read_scene(path)
@@ -360,10 +368,13 @@ def test_light_types_hirad_does_not_read_are_named(tmp_path, kind):
     assert not np.any(scene.face_emission > 0)
 
 
-def test_sphere_light_treat_as_point_is_named(tmp_path):
-    attrs = "float inputs:radius = 0.1\n bool treatAsPoint = 1"
+def test_sphere_light_treat_as_point_is_honoured(tmp_path):
+    """treatAsPoint is a hint (UsdLux): the light is the sphere's own point, I = L pi r^2, no warning."""
+    attrs = "float inputs:radius = 0.125\n bool treatAsPoint = 1"
     scene = hu.read_scene(write(tmp_path, quad() + light(kind="SphereLight", name="bulb", attrs=attrs)))
-    assert any(w.startswith("/bulb:") and "treatAsPoint" in w for w in scene.warnings)
+    assert scene.warnings == []
+    (lum,) = scene.luminaires
+    np.testing.assert_allclose(lum.flux, 4 * math.pi ** 2 * 0.125 ** 2, rtol=1e-12)
 
 
 @pytest.mark.parametrize("attr", ["float inputs:diffuse = 0.5", "float inputs:specular = 0",

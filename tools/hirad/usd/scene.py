@@ -1,9 +1,11 @@
-"""Reading a USD stage into the flat arrays the engine consumes: world-space polygons in metres, per-face reflectance and emitted exitance (W/m^2, M = pi L), per-corner UVs, emitters (mesh lights and UsdLux area lights) and cameras."""
+"""Reading a USD stage into the flat arrays the engine consumes: world-space polygons in metres, per-face reflectance and emitted exitance (W/m^2, M = pi L), per-corner UVs, emitters (mesh lights and UsdLux area lights), luminaires (sphere, cylinder and shaped lights, IES profiles: hirad.photometry.luminaires) and cameras."""
 
 from __future__ import annotations
 
 import math
+import os
 import re
+import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -15,6 +17,7 @@ from .common import (_LOOKS_NAME, SceneError, _Names, _PrimError, _mat, _open_st
                      _value_type, _vec3)
 from .materials import (_MAX_REFLECTANCE, MAX_RADIANCE, _MaterialResolver, _checked_emission, _checked_reflectance, _colour,
                         _display_color_per_face)
+from hirad.photometry import luminaires as _lum
 
 
 # Coordinates (in metres, after metersPerUnit and the transforms) beyond this are refused: no
@@ -28,8 +31,18 @@ _INDEX_ARRAYS = (Vt.IntArray, Vt.UIntArray, Vt.Int64Array, Vt.UInt64Array)
 # changes the light (a value other than the schema's fallback) is named in a warning.
 _HONOURED_LIGHT_ATTRS = {"inputs:intensity", "inputs:exposure", "inputs:color", "inputs:normalize",
                          "inputs:enableColorTemperature", "inputs:colorTemperature"}
-_SHAPE_ATTRS = {"RectLight": {"inputs:width", "inputs:height"}, "DiskLight": {"inputs:radius"},
-                "SphereLight": {"inputs:radius"}}
+# UsdLuxShapingAPI, honoured on the light types that become luminaires (not on DomeLight,
+# DistantLight or a MeshLightAPI, where it is named in the warning).
+_SHAPING_ATTRS = {"inputs:shaping:focus", "inputs:shaping:focusTint", "inputs:shaping:cone:angle",
+                  "inputs:shaping:cone:softness", "inputs:shaping:ies:file", "inputs:shaping:ies:angleScale",
+                  "inputs:shaping:ies:normalize"}
+_SHAPE_ATTRS = {"RectLight": {"inputs:width", "inputs:height"} | _SHAPING_ATTRS,
+                "DiskLight": {"inputs:radius"} | _SHAPING_ATTRS,
+                "SphereLight": {"inputs:radius", "treatAsPoint"} | _SHAPING_ATTRS,
+                "CylinderLight": {"inputs:length", "inputs:radius", "treatAsLine"} | _SHAPING_ATTRS}
+# A light's authored total luminous flux in lumens (PhotometricAreaLightAPI style): the light is
+# scaled so that it emits exactly this (Rec.709 Y of its RGB flux).
+PHOTOMETRIC_POWER = "photometric:power"
 # Namespaces of light attributes and relationships (UsdLuxLightAPI, ShapingAPI, ShadowAPI, the
 # light types, light linking); other attributes of a mesh light are the mesh's own.
 _LIGHT_NAMESPACES = ("inputs:", "light:", "shaping:", "shadow:", "collection:lightLink", "collection:shadowLink",
@@ -76,6 +89,9 @@ class SceneArrays:
     up_axis: str
     warnings: list[str] = field(default_factory=list)
     source_path: str = ""
+    # lights that are not Lambertian surfaces (hirad.photometry.luminaires.LuminaireSpec):
+    # SphereLight, CylinderLight, RectLight/DiskLight with ShapingAPI; not in the geometry
+    luminaires: list = field(default_factory=list)
 
     @property
     def num_faces(self) -> int:
@@ -121,7 +137,7 @@ def _finite_area(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) ->
 
 
 class _Builder:
-    def __init__(self, default_reflectance, uv_primvars, time, warnings):
+    def __init__(self, default_reflectance, uv_primvars, time, warnings, ies_mode="absolute"):
         self.default_reflectance = _checked_reflectance(_vec3(default_reflectance), "materials.default_reflectance",
                                                         warnings)
         self.uv_primvars = tuple(uv_primvars)
@@ -139,6 +155,12 @@ class _Builder:
         self.uvs: list[np.ndarray | None] = []
         self.n_points = 0
         self.unread_lights: list[str] = []  # lights that emit nothing in the bake, with why
+        if ies_mode not in _lum.IES_MODES:
+            raise SceneError(f"IES mode must be one of {', '.join(_lum.IES_MODES)}, got {ies_mode!r}")
+        self.ies_mode = ies_mode
+        self.luminaires: list = []
+        self._ies_cache: dict = {}
+        self._table_cache: dict = {}
 
     # --- geometry ------------------------------------------------------------------------------
     def _append(self, info, pts, counts, idx, source, refl, emis, uv):
@@ -261,6 +283,10 @@ class _Builder:
                 if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(t):
                     area = _finite_area(world_pts, kept_counts, new_indices)
                     radiance = radiance / area if area > 0 else radiance * 0.0
+                power = self._photometric_power(prim, path)
+                if power is not None:
+                    radiance = self._radiance_for_power(path, radiance, power,
+                                                        _finite_area(world_pts, kept_counts, new_indices))
                 emis = np.repeat((math.pi * radiance)[None, :], len(kept_faces), axis=0)
                 is_light = True
 
@@ -375,20 +401,29 @@ class _Builder:
         path = str(prim.GetPath())
         kind = prim.GetTypeName() or "light"
         t = self.time
+        read = (UsdLux.RectLight, UsdLux.DiskLight, UsdLux.SphereLight, UsdLux.CylinderLight)
+        if not any(prim.IsA(k) for k in read):
+            shaping = [f"{a.GetName()} = {_short(a.Get(t))}" for a in prim.GetAuthoredAttributes()
+                       if a.GetName().startswith(("inputs:shaping:", "shaping:")) and a.Get(t) is not None]
+            self.warnings.append(f"{path}: {kind} is a light type hirad does not read (only RectLight, DiskLight, "
+                                 "SphereLight, CylinderLight and MeshLightAPI emit); ignored, it emits nothing in the "
+                                 "bake" + (f" (its shaping is not honoured either: {'; '.join(shaping)})"
+                                           if shaping else ""))
+            self.unread_lights.append(f"{path} ({kind})")
+            return
+        shaping = self._shaping(prim, path)
         if prim.IsA(UsdLux.RectLight):
             lt = UsdLux.RectLight(prim)
-            w = _number(lt.GetWidthAttr(), t, path, 0.0)
-            h = _number(lt.GetHeightAttr(), t, path, 0.0)
-            # counter-clockwise seen from -Z, so the right-hand normal is local -Z
-            local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
-            counts = np.array([4])
-            idx = np.arange(4)
-            _finite_size(path, "inputs:width", w)
-            _finite_size(path, "inputs:height", h)
+            w = _finite_size(path, "inputs:width", _number(lt.GetWidthAttr(), t, path, 0.0))
+            h = _finite_size(path, "inputs:height", _number(lt.GetHeightAttr(), t, path, 0.0))
             if not (w > 0 and h > 0):
                 self.warnings.append(f"{path}: RectLight of size {w:g} x {h:g} has no area; ignored")
                 self.unread_lights.append(f"{path} (RectLight of zero size)")
                 return
+            if shaping.is_identity(upper_hemisphere=False):
+                # counter-clockwise seen from -Z, so the right-hand normal is local -Z
+                local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
+                return self._area_light(prim, path, kind, world, mpu, local, np.array([4]), np.arange(4))
         elif prim.IsA(UsdLux.DiskLight):
             lt = UsdLux.DiskLight(prim)
             r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
@@ -396,41 +431,270 @@ class _Builder:
                 self.warnings.append(f"{path}: DiskLight of radius {r:g} has no area; ignored")
                 self.unread_lights.append(f"{path} (DiskLight of zero radius)")
                 return
-            n = max(3, int(segments))
-            ang = -2.0 * math.pi * np.arange(n) / n  # clockwise from +Z => normal -Z
-            local = np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros(n)], axis=1)
-            counts = np.array([n])
-            idx = np.arange(n)
-        elif prim.IsA(UsdLux.SphereLight):
-            lt = UsdLux.SphereLight(prim)
-            r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
-            if not r > 0:
-                self.warnings.append(f"{path}: SphereLight of radius {r:g} (a point light) has no area; ignored")
-                self.unread_lights.append(f"{path} (SphereLight of zero radius: a point light)")
-                return
-            if lt.GetTreatAsPointAttr().Get(t):
-                self.warnings.append(f"{path}: SphereLight treatAsPoint is not honoured: read as a sphere of "
-                                     f"radius {r:g}")
-            local, counts, idx = _uv_sphere(r, max(3, int(segments)), max(2, int(segments) // 2))
-        else:
-            self.warnings.append(f"{path}: {kind} is a light type hirad does not read (only RectLight, DiskLight, "
-                                 "SphereLight and MeshLightAPI emit); ignored, it emits nothing in the bake")
-            self.unread_lights.append(f"{path} ({kind})")
-            return
-        self._warn_unhonoured(prim, path, kind, _SHAPE_ATTRS.get(kind, set()) | {"treatAsPoint"})
+            if shaping.is_identity(upper_hemisphere=False):
+                n = max(3, int(segments))
+                ang = -2.0 * math.pi * np.arange(n) / n  # clockwise from +Z => normal -Z
+                local = np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros(n)], axis=1)
+                return self._area_light(prim, path, kind, world, mpu, local, np.array([n]), np.arange(n))
+        self._luminaire(prim, path, kind, world, mpu, shaping)
+
+    def _area_light(self, prim, path, kind, world, mpu, local, counts, idx):
+        """A RectLight or DiskLight without shaping: an emitting polygon (M = pi L)."""
+        self._warn_unhonoured(prim, path, kind, _SHAPE_ATTRS.get(kind, set()))
         radiance = self._light_radiance(prim, path)
         world_pts = _transform_points(local, world) * mpu
         if np.linalg.det(world[:3, :3]) < 0:
             idx = _flip_faces(counts, idx)
-        if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(t):
-            area = _finite_area(world_pts, counts, idx)
+        area = _finite_area(world_pts, counts, idx)
+        if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time):
             radiance = radiance / area if area > 0 else radiance * 0.0
+        power = self._photometric_power(prim, path)
+        if power is not None:
+            radiance = self._radiance_for_power(path, radiance, power, area)
         nf = len(counts)
         emis = np.repeat((math.pi * radiance)[None, :], nf, axis=0)
         refl = np.zeros((nf, 3))
         name = self.names.make(path)
         info = MeshInfo(path=path, name=name, hide_path=path, is_light=True, has_uv=False)
         self._append(info, world_pts, counts, idx, np.arange(nf), refl, emis, None)
+
+    # --- luminaires ----------------------------------------------------------------------------
+    def _shaping(self, prim: Usd.Prim, path: str) -> "_lum.Shaping":
+        """The authored UsdLuxShapingAPI values (read by name, applied schema or not), checked."""
+        t = self.time
+        sh = _lum.Shaping()
+
+        def authored(name):
+            a = prim.GetAttribute(name)
+            return a if a and a.HasAuthoredValue() and a.Get(t) is not None else None
+
+        def finite(name, default):
+            a = authored(name)
+            if a is None:
+                return None
+            v = _number(a, t, path, default)
+            if not math.isfinite(v):
+                raise _PrimError(f"{path}.{name}: {v:g} is not finite")
+            return v
+
+        sh.cone_angle = finite("inputs:shaping:cone:angle", 90.0)
+        sh.cone_softness = finite("inputs:shaping:cone:softness", 0.0) or 0.0
+        sh.focus = finite("inputs:shaping:focus", 0.0) or 0.0
+        sh.ies_angle_scale = finite("inputs:shaping:ies:angleScale", 0.0) or 0.0
+        a = authored("inputs:shaping:focusTint")
+        if a is not None:
+            sh.focus_tint = _colour(a.Get(t), f"{path}.inputs:shaping:focusTint")
+            _checked_emission(sh.focus_tint, f"{path}.inputs:shaping:focusTint", "colour")
+        a = authored("inputs:shaping:ies:normalize")
+        if a is not None:
+            v = a.Get(t)
+            if not isinstance(v, bool):
+                raise _PrimError(f"{path}.inputs:shaping:ies:normalize: is {_value_type(v)} {_short(v)}, expected a bool")
+            sh.ies_normalize = v
+        a = authored("inputs:shaping:ies:file")
+        if a is not None:
+            sh.ies_file = self._ies_path(a, path)
+        return sh
+
+    def _ies_path(self, attr: Usd.Attribute, path: str) -> str | None:
+        """The IES file of inputs:shaping:ies:file, resolved (USD's resolver, else relative to
+        the layer that authors it); a missing file is an error naming the prim and the file."""
+        value = attr.Get(self.time)
+        where = f"{path}.{attr.GetName()}"
+        authored = getattr(value, "path", None)
+        if authored is None:
+            raise _PrimError(f"{where}: is {_value_type(value)} {_short(value)}, expected an asset path (@file.ies@)")
+        if not authored:
+            return None
+        resolved = getattr(value, "resolvedPath", "") or ""
+        layer_dir = ""
+        if not resolved:
+            try:
+                spec = attr.GetPropertyStack(self.time)[0]
+                layer_path = spec.layer.realPath or spec.layer.identifier
+                layer_dir = os.path.dirname(os.path.abspath(layer_path)) if layer_path else ""
+            except Exception:  # pragma: no cover - anonymous layers
+                layer_dir = ""
+            resolved = authored if os.path.isabs(authored) else os.path.join(layer_dir or os.getcwd(), authored)
+        if not os.path.isfile(resolved):
+            rel = f", relative to {layer_dir}" if layer_dir else ""
+            raise _PrimError(f"{where}: IES file not found: {resolved} (authored @{authored}@{rel})")
+        return os.path.normpath(resolved)
+
+    def _photometry(self, ies_file: str, path: str):
+        from hirad.photometry import IesError, IesWarning, read_ies
+        st = os.stat(ies_file)
+        key = (ies_file, st.st_mtime_ns, st.st_size)
+        if key not in self._ies_cache:
+            with _warnings.catch_warnings(record=True) as caught:
+                _warnings.simplefilter("always", IesWarning)
+                try:
+                    p = read_ies(ies_file)
+                except IesError as exc:
+                    raise _PrimError(f"{path}.inputs:shaping:ies:file: {exc}") from None
+                except OSError as exc:
+                    raise _PrimError(f"{path}.inputs:shaping:ies:file: {ies_file}: cannot be read "
+                                     f"({exc.strerror or exc})") from None
+            self._ies_cache[key] = (p, [str(w.message) for w in caught if issubclass(w.category, IesWarning)])
+            for text in self._ies_cache[key][1]:
+                self.warnings.append(f"{path}: IES file: {text}")
+        return self._ies_cache[key][0], key
+
+    def _photometric_power(self, prim: Usd.Prim, path: str):
+        a = prim.GetAttribute(PHOTOMETRIC_POWER)
+        if not a or not a.HasAuthoredValue():
+            return None
+        v = _number(a, self.time, path, 0.0)
+        if not (math.isfinite(v) and v >= 0):
+            raise _PrimError(f"{path}.{PHOTOMETRIC_POWER}: {v:g} lm is not a luminous flux (finite, not negative)")
+        return v
+
+    def _radiance_for_power(self, path, radiance, power, area):
+        """The radiance whose Lambertian flux pi A Y(L) is `power` lumens."""
+        y = math.pi * area * float(np.asarray(radiance) @ _lum.Y_WEIGHTS)
+        if not y > 0:
+            raise _PrimError(f"{path}.{PHOTOMETRIC_POWER}: {power:g} lm on a light that emits nothing (its "
+                             "intensity, colour or area is 0): nothing to scale")
+        return radiance * (power / y)
+
+    def _luminaire(self, prim: Usd.Prim, path: str, kind: str, world: np.ndarray, mpu: float, shaping):
+        """SphereLight, CylinderLight, shaped RectLight/DiskLight: LuminaireSpec(s) (formulas in
+        hirad.photometry.luminaires)."""
+        t = self.time
+        light = UsdLux.LightAPI(prim)
+        axes = world[:3, :3]
+        sx, sy, sz = (float(np.linalg.norm(axes[k])) for k in range(3))
+        try:
+            frame, mirrored, irregular = _lum.frame_from_axes(axes[0], axes[1], axes[2])
+        except _lum.LuminaireError as exc:
+            raise _PrimError(f"{path}: {exc}") from None
+        notes: list[str] = []
+        if irregular:
+            self.warnings.append(f"{path}: the transform shears the light's axes; its profile is oriented by "
+                                 "the orthonormalised frame (Z, then X)")
+        normalize = bool(light.GetNormalizeAttr().Get(t))
+        power = self._photometric_power(prim, path)
+        origin = world[3, :3] * mpu
+        size_area = None  # world area for normalize
+        if prim.IsA(UsdLux.SphereLight):
+            lt = UsdLux.SphereLight(prim)
+            r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
+            if r < 0:
+                raise _PrimError(f"{path}.inputs:radius: {r:g} is not a radius (negative)")
+            if max(sx, sy, sz) - min(sx, sy, sz) > 1e-6 * max(sx, sy, sz):
+                self.warnings.append(f"{path}: SphereLight under a non-uniform scale ({sx:g}, {sy:g}, {sz:g}) is read "
+                                     "as a sphere of the mean scale (their geometric mean)")
+            rw = r * (sx * sy * sz) ** (1.0 / 3.0) * mpu
+            point = bool(lt.GetTreatAsPointAttr().Get(t))
+            pts, wts = origin[None, :], np.ones(1)
+            if rw > 0:
+                base, size_area = _lum.isotropic(math.pi * rw * rw), 4.0 * math.pi * rw * rw
+                label = f"SphereLight r = {rw:.4g} m" + (" (treatAsPoint)" if point else "")
+                base_key = ("sphere", rw)
+            elif normalize or power is not None or shaping.ies_file is not None:
+                # the zero-radius limit: L / (4 pi r^2) x pi r^2 = L / 4 cd with normalize
+                base = _lum.isotropic(0.25 if normalize else 1.0)
+                label, base_key = "SphereLight r = 0 (point)", ("sphere0", normalize)
+                notes.append("radius 0: " + ("I = L/4 cd, the limit of the normalized sphere" if normalize
+                                             else "an isotropic point whose flux photometric:power or the IES "
+                                                  "file gives"))
+            else:
+                self.warnings.append(f"{path}: SphereLight of radius {r:g} (a point light) has no area: its "
+                                     "emission L x pi r^2 is 0 (set inputs:normalize for I = L/4 cd, or "
+                                     f"{PHOTOMETRIC_POWER}); ignored")
+                self.unread_lights.append(f"{path} (SphereLight of zero radius: a point light)")
+                return
+        elif prim.IsA(UsdLux.CylinderLight):
+            lt = UsdLux.CylinderLight(prim)
+            length = _finite_size(path, "inputs:length", _number(lt.GetLengthAttr(), t, path, 0.0))
+            r = _finite_size(path, "inputs:radius", _number(lt.GetRadiusAttr(), t, path, 0.0))
+            if not length > 0 or r < 0:
+                self.warnings.append(f"{path}: CylinderLight of length {length:g} and radius {r:g} has no area; "
+                                     "ignored")
+                self.unread_lights.append(f"{path} (CylinderLight of zero size)")
+                return
+            if abs(sy - sz) > 1e-6 * max(sy, sz):
+                self.warnings.append(f"{path}: CylinderLight under a non-uniform scale of its cross-section "
+                                     f"({sy:g}, {sz:g}) is read as a round cylinder of their geometric mean")
+            lw, rw = length * sx * mpu, r * math.sqrt(sy * sz) * mpu
+            local, wts = _lum.line_points(length, r)
+            pts = _transform_points(local, world) * mpu
+            if rw > 0:
+                base, size_area = _lum.cylinder(2.0 * rw * lw), 2.0 * math.pi * rw * lw
+                base_key = ("cylinder", rw * lw)
+            elif normalize or power is not None or shaping.ies_file is not None:
+                base = _lum.cylinder(1.0 / math.pi if normalize else 1.0)  # limit: L sin(alpha) / pi
+                base_key = ("cylinder0", normalize)
+            else:
+                self.warnings.append(f"{path}: CylinderLight of radius 0 (a line) has no area: its emission is 0 "
+                                     f"(set inputs:normalize or {PHOTOMETRIC_POWER}); ignored")
+                self.unread_lights.append(f"{path} (CylinderLight of zero radius: a line)")
+                return
+            label = f"CylinderLight {lw:.4g} m x r {rw:.4g} m"
+        elif prim.IsA(UsdLux.RectLight):
+            lt = UsdLux.RectLight(prim)
+            w = _number(lt.GetWidthAttr(), t, path, 0.0)
+            h = _number(lt.GetHeightAttr(), t, path, 0.0)
+            size_area = w * h * float(np.linalg.norm(np.cross(axes[0], axes[1]))) * mpu * mpu
+            base, base_key = _lum.lambertian(size_area), ("lambert", size_area)
+            local, wts = _lum.rect_points(w, h)
+            pts = _transform_points(local, world) * mpu
+            label = f"RectLight {w * sx * mpu:.4g} x {h * sy * mpu:.4g} m"
+        else:
+            lt = UsdLux.DiskLight(prim)
+            r = _number(lt.GetRadiusAttr(), t, path, 0.0)
+            size_area = math.pi * r * r * float(np.linalg.norm(np.cross(axes[0], axes[1]))) * mpu * mpu
+            base, base_key = _lum.lambertian(size_area), ("lambert", size_area)
+            local, wts = _lum.disk_points(r)
+            pts = _transform_points(local, world) * mpu
+            label = f"DiskLight r = {r * math.sqrt(sx * sy) * mpu:.4g} m"
+        self._warn_unhonoured(prim, path, kind, _SHAPE_ATTRS.get(kind, set()))
+        radiance = self._light_radiance(prim, path)
+        photometry, ies_key = (None, None)
+        mode = self.ies_mode
+        if shaping.ies_file is not None:
+            photometry, ies_key = self._photometry(shaping.ies_file, path)
+        colour = radiance
+        if photometry is not None and mode == "absolute":
+            base_key = None  # the file's candela replace the shape's profile
+            if normalize:
+                notes.append("inputs:normalize does not apply to an absolute IES profile")
+        elif normalize and size_area:
+            colour = radiance / size_area
+        shape_desc = []
+        if shaping.cone_angle is not None:
+            shape_desc.append(f"cone {shaping.cone_angle:g} deg" + (f" softness {shaping.cone_softness:g}"
+                                                                    if shaping.cone_softness else ""))
+        if shaping.focus_active():
+            shape_desc.append(f"focus {shaping.focus:g}")
+        if photometry is not None:
+            shape_desc.append(f"IES ({mode})" + (f" angleScale {shaping.ies_angle_scale:g}"
+                                                 if shaping.ies_angle_scale else ""))
+        if shape_desc:
+            label += ", " + ", ".join(shape_desc)
+        tint = None if shaping.focus_tint is None else tuple(float(v) for v in shaping.focus_tint)
+        key = (base_key, shaping.cone_angle, shaping.cone_softness, shaping.focus if shaping.focus_active() else 0.0,
+               tint, ies_key, shaping.ies_angle_scale, shaping.ies_normalize, mode if photometry is not None else None)
+        parts = _lum.shaped_parts(base, colour, shaping, photometry, mode)
+        if key not in self._table_cache:
+            self._table_cache[key] = [_lum.sample_table(prof) for prof, _ in parts]
+        tables = self._table_cache[key]
+        specs = []
+        for k, ((_, col), table) in enumerate(zip(parts, tables)):
+            specs.append(_lum.LuminaireSpec(
+                name=path if k == 0 else f"{path} (focus tint)", kind=kind, source=path, points=pts, weights=wts,
+                frame=frame, candela=_lum.mirror_c(table) if mirrored else table, colour=np.maximum(col, 0.0),
+                ies=shaping.ies_file, ies_mode=mode if photometry is not None else None, notes=list(notes),
+                label=label, group=path if len(parts) > 1 else None))
+        if power is not None:
+            try:
+                _lum.scale_group_to_lumens(specs, power)
+            except _lum.LuminaireError:
+                raise _PrimError(f"{path}.{PHOTOMETRIC_POWER}: {power:g} lm on a light that emits nothing (its "
+                                 "intensity or colour is 0): nothing to scale") from None
+            for s in specs:
+                s.notes.append(f"scaled to {PHOTOMETRIC_POWER} = {power:g} lm")
+        self.luminaires.extend(specs)
 
     # --- result --------------------------------------------------------------------------------
     def build(self, cameras, mpu, up_axis, source) -> SceneArrays:
@@ -456,6 +720,7 @@ class _Builder:
             up_axis=up_axis,
             warnings=self.warnings,
             source_path=source,
+            luminaires=self.luminaires,
         )
 
 
@@ -500,35 +765,6 @@ def _short(value) -> str:
 def _flip_faces(counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     return np.asarray(idx)[_corner_order(first, counts, True)]
-
-
-def _uv_sphere(r: float, n_lon: int, n_lat: int):
-    """Latitude-longitude sphere: triangles at the poles, quads elsewhere, normals outward."""
-    pts = [[0.0, 0.0, r]]
-    for i in range(1, n_lat):
-        th = math.pi * i / n_lat
-        for j in range(n_lon):
-            ph = 2.0 * math.pi * j / n_lon
-            pts.append([r * math.sin(th) * math.cos(ph), r * math.sin(th) * math.sin(ph), r * math.cos(th)])
-    pts.append([0.0, 0.0, -r])
-    pts = np.array(pts)
-    bottom = len(pts) - 1
-
-    def ring(i, j):  # i in 1..n_lat-1
-        return 1 + (i - 1) * n_lon + (j % n_lon)
-
-    counts, idx = [], []
-    for j in range(n_lon):
-        counts.append(3)
-        idx += [0, ring(1, j), ring(1, j + 1)]
-    for i in range(1, n_lat - 1):
-        for j in range(n_lon):
-            counts.append(4)
-            idx += [ring(i, j), ring(i + 1, j), ring(i + 1, j + 1), ring(i, j + 1)]
-    for j in range(n_lon):
-        counts.append(3)
-        idx += [bottom, ring(n_lat - 1, j + 1), ring(n_lat - 1, j)]
-    return pts, np.array(counts), np.array(idx)
 
 
 def _camera_info(prim: Usd.Prim, world: np.ndarray, mpu: float, time) -> CameraInfo:
@@ -608,6 +844,7 @@ def read_scene(
     uv_primvars: Sequence[str] = ("st", "uv", "UVMap", "st0", "map1"),
     light_segments: int = 32,
     require_emission: bool = False,
+    ies_mode: str = "absolute",
 ) -> SceneArrays:
     """Flatten a USD stage into :class:`SceneArrays` (see module docstring for conventions).
 
@@ -621,12 +858,22 @@ def read_scene(
     * warnings (``SceneArrays.warnings``): a reflectance above 0.999, clamped to 0.999; a
       displayColor whose size does not fit its interpolation; USD composition errors (a
       missing sublayer or reference, a reference cycle); light types hirad does not read
-      (DomeLight, DistantLight, CylinderLight, PortalLight, ...) and authored light attributes
-      it does not honour (shaping, shadows, light linking, ``inputs:diffuse`` or
-      ``inputs:specular`` other than 1, SphereLight ``treatAsPoint``).
+      (DomeLight, DistantLight, PortalLight, ...) and authored light attributes it does not
+      honour (shadows, light linking, textures, ``inputs:diffuse`` or ``inputs:specular`` other
+      than 1, shaping on a MeshLightAPI or a light type hirad does not read).
 
-    With `require_emission` (a bake), a scene in which nothing emits light is an error; reading
-    a dark scene is fine otherwise (``hirad info``, tests).
+    Lights: MeshLightAPI meshes and RectLight/DiskLight without shaping are emitting polygons
+    (``face_emission``); SphereLight, CylinderLight and RectLight/DiskLight with any
+    UsdLuxShapingAPI attribute authored are luminaires (``SceneArrays.luminaires``, a list of
+    hirad.photometry.luminaires.LuminaireSpec, not part of the geometry: such a light reflects
+    and occludes nothing), with the formulas of that module. `ies_mode` ('absolute' or 'usdlux',
+    the config's ``photometry.ies_mode``) is how ``inputs:shaping:ies:file`` profiles are read; an
+    IES file that is missing or unreadable is an error naming the prim, the file (and the line).
+    ``photometric:power`` (lm) on a light scales it to emit exactly that luminous flux.
+
+    With `require_emission` (a bake), a scene in which nothing emits light (no emitting face and
+    no luminaire with a positive flux) is an error; reading a dark scene is fine otherwise
+    (``hirad info``, tests).
     """
     stage = _open_stage(path)
     time = _stage_time(stage)
@@ -643,7 +890,7 @@ def read_scene(
     warnings: list[str] = _composition_warnings(stage, path)
     cameras: list[CameraInfo] = []
     try:
-        b = _Builder(default_reflectance, uv_primvars, time, warnings)
+        b = _Builder(default_reflectance, uv_primvars, time, warnings, ies_mode=ies_mode)
         it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
         for prim in it:
             if _skip_imageable(prim, time):
@@ -672,10 +919,12 @@ def read_scene(
     if not any(m for m in b.meshes if not m.is_light) and b.meshes:
         warnings.append(f"{path}: the stage contains only lights, no surfaces")
     scene = b.build(cameras, mpu, up_axis, str(path))
-    if require_emission and not np.any(scene.face_emission > 0):
+    lit = any(np.any(lum.flux > 0) for lum in scene.luminaires)
+    if require_emission and not np.any(scene.face_emission > 0) and not lit:
         found = "; ".join(b.unread_lights) if b.unread_lights else "no light of any kind"
         raise SceneError(f"{path}: nothing emits light: no emissive material, MeshLightAPI or supported UsdLux "
-                         f"light (RectLight, DiskLight, SphereLight) with a positive intensity (found: {found})")
+                         f"light (RectLight, DiskLight, SphereLight, CylinderLight) with a positive intensity "
+                         f"(found: {found})")
     return scene
 
 
