@@ -262,7 +262,7 @@ def _validate(
             line = _locate(root, loc) if root is not None else 0
             problems.append(ConfigError(file, line, _format_key(loc), _describe(err)))
     else:
-        for loc, problem in _grid_file_problems(config):
+        for loc, problem in _grid_file_problems(config) + _light_file_problems(config):
             problems.append(ConfigError(file, _locate(root, loc) if root is not None else 0, _format_key(loc), problem))
     if problems:
         problems.sort(key=lambda e: e.line)
@@ -282,6 +282,33 @@ def _grid_file_problems(config: Config) -> list[tuple[tuple[Any, ...], str]]:
                 out.append((("grids", name, "file"), f"grid points file not found: {path}"))
             elif not path.is_file():
                 out.append((("grids", name, "file"), f"grid points file is not a file: {path}"))
+    return out
+
+
+def _light_file_problems(config: Config) -> list[tuple[tuple[Any, ...], str]]:
+    """Lights whose IES file (resolved against the config's folder) is missing or unreadable
+    (the IES reader's message names the file, the line and the problem)."""
+    out = []
+    for i, light in enumerate(config.lights):
+        if light.ies is None:
+            continue
+        path = Path(light.ies)
+        if not path.exists():
+            out.append((("lights", i, "ies"), f"IES file not found: {path}"))
+        elif not path.is_file():
+            out.append((("lights", i, "ies"), f"IES file is not a file: {path}"))
+        else:
+            import warnings
+
+            from hirad.photometry.ies import IesError, IesWarning, read_ies
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", IesWarning)
+                    read_ies(path)
+            except IesError as exc:
+                out.append((("lights", i, "ies"), f"bad IES file: {exc}"))
+            except OSError as exc:
+                out.append((("lights", i, "ies"), f"IES file cannot be read: {path} ({exc.strerror or exc})"))
     return out
 
 

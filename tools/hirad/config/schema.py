@@ -17,6 +17,7 @@ from pydantic import (
     Strict,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from hirad.studies.spec import GridSpec, PointsGrid
@@ -82,6 +83,131 @@ class MaterialsConfig(BaseModel):
             " the first one present on a mesh is used for its texture lookups."
         ),
     )
+
+
+NonNegative = Annotated[float, Strict(), Field(ge=0.0)]
+Vector3 = tuple[StrictFloat, StrictFloat, StrictFloat]
+IES_MODE_TEXT = (
+    "'absolute' (the architectural default, as Radiance and AGi32 read a file: the file's candela x"
+    " its multiplier x its ballast factor, the light's intensity x 2^exposure x colour a dimmer, the"
+    " light's shape only placing the emitting points) or 'usdlux' (UsdLuxShapingAPI: the candela scale"
+    " the light's own emission, and shaping:ies:normalize keeps the unshaped light's flux)"
+)
+
+
+class PhotometryConfig(BaseModel):
+    """How luminaire photometry (IES profiles) is read."""
+
+    model_config = _MODEL_CONFIG
+
+    ies_mode: Literal["absolute", "usdlux"] = Field(
+        default="absolute",
+        description="How IES files (USD inputs:shaping:ies:file and the lights' `ies`) are read: " + IES_MODE_TEXT
+                    + ". Stated in every luminaire's schedule row.",
+    )
+
+
+class LightConfig(BaseModel):
+    """A point light given in the config (added to the scene's lights): an isotropic point, or an
+    IES profile aimed in the scene."""
+
+    model_config = _MODEL_CONFIG
+
+    name: StrictStr = Field(description="The light's name (letters, digits, _ . -), unique among `lights`.")
+    position: Vector3 = Field(
+        json_schema_extra={"unit": "m"},
+        description="Where it is, in metres, in the scene's world axes (after metersPerUnit).",
+    )
+    intensity: Optional[NonNegative] = Field(
+        default=None,
+        json_schema_extra={"unit": "cd"},
+        description=(
+            "Luminous intensity in candela of an isotropic light; with an `ies` file the dimmer of"
+            " the file's candela in mode absolute (default 1), the isotropic intensity whose flux"
+            " (4 pi x intensity) the profile keeps in mode usdlux. Not together with `flux`."
+        ),
+    )
+    flux: Optional[NonNegative] = Field(
+        default=None,
+        json_schema_extra={"unit": "lm"},
+        description=(
+            "Luminous flux in lumens (Rec.709 Y of the RGB flux): the light is scaled to emit exactly"
+            " this. Not together with `intensity`."
+        ),
+    )
+    colour: tuple[NonNegative, NonNegative, NonNegative] = Field(
+        default=(1.0, 1.0, 1.0),
+        description="Linear RGB colour multiplying the intensity per channel.",
+    )
+    ies: Optional[Path] = Field(
+        default=None,
+        description="An IES LM-63 file (relative to the config file's directory) giving the light's profile.",
+    )
+    ies_mode: Optional[Literal["absolute", "usdlux"]] = Field(
+        default=None,
+        description="How `ies` is read (null: photometry.ies_mode): " + IES_MODE_TEXT + ".",
+    )
+    aim: Optional[Vector3] = Field(
+        default=None,
+        description=(
+            "World direction of the profile's nadir (gamma 0, the light's local -Z); null: straight"
+            " down the scene's up axis. Not together with `rotation`."
+        ),
+    )
+    c0: Optional[Vector3] = Field(
+        default=None,
+        description=(
+            "World direction of the profile's C0 plane (the light's local +X), made perpendicular"
+            " to `aim`; null: world X (world Y when `aim` is along X). Not together with `rotation`."
+        ),
+    )
+    rotation: Optional[Vector3] = Field(
+        default=None,
+        json_schema_extra={"unit": "degrees"},
+        description=(
+            "The light's frame as USD's xformOp:rotateXYZ [rx, ry, rz] in degrees applied to the"
+            " world axes (local -Z = nadir, +X = C0): instead of `aim` and `c0`."
+        ),
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _light_name(cls, value: str) -> str:
+        if not _GRID_NAME.match(value):
+            raise ValueError(f"light name {value!r}: use letters, digits, '_', '.' and '-'")
+        return value
+
+    @field_validator("aim")
+    @classmethod
+    def _aim_not_zero(cls, value):
+        if value is not None and not any(value):
+            raise ValueError("aim must be a non-zero direction")
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "LightConfig":
+        if self.intensity is not None and self.flux is not None:
+            raise ValueError("give `intensity` (cd) or `flux` (lm), not both")
+        if self.ies is None and self.intensity is None and self.flux is None:
+            raise ValueError("a light without an `ies` file needs `intensity` (cd) or `flux` (lm)")
+        if self.rotation is not None and (self.aim is not None or self.c0 is not None):
+            raise ValueError("give `rotation` or `aim`/`c0`, not both")
+        if self.c0 is not None:
+            if not any(self.c0):
+                raise ValueError("c0 must be a non-zero direction")
+            if self.aim is not None:
+                a = [float(v) for v in self.aim]
+                c = [float(v) for v in self.c0]
+                cross = (a[1] * c[2] - a[2] * c[1], a[2] * c[0] - a[0] * c[2], a[0] * c[1] - a[1] * c[0])
+                na = sum(v * v for v in a) ** 0.5
+                nc = sum(v * v for v in c) ** 0.5
+                if sum(v * v for v in cross) ** 0.5 <= 1e-9 * na * nc:
+                    raise ValueError("c0 is parallel to aim: it cannot orient the C planes")
+        if self.flux is not None and self.flux > 0:
+            y = 0.2126 * self.colour[0] + 0.7152 * self.colour[1] + 0.0722 * self.colour[2]
+            if not y > 0:
+                raise ValueError("a colour without luminance (Y = 0) cannot be scaled to a flux")
+        return self
 
 
 class MeshingConfig(BaseModel):
@@ -589,6 +715,18 @@ class Config(BaseModel):
             " illuminance of the new installation (EN 12464-1; 1.0 reports the new values)."
         ),
     )
+    photometry: PhotometryConfig = Field(
+        default_factory=PhotometryConfig, description="Luminaire photometry: how IES files are read."
+    )
+    lights: list[LightConfig] = Field(
+        default_factory=list,
+        description=(
+            "Point lights added to the scene's own: each `name`, `position` [m], `intensity` [cd] or"
+            " `flux` [lm], `colour`, optional `ies` file (relative to the config file's directory)"
+            " with `ies_mode`, aimed by `aim` (nadir direction) and `c0` (C0 direction) or by"
+            " `rotation` (rotateXYZ, degrees); see hirad.photometry.luminaires."
+        ),
+    )
     units: Literal["photometric", "radiometric"] = Field(
         default="photometric",
         description=(
@@ -608,6 +746,20 @@ class Config(BaseModel):
             if isinstance(spec, PointsGrid):
                 spec = spec.model_copy(update={"file": str(_absolute(Path(spec.file), info))})
             out[name] = spec
+        return out
+
+    @field_validator("lights", mode="after")
+    @classmethod
+    def _light_files(cls, value: list, info: ValidationInfo) -> list:
+        seen: set[str] = set()
+        out = []
+        for i, light in enumerate(value):
+            if light.name in seen:
+                raise ValueError(f"lights[{i}]: the name {light.name!r} is given twice")
+            seen.add(light.name)
+            if light.ies is not None:
+                light = light.model_copy(update={"ies": _absolute(Path(light.ies), info)})
+            out.append(light)
         return out
 
     @field_validator("scene", mode="after")

@@ -646,3 +646,100 @@ def shaped_parts(base: Profile, base_colour: np.ndarray, shaping: Shaping, photo
                         prof.breaks)
         return [(mixed, colour)]
     return [(prof, colour * tint), (focused, colour * (1.0 - tint))]
+
+
+# ----------------------------------------------------------------------------------------------
+# config point lights
+# ----------------------------------------------------------------------------------------------
+
+
+def rotate_xyz(degrees) -> np.ndarray:
+    """USD's xformOp:rotateXYZ as a (3, 3) row-vector matrix (p' = p M: X first, then Y, then Z);
+    its rows are the images of the local X, Y, Z axes."""
+    def row_rot(axis, deg):
+        c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+        if axis == 0:
+            return np.array([[1, 0, 0], [0, c, s], [0, -s, c]], dtype=float)
+        if axis == 1:
+            return np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]], dtype=float)
+        return np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]], dtype=float)
+    rx, ry, rz = (float(v) for v in degrees)
+    return row_rot(0, rx) @ row_rot(1, ry) @ row_rot(2, rz)
+
+
+def frame_from_aim(aim=None, c0=None, up_axis: str = "Z") -> np.ndarray:
+    """The frame whose -Z is `aim` (default: down the scene's up axis) and whose +X is `c0` made
+    perpendicular to it (default world X, or world Y when aim is along X)."""
+    up = np.array([0.0, 1.0, 0.0]) if up_axis == "Y" else np.array([0.0, 0.0, 1.0])
+    a = -up if aim is None else np.asarray(aim, dtype=float)
+    if not np.linalg.norm(a) > 0:
+        raise LuminaireError("aim must be a non-zero direction")
+    ez = -a / np.linalg.norm(a)
+    if c0 is None:
+        c = np.array([1.0, 0.0, 0.0])
+        if np.linalg.norm(np.cross(c, ez)) < 1e-6:
+            c = np.array([0.0, 1.0, 0.0])
+    else:
+        c = np.asarray(c0, dtype=float)
+    ex = c - (c @ ez) * ez
+    if not np.linalg.norm(ex) > 1e-9 * max(1.0, np.linalg.norm(c)):
+        raise LuminaireError("c0 is parallel to aim: it cannot orient the C planes")
+    ex /= np.linalg.norm(ex)
+    return np.stack([ex, np.cross(ez, ex), ez])
+
+
+def luminaires_from_config(lights, up_axis: str = "Z", ies_mode: str = "absolute",
+                           warnings_out: Optional[list] = None) -> list[LuminaireSpec]:
+    """LuminaireSpecs of the config's ``lights:`` (hirad.config.schema.LightConfig items, or
+    anything with the same attributes). `up_axis` ('Y' or 'Z', the scene's) gives the default
+    aim (straight down); `ies_mode` is photometry.ies_mode, used where a light gives none. IES
+    warnings are appended to `warnings_out` (named by the light)."""
+    import warnings as _w
+
+    from .ies import IesWarning, read_ies
+
+    out: list[LuminaireSpec] = []
+    for i, lc in enumerate(lights):
+        source = f"lights[{i}]"
+        name = str(lc.name)
+        if getattr(lc, "rotation", None) is not None:
+            frame = rotate_xyz(lc.rotation)
+            frame, _, _ = frame_from_axes(frame[0], frame[1], frame[2])
+        else:
+            frame = frame_from_aim(getattr(lc, "aim", None), getattr(lc, "c0", None), up_axis)
+        colour = np.asarray(getattr(lc, "colour", (1.0, 1.0, 1.0)), dtype=float)
+        intensity = getattr(lc, "intensity", None)
+        flux = getattr(lc, "flux", None)
+        ies_file = getattr(lc, "ies", None)
+        mode = getattr(lc, "ies_mode", None) or ies_mode
+        notes: list[str] = []
+        if ies_file is not None:
+            with _w.catch_warnings(record=True) as caught:
+                _w.simplefilter("always", IesWarning)
+                p = read_ies(ies_file)
+            if warnings_out is not None:
+                warnings_out.extend(f"{source} ({name}): IES file: {w.message}" for w in caught
+                                    if issubclass(w.category, IesWarning))
+            dimmer = 1.0 if intensity is None else float(intensity)
+            shaping = Shaping(ies_file=str(ies_file), ies_normalize=True)
+            parts = shaped_parts(isotropic(dimmer if mode == "usdlux" else 1.0), colour * (1.0 if mode == "usdlux"
+                                 else dimmer), shaping, p, mode)
+            label = f"point light (config), IES ({mode})"
+        else:
+            i0 = float(intensity) if intensity is not None else float(flux) / (4.0 * math.pi)
+            parts = [(isotropic(i0), colour)]
+            label = "point light (config), isotropic"
+        (prof, col), = parts
+        spec = LuminaireSpec(name=name, kind="point", source=source,
+                             points=np.asarray(lc.position, dtype=float).reshape(1, 3), weights=np.ones(1),
+                             frame=frame, candela=sample_table(prof), colour=col,
+                             ies=None if ies_file is None else str(ies_file),
+                             ies_mode=None if ies_file is None else mode, notes=notes, label=label)
+        if flux is not None:
+            if float(flux) == 0.0:
+                spec.colour = spec.colour * 0.0
+            else:
+                spec.scale_to_lumens(float(flux))
+            spec.notes.append(f"scaled to flux = {float(flux):g} lm")
+        out.append(spec)
+    return out
