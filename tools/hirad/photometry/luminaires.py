@@ -336,11 +336,13 @@ def sample_table(profile: Profile, ng: int = NG_DEFAULT, nc: Optional[int] = Non
     return np.ascontiguousarray(np.maximum(table, 0.0))
 
 
-def profile_flux(profile: Profile, quad: int = 6) -> float:
-    """The flux of a profile by quadrature (independent of any table; the oracle of tests and of
-    ies:normalize)."""
-    gp, mg = _quadrature_gamma(181, profile.breaks, quad)
-    cp, mc = _quadrature_c(1 if profile.axial else 360, quad)
+def profile_flux(profile: Profile, ng: int = NG_DEFAULT, nc: Optional[int] = None, quad: int = QUAD) -> float:
+    """The flux of a profile by the quadrature :func:`sample_table` uses (so, to rounding, the
+    flux of its table; ies:normalize scales by it)."""
+    if nc is None:
+        nc = 1 if profile.axial else NC_ASYMMETRIC
+    gp, mg = _quadrature_gamma(ng, profile.breaks, quad)
+    cp, mc = _quadrature_c(nc, quad)
     return float(mg.sum(axis=0) @ profile(gp, cp) @ mc.sum(axis=0))
 
 
