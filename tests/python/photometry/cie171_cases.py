@@ -24,15 +24,20 @@ Geometry (metres, x across, y into the room, z up; every surface but S2 black, r
          y = 0.25, 0.75, ..., 2.25.
   obstruction  a black box x 0..4, y 2.5..2.7, z 0..1 (4 m x 0.2 m x 1 m).
 
-Sources. The geometry and the 5.6 values are CIE 171:2006's as transcribed in the published
-validations (Dau Design and Consulting, "Validation of NVIDIA Iray against CIE 171:2006",
-2016, https://pdfslide.us/documents/validation-of-nvidia-iray-against-cie-1712006-cie-1712006-table-of-contents.html;
-I. Ashdown, "CIE 171:2006 - Errata", https://lightinganalysts.com/cie-1712006-errata). CIE's own
-Table 19 for 5.7 is wrong; the corrected values (A 16.07 ... K 0) are those of the Iray report
-(its Table 14, "corrected Table 19") and Ashdown's errata ("Test Case 5.7 ... Table 19
-Analysis"). The closed forms below reproduce every value of both tables to 0.01 (in %), which
-is the check that the geometry is the one the tables were computed for
-(test_cie171_56_57.py asserts it).
+Sources. The cases are CIE 171:2006's; the report itself was not at hand. The published
+validations that list them are Dau Design and Consulting, "Validation of NVIDIA Iray against
+CIE 171:2006" (2016,
+https://pdfslide.us/documents/validation-of-nvidia-iray-against-cie-1712006-cie-1712006-table-of-contents.html)
+and I. Ashdown, "CIE 171:2006 - Errata" (https://lightinganalysts.com/cie-1712006-errata, whose
+section 1 is "Test Case 5.7: Analytical Reference, Table 19 Analysis"); only the openings of
+those pages could be read here. The dimensions, reflectances and point layouts above, and the
+Table 17 values, were taken from a public transcription of the Iray report (a Blender-based
+CIE 171 validation project in the public code index, citing the report's Table 14, p. 24, for
+the corrected Table 19). CIE's own Table 19 for 5.7 is wrong; the corrected values (A 16.07
+... K 0) are those of the Iray report and of issue 13. Because that is second-hand, the
+geometry is checked against the numbers themselves: the closed forms below, computed from it,
+reproduce every value of Table 17 to 0.015 % and of the corrected Table 19 to its two
+decimals (test_cie171_56_57.py asserts both), which a wrong dimension would not.
 
 Light. hirad has no sun or sky (daylight is issue 16), so S2 is lit by a luminaire chosen to
 give it a uniform illuminance:

@@ -6,14 +6,18 @@ number comes from.
 Where the expected values come from:
 * 5.6: CIE 171:2006 Table 17, scenario 2 (S2 a 4 x 4 m floor of rho 0.30; B..F on a wall
   starting 0.5 m up, G..N on the ceiling at 3 m), as listed in Dau Design and Consulting's
-  "Validation of NVIDIA Iray against CIE 171:2006" (2016).
+  "Validation of NVIDIA Iray against CIE 171:2006" (2016; read here through a public
+  transcription, see cie171_cases.py).
 * 5.7: CIE 171:2006 Table 19 is wrong; the corrected values A 16.07, B 16.33, C 15.40,
   D 13.32, E 10.32, F 7.08, G 3.38, H 3.63, I 3.01, J 0, K 0 (% of E / (E_v rho)) are those
-  of the same Iray report (its Table 14, "corrected Table 19") and of I. Ashdown's "CIE
-  171:2006 - Errata" (lightinganalysts.com, "Test Case 5.7 ... Table 19 Analysis").
+  of the same Iray report (its Table 14, "corrected Table 19", p. 24), which I. Ashdown's
+  "CIE 171:2006 - Errata" (lightinganalysts.com, section "Test Case 5.7 ... Table 19
+  Analysis") discusses, as quoted in issue 13.
 * Both: the closed form E / (E_2 rho) = F(dA -> visible S2), the configuration factor from the
   point to the part of S2 it sees, by Lambert's contour integral (exact for a polygon; the
-  visible part of S2 is a rectangle in both cases, see cie171_cases.visible_s2_57).
+  visible part of S2 is a rectangle in both cases, see cie171_cases.visible_s2_57). That the
+  closed form, computed from the geometry, reproduces both tables is asserted below: it is
+  what makes the second-hand geometry trustworthy.
 
 Derivation of the closed form. S2 is a Lambertian surface uniformly lit with illuminance E_2
 and of reflectance rho, so its exitance is M = rho E_2 everywhere and its radiance
