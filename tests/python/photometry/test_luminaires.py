@@ -571,3 +571,41 @@ def test_config_light_bad_ies_file_names_file_and_line(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_config(write_config(tmp_path, "- {name: a, position: [0, 0, 1], ies: bad.ies}\n"))
     assert info.value.key == "lights[0].ies" and "bad.ies: line 6" in info.value.problem
+
+
+def test_photometric_power_on_a_mesh_light(tmp_path):
+    mesh = FLOOR.replace('"floor"', '"panel" (prepend apiSchemas = ["MeshLightAPI"])').replace(
+        "int[] faceVertexIndices = [0, 1, 2, 3]", "int[] faceVertexIndices = [0, 1, 2, 3]\n"
+        "    float inputs:intensity = 5\n    float photometric:power = 2500")
+    scene = hu.read_scene(write_scene(tmp_path, mesh))
+    k = [i for i, m in enumerate(scene.meshes) if m.path == "/panel"][0]
+    assert float(scene.face_emission[scene.face_mesh == k][0] @ Y) * 100.0 == pytest.approx(2500.0, rel=1e-9)
+
+
+def test_with_config_lights_appends_them_to_the_scene_lights(tmp_path):
+    cfg_path = write_config(tmp_path, "- {name: bulb, position: [0, 0, 2], flux: 100}\n")
+    scene_path = write_scene(tmp_path, light("SphereLight", attrs="float inputs:radius = 0.1"))
+    cfg = load_config(cfg_path)
+    specs = L.with_config_lights(hu.read_scene(scene_path, ies_mode=cfg.photometry.ies_mode), cfg)
+    assert [s.source for s in specs] == ["/lamp", "lights[0]"]
+    assert specs[1].lumens == pytest.approx(100.0, rel=1e-12)
+
+
+@needs_engine
+def test_every_kind_of_usd_luminaire_goes_to_the_engine(tmp_path):
+    c90_profile_file(tmp_path)
+    body = (light("SphereLight", "s", "float inputs:radius = 0.1")
+            + light("CylinderLight", "c", "float inputs:length = 1\n float inputs:radius = 0.02")
+            + light("RectLight", "r", "float inputs:shaping:cone:angle = 20", '"ShapingAPI"')
+            + light("DiskLight", "d", "float inputs:shaping:focus = 1\n color3f inputs:shaping:focusTint = (0, 1, 0)",
+                    '"ShapingAPI"')
+            + light("SphereLight", "m", "asset inputs:shaping:ies:file = @c90.ies@", '"ShapingAPI"',
+                    "double3 xformOp:translate = (0, 0, 2)\n    float3 xformOp:scale = (-1, 1, 1)",
+                    '"xformOp:translate", "xformOp:scale"'))
+    specs = hu.read_scene(write_scene(tmp_path, body)).luminaires
+    assert len(specs) == 6
+    d = np.random.default_rng(2).normal(size=(64, 3))
+    for s in specs:
+        eng = s.to_engine()
+        np.testing.assert_allclose(np.asarray(eng.flux).reshape(3), s.flux, rtol=1e-10)
+        np.testing.assert_allclose(np.asarray(eng.intensity(d)), s.intensity(d), rtol=1e-9, atol=1e-9)

@@ -745,3 +745,16 @@ def luminaires_from_config(lights, up_axis: str = "Z", ies_mode: str = "absolute
             spec.notes.append(f"scaled to flux = {float(flux):g} lm")
         out.append(spec)
     return out
+
+
+def with_config_lights(scene, config) -> list[LuminaireSpec]:
+    """The scene's luminaires (hirad.usd.SceneArrays.luminaires) followed by the config's
+    ``lights:`` (aimed by the scene's up axis, ``photometry.ies_mode`` where a light gives no
+    mode); IES warnings of the config lights go to ``scene.warnings``."""
+    specs = list(getattr(scene, "luminaires", []) or [])
+    lights = list(getattr(config, "lights", []) or [])
+    if lights:
+        mode = config.photometry.ies_mode if getattr(config, "photometry", None) is not None else "absolute"
+        specs += luminaires_from_config(lights, up_axis=getattr(scene, "up_axis", "Z"), ies_mode=mode,
+                                        warnings_out=scene.warnings)
+    return specs
