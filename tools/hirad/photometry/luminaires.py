@@ -41,7 +41,12 @@ smooth profile a node differs from the point value by O(h^2) (h = 0.5 degree: ~1
 
 Light types and their formulas (UsdLux of OpenUSD 25.05+, as documented in the schema.usda
 that ships with usd-core 26.11, pxr/usdLux/resources/usdLux/schema.usda, UsdLuxLightAPI
-"Quantities and Units" and UsdLuxShapingAPI):
+"Quantities and Units" and UsdLuxShapingAPI; the same text is published at
+https://openusd.org/release/api/class_usd_lux_light_a_p_i.html,
+https://openusd.org/release/api/class_usd_lux_shaping_a_p_i.html,
+https://openusd.org/release/api/class_usd_lux_sphere_light.html and
+https://openusd.org/dev/user_guides/schemas/usdLux/LightAPI.html; it came with OpenUSD pull
+request 3182, "[UsdLux] Add explanation of UsdLux quantities and behavior"):
 
 * emission L = inputs:intensity x 2^inputs:exposure x inputs:color (x the blackbody colour of
   inputs:colorTemperature when enabled) is a luminance in nits (cd/m^2); ``inputs:normalize``
@@ -69,7 +74,7 @@ that ships with usd-core 26.11, pxr/usdLux/resources/usdLux/schema.usda, UsdLuxL
   grid of equal-weight points over the opening. Without shaping they stay area emitters
   (hirad.usd.scene), unchanged.
 * ShapingAPI (schema text of inputs:shaping:*; the light axis is local -Z, theta = gamma):
-  - focus (values < 0 ignored): focusFactor = |cos gamma|^focus; focusTint t:
+  - focus (values < 0 ignored): focusFactor = |cos gamma|^focus; focusTint t (clamped to [0, 1]):
     L_c x lerp(focusFactor, t_c, 1) = L_c (t_c + focusFactor (1 - t_c)). A grey tint is one
     scalar profile; a coloured tint is two luminaires at the same points (colour L t and
     profile x 1, colour L (1 - t) and profile x focusFactor), exact, one schedule row.
@@ -592,7 +597,7 @@ class Shaping:
     ies_normalize: bool = False
 
     def shape_factor(self) -> Optional[Profile]:
-        """cone (when authored) x focus (when > 0 and the tint is a grey); None when it is 1."""
+        """The cone factor when the cone angle is authored, else None (focus: shaped_parts)."""
         out = None
         if self.cone_angle is not None:
             out = cone_factor(self.cone_angle, self.cone_softness)
@@ -638,7 +643,7 @@ def shaped_parts(base: Profile, base_colour: np.ndarray, shaping: Shaping, photo
         prof = prof * cone
     if not shaping.focus_active():
         return [(prof, colour)]
-    tint = np.zeros(3) if shaping.focus_tint is None else np.clip(np.asarray(shaping.focus_tint, float), 0, None)
+    tint = np.zeros(3) if shaping.focus_tint is None else np.clip(np.asarray(shaping.focus_tint, float), 0.0, 1.0)
     focused = prof * focus_factor(shaping.focus)
     if np.all(tint == tint[0]):
         t = float(tint[0])
