@@ -4,8 +4,8 @@ engine, illuminance read by SurfaceField.illuminance or from the solve's per-pat
 irradiance. Expected values are the report's published figures or closed forms, never
 hirad's output. Values are photometric Y of RGB (white light: every channel equal).
 
-Not here: 5.2 and 5.4 (point sources, which the engine does not have), 5.6 and 5.7 (their
-geometry was not at hand when these were written; see bench/README.md, "CIE 171:2006").
+Elsewhere: 5.2 and 5.4 (point sources: luminaires) in test_luminaire_engine.py; 5.6 and 5.7
+in test_cie171_56_57.py.
 """
 
 from __future__ import annotations
