@@ -677,7 +677,10 @@ class _Builder:
                tint, ies_key, shaping.ies_angle_scale, shaping.ies_normalize, mode if photometry is not None else None)
         parts = _lum.shaped_parts(base, colour, shaping, photometry, mode)
         if key not in self._table_cache:
-            self._table_cache[key] = [_lum.sample_table(prof) for prof, _ in parts]
+            tables = [_lum.sample_table(prof) for prof, _ in parts]
+            for table in tables:
+                table.setflags(write=False)  # shared by every light of the same kind
+            self._table_cache[key] = tables
         tables = self._table_cache[key]
         specs = []
         for k, ((_, col), table) in enumerate(zip(parts, tables)):
