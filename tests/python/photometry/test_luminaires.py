@@ -614,3 +614,14 @@ def test_every_kind_of_usd_luminaire_goes_to_the_engine(tmp_path):
         eng = s.to_engine()
         np.testing.assert_allclose(np.asarray(eng.flux).reshape(3), s.flux, rtol=1e-10)
         np.testing.assert_allclose(np.asarray(eng.intensity(d)), s.intensity(d), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("scale, lo, hi", [(0.0, 0, 90), (0.7, 0, 63), (1.3, 0, 117), (-0.6, 72, 126)])
+def test_angle_scale_moves_the_edge_of_a_hemisphere_file(tmp_path, scale, lo, hi):
+    """A flat 100 cd file measured over 0-90 degrees: under angleScale a the light is between
+    the mapped ends of that range, flux 200 pi (cos lo - cos hi), the edge a jump the table keeps."""
+    v = np.arange(0.0, 90.1, 2.5)
+    (tmp_path / "flat.ies").write_text(ies_text(v, [0.0], np.full((len(v), 1), 100.0)))
+    t = L.sample_table(L.ies_profile(read_ies(tmp_path / "flat.ies"), scale))
+    ref = 200 * math.pi * (math.cos(math.radians(lo)) - math.cos(math.radians(hi)))
+    assert L.table_flux(t) == pytest.approx(ref, rel=1e-9)

@@ -249,7 +249,16 @@ def ies_profile(photometry, angle_scale: float = 0.0, ballast: bool = True) -> P
             out[inside] = np.asarray(p.intensity(d.reshape(-1, 3), ballast=ballast)).reshape(d.shape[:2])
         return out
 
-    return Profile(f, axial)
+    # the measured range's ends (a file of 0-90 degrees stops at 90) are jumps: as the light's
+    # angles (the inverse of angleScale) they split the quadrature's cells
+    breaks = []
+    if p.photometric_type == "C":
+        a = float(angle_scale)
+        for v in p.vertical_range:
+            t = v * a if a > 0 else (v - 180.0) * (-a) + 180.0 if a < 0 else v
+            if 0.0 < t < 180.0:
+                breaks.append(float(t))
+    return Profile(f, axial, tuple(sorted(set(breaks))))
 
 
 # ----------------------------------------------------------------------------------------------
