@@ -123,21 +123,32 @@ def write_rad(scene, path: Path, light_split: float) -> dict:
     return {"polygons": n_poly, "light_polygons": n_light, "materials": len(materials), "emitted_Y_W": emitted_power}
 
 
-def work_plane(res, n_points: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """bench/grids.py's work plane: a regular grid over the bounding box of the floor's leaves
-    (the lowest 1 cm height bin holding a tenth of the upward-facing area), 0.80 m above it."""
-    p = res.patches
-    up = 2 if res.up_axis == "Z" else 1
+def work_plane(scene, n_points: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """bench/grids.py's work plane, from the scene's faces (the bake's leaves subdivide them,
+    so the floor, its level and its bounding box are the same): a regular grid over the
+    bounding box of the floor (the lowest 1 cm height bin holding a tenth of the upward-facing
+    area), 0.80 m above it, facing up."""
+    from hirad.usd.scene import _polygon_areas
+
+    up = 2 if scene.up_axis == "Z" else 1
+    counts = scene.face_vertex_counts
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    polys = [scene.points[scene.face_vertex_indices[s:s + c]] for s, c in zip(starts, counts)]
+    nrm = np.array([np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) for p in polys])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+    cen = np.array([p.mean(axis=0) for p in polys])
+    area = _polygon_areas(scene.points, counts, scene.face_vertex_indices)
     normal = np.zeros(3)
     normal[up] = 1
-    facing_up = p["normal"][:, up] > 0.99
-    heights = np.round(p["centroid"][:, up] / 0.01).astype(np.int64)
+    facing_up = (nrm[:, up] > 0.99) & (area > 0)
+    heights = np.round(cen[:, up] / 0.01).astype(np.int64)
     levels, inverse = np.unique(heights[facing_up], return_inverse=True)
-    area_at = np.bincount(inverse, weights=p["area"][facing_up])
+    area_at = np.bincount(inverse, weights=area[facing_up])
     floor_bin = levels[np.flatnonzero(area_at >= 0.1 * area_at.sum())[0]]
-    floor = facing_up & (heights == floor_bin)
-    floor_level = float(p["centroid"][floor, up].max())
-    lo, hi = p["corners"][floor].reshape(-1, 3).min(0), p["corners"][floor].reshape(-1, 3).max(0)
+    floor = np.flatnonzero(facing_up & (heights == floor_bin))
+    floor_level = float(cen[floor, up].max())
+    corners = np.concatenate([polys[i] for i in floor])
+    lo, hi = corners.min(0), corners.max(0)
     axes = [a for a in range(3) if a != up]
     n_side = int(np.ceil(np.sqrt(n_points)))
     u = np.linspace(lo[axes[0]], hi[axes[0]], n_side + 2)[1:-1]
@@ -180,8 +191,13 @@ def main() -> None:
     ap.add_argument("--aa", type=float, default=0.1)
     ap.add_argument("--ar", type=int, default=512)
     ap.add_argument("--lw", type=float, default=1e-4)
+    ap.add_argument("--lr", type=int, default=-12, help="rtrace -lr (negative: Russian roulette past that depth)")
     ap.add_argument("--ds", type=float, default=0.02, help="rtrace -ds (source subdivision)")
-    ap.add_argument("--light-split", type=float, default=0.1, help="largest emitter edge in the Radiance scene, m")
+    ap.add_argument("--light-split", type=float, default=0.25, help="largest emitter edge in the Radiance scene, m")
+    ap.add_argument("--solution", type=Path, default=None,
+                    help="a stored solution.usda of the hall to evaluate (no bake; it must be of the same scene)")
+    ap.add_argument("--keep", type=Path, default=None, help="bake into this directory and keep it (for --solution)")
+    ap.add_argument("--skip-radiance", action="store_true", help="hirad only")
     ap.add_argument("--processes", type=int, default=os.cpu_count() or 1, help="rtrace -n")
     args = ap.parse_args()
     if args.quick:
@@ -199,25 +215,32 @@ def main() -> None:
     print(f"machine: nproc {os.cpu_count()}, load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {version}")
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
+        out = args.keep if args.keep is not None else tmp / "out"
         cfg = config_from_dict({
-            "scene": str(HALL), "output": str(tmp / "out"), "method": "hierarchical",
+            "scene": str(HALL), "output": str(out), "method": "hierarchical",
             "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": 16},
             "solver": {"method": "jacobi", "tolerance": 1e-4},
             "outputs": {"usd": True, "lightmaps": {"enabled": False}, "preview": {"enabled": False}, "report": True}})
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
                                uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=True)
-        ld = load()
-        t0 = time.perf_counter()
-        res = bake(cfg)
-        print(f"hirad bake: {time.perf_counter() - t0:.1f} s ({ld}), eps {args.epsilon:g}, min_area {args.min_area:g}, "
-              f"{len(res.patches['area'])} leaves, residual {res.report['solver']['residual']:.2e}")
-        pts, nrm, floor = work_plane(res, args.points)
-        print(f"work plane: {len(pts)} points 0.80 m over the floor at {floor:.3f} m ({res.up_axis} up), facing up")
-        del res
+        solution = args.solution
+        if solution is None:
+            ld = load()
+            t0 = time.perf_counter()
+            res = bake(cfg)
+            print(f"hirad bake: {time.perf_counter() - t0:.1f} s ({ld}), eps {args.epsilon:g}, min_area "
+                  f"{args.min_area:g}, {len(res.patches['area'])} leaves, residual {res.report['solver']['residual']:.2e}")
+            del res
+            solution = out / "solution.usda"
+        else:
+            print(f"hirad: the stored bake {solution} (not baked again)")
+        pts, nrm, floor = work_plane(scene, args.points)
+        print(f"work plane: {len(pts)} points 0.80 m over the floor at {floor:.3f} m ({scene.up_axis} up), facing up, "
+              f"x {pts[:, 0].min():.3f} .. {pts[:, 0].max():.3f}")
 
         ld = load()
         t0 = time.perf_counter()
-        stored = load_solution(tmp / "out" / "solution.usda")
+        stored = load_solution(solution)
         t_load = time.perf_counter() - t0
         evaluate = stored.illuminance_evaluator(args.rays, 1)
         t0 = time.perf_counter()
@@ -225,6 +248,9 @@ def main() -> None:
         t_hirad = time.perf_counter() - t0
         print(f"hirad grid evaluation on the stored bake: {t_hirad:.2f} s ({ld}; opening solution.usda "
               f"{t_load:.2f} s more), {args.rays} rays per point")
+        if args.skip_radiance:
+            print(f"hirad only: {stats(y_h)}")
+            return
 
         rad = tmp / "hall.rad"
         counts = write_rad(scene, rad, args.light_split)
@@ -236,8 +262,8 @@ def main() -> None:
             raise SystemExit(f"oconv failed: {run.stderr.decode(errors='replace')[-2000:]}")
         t_oconv = time.perf_counter() - t0
         opts = ["-ab", str(args.ab), "-ad", str(args.ad), "-as", str(args.as_), "-aa", f"{args.aa:g}",
-                "-ar", str(args.ar), "-lw", f"{args.lw:g}", "-ds", f"{args.ds:g}", "-dj", "0", "-dc", "1",
-                "-dt", "0", "-st", "0", "-lr", "-10", "-af", str(tmp / "hall.amb"), "-n", str(args.processes)]
+                "-ar", str(args.ar), "-lw", f"{args.lw:g}", "-ds", f"{args.ds:g}", "-dj", "0",
+                "-st", "0", "-lr", f"{args.lr}", "-af", str(tmp / "hall.amb"), "-n", str(args.processes)]
         print(f"Radiance scene: {counts['polygons']} polygons ({counts['light_polygons']} light pieces), "
               f"{counts['materials']} materials, oconv {t_oconv:.2f} s ({ld})")
         ld = load()
