@@ -1,8 +1,11 @@
 """The bake: scene -> patches -> links -> solution -> outputs, as one function.
 
-Units: emission and radiosity B are exitance in W/m^2; irradiance H is W/m^2; exitant
-radiance is B/pi and incident radiance H/pi, in W/(m^2 sr). USD light intensities and
-emissiveColor are read as radiance in W/(m^2 sr).
+Units (hirad.units; the config's `units`): photometric by default, following UsdLux's
+physical-lighting semantics: emission and radiosity B are luminous exitance in lm/m^2,
+irradiance H is illuminance in lux, exitant B/pi and incident H/pi are luminances in cd/m^2,
+luminaires are candela tables with their flux in lm; USD light intensities and emissiveColor
+are luminances (nits). `units: radiometric` reads the same numbers as W/m^2, W/(m^2 sr), W.
+RGB is carried throughout; the photometric value is Y = 0.2126 R + 0.7152 G + 0.0722 B.
 """
 
 from __future__ import annotations
@@ -14,12 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, _engine, files, interrupts, usd
+from . import __version__, _engine, files, interrupts, units, usd
 from .engine import build_engine, display_dict, patch_dict, streaming_dict
 from .outputs import images
 from .config import Config, load_config
 from .errors import BakeError  # noqa: F401
 from .outputs.lightmaps import write_lightmaps
+from .photometry.luminaires import with_config_lights
 from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
 from .report import Reporter, energy_balance, write_json
@@ -107,7 +111,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
-                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=True)
+                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=not cfg.lights,
+                               ies_mode=cfg.photometry.ies_mode)
+        # the scene's luminaires and the config's `lights:` (photometry.luminaires)
+        specs = with_config_lights(scene, cfg)
     for w in scene.warnings:
         rep.warn(w)
     for w in cfg.ignored_settings():
@@ -117,7 +124,6 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     with rep.stage("build scene"):
         model = build_engine(scene)
         stats = model.stats()
-    specs = list(getattr(scene, "luminaires", None) or [])
     luminaires = [s.to_engine() for s in specs]
     if luminaires:
         model.set_luminaires(luminaires)
@@ -175,7 +181,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         with rep.stage("write USD"):
             path = staging / "solution.usda"
             meta = {"hirad:version": __version__, "hirad:config": cfg.fingerprint(),
-                    "hirad:units": "radiance W/(m^2 sr), irradiance W/m^2"}
+                    "hirad:units": units.layer_units(cfg.units)}
             if luminaires:
                 save_luminaires(luminaires, staging / LUMINAIRES_FILE)
                 meta["hirad:luminaires"] = LUMINAIRES_FILE
@@ -189,7 +195,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             except BakeError as e:
                 raise BakeError(f"outputs.preview.camera: {e}") from None
             _engine.write_exr(str(staging / "preview.exr"), np.ascontiguousarray(img, dtype=np.float32),
-                              [("hirad:units", "exitant radiance W/(m^2 sr)")])
+                              [("hirad:units", "exitant " + units.label(cfg.units, "radiance"))])
             images.write_png(staging / "preview.png", img)
             outputs["preview"] = ["preview.png", "preview.exr"]
     if snapshot_cb:

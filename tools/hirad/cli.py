@@ -35,7 +35,7 @@ EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_SCENE, EXIT_FAILED = 0, 1, 2, 3, 4
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                   pretty_exceptions_enable=False,
-                  help="hirad: radiosity for USD scenes. Units: radiance W/(m^2 sr), irradiance W/m^2.")
+                  help="hirad: radiosity for USD scenes. Units: luminance cd/m^2 and illuminance lux (photometric, the default), or W/(m^2 sr) and W/m^2 (units: radiometric).")
 
 IMAGE_SUFFIXES = {".png": "PNG", ".exr": "EXR", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
@@ -118,7 +118,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                        help="Print the version and exit")):
-    """hirad: radiosity for USD scenes. Units: radiance W/(m^2 sr), irradiance W/m^2."""
+    """hirad: radiosity for USD scenes. Units: luminance cd/m^2 and illuminance lux (photometric, the default), or W/(m^2 sr) and W/m^2 (units: radiometric)."""
 
 
 def _finite(name: str, value: float | None, positive: bool = True) -> None:
@@ -211,7 +211,7 @@ def render(solution: Path = typer.Argument(..., help="solution.usda written by `
             img = sol.render(camera, width, height, samples)
         if fmt == "EXR":
             _engine.write_exr(str(out), np.ascontiguousarray(img, dtype=np.float32),
-                              [("hirad:units", "exitant radiance W/(m^2 sr)")])
+                              [("hirad:units", "exitant luminance cd/m^2 (photometric) or radiance W/(m^2 sr) (radiometric), as the bake's units")])
         elif fmt == "JPEG":
             images.write_jpeg(out, img, exposure)
         else:

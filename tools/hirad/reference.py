@@ -21,6 +21,7 @@ from . import _engine, usd
 from .engine import build_engine
 from .bake import BakeError
 from .config import load_config
+from .photometry.luminaires import with_config_lights
 
 MIN_BOUNCES = 3  # bounces before Russian roulette may end a path
 UNSPLIT = 1e9    # meshing limits that keep every face as one patch
@@ -77,12 +78,15 @@ def read_points(path: Path):
 
 
 def scene_of(path: str | os.PathLike) -> usd.SceneArrays:
-    """The scene of a USD file, or of a YAML config's `scene` (with its materials settings)."""
+    """The scene of a USD file, or of a YAML config's `scene` (with its materials settings, its
+    IES mode and its `lights:`, added to the scene's luminaires)."""
     path = Path(path)
     if path.suffix.lower() in (".yaml", ".yml"):
         cfg = load_config(path)
-        return usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
-                              uv_primvars=tuple(cfg.materials.uv_primvars))
+        scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
+                               uv_primvars=tuple(cfg.materials.uv_primvars), ies_mode=cfg.photometry.ies_mode)
+        scene.luminaires = with_config_lights(scene, cfg)
+        return scene
     return usd.read_scene(path)
 
 
@@ -91,6 +95,9 @@ def unsplit_model(scene: usd.SceneArrays):
     model = build_engine(scene, with_uv=False)
     if model.stats().faces == 0:
         raise BakeError(f"{scene.source_path or 'scene'}: no usable faces")
+    specs = list(getattr(scene, "luminaires", None) or [])
+    if specs:  # evaluated exactly at every path vertex (pipeline/reference/reference.h)
+        model.set_luminaires([s.to_engine() for s in specs])
     model.mesh(_engine.MeshOptions(max_patch_area=UNSPLIT, max_edge_length=UNSPLIT))
     return model
 

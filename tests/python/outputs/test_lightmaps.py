@@ -234,7 +234,7 @@ def test_manifest_files_and_metadata(flat):
     for p, (path, img) in zip(manifest["pages"], pages.items()):
         assert img.shape[:2] == (p["height"], p["width"]) and max(img.shape[:2]) <= 128
         header = OpenEXR.File(str(path)).header()
-        assert "incident radiance" in header["hirad:units"]
+        assert "incident" in header["hirad:units"] and "H/pi" in header["hirad:units"]
         assert header["hirad:version"] == __version__
         assert header["hirad:sceneFingerprint"] == manifest["sceneFingerprint"] and len(manifest["sceneFingerprint"]) == 64
         png, rng = __import__("hirad.atlas", fromlist=["read_rgbm_png"]).read_rgbm_png(

@@ -10,7 +10,7 @@ import numpy as np
 from .. import __version__, _engine
 from ..report import scene_fingerprint
 from ..errors import BakeError
-from .meshes import LIGHTMAP_UNITS, corner_uv, triangulate
+from .meshes import corner_uv, lightmap_units_label, triangulate
 
 
 def _default_density(lm, patches) -> float:
@@ -163,7 +163,8 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     evaluate.moved = 0
     evaluate.samples = 0
 
-    meta_base = [("hirad:units", LIGHTMAP_UNITS), ("hirad:version", __version__),
+    lightmap_units = lightmap_units_label(cfg.units)
+    meta_base = [("hirad:units", lightmap_units), ("hirad:version", __version__),
                  ("hirad:sceneFingerprint", fingerprint), ("hirad:texelsPerMetre", f"{density:.9g}"),
                  ("hirad:lightmapMode", mode)]
     page_files, page_images, page_masks, png_files = [], [], [], []
@@ -224,7 +225,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         "texels_per_second": round(covered / elapsed, 1) if elapsed > 0 else None,
         "warnings": rep_warnings,
     }
-    extra = {"hirad:version": __version__, "units": LIGHTMAP_UNITS, "sceneFingerprint": fingerprint,
+    extra = {"hirad:version": __version__, "units": lightmap_units, "sceneFingerprint": fingerprint,
              "mode": mode, "supersample": lm.supersample,
              "uvPrimvar": "hirad:lightmapUV (texCoord2f, faceVarying, on the <defaultPrim>/HiradSolution meshes)"}
     if png_files:

@@ -42,7 +42,11 @@ def corner_uv(uv: np.ndarray, nv: int, code: int) -> np.ndarray:
     return uv[:nv].mean(axis=0)
 
 
-LIGHTMAP_UNITS = "incident radiance H/pi, W/(m^2 sr); final colour = albedo x lightmap"
+def lightmap_units_label(units: str) -> str:
+    """The lightmaps' hirad:units: H/pi read in the config's unit system."""
+    from ..units import label
+
+    return f"{label(units, 'incident')}; final colour = albedo x lightmap"
 
 
 def triangulate(counts: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ import numpy as np
 from .. import __version__, _engine
 from ..report import scene_fingerprint
 from ..errors import BakeError
+from ..units import label
 
 
 _VOLUME_DEFINITION = ("irradiance = integral over the sphere of incident radiance L dw (scalar irradiance, "
@@ -54,7 +55,8 @@ def write_volume(cfg, result, scene, staging: Path) -> dict:
     norm = np.linalg.norm(vec, axis=1, keepdims=True)
     direction = np.where(norm > 0, vec / np.maximum(norm, 1e-300), 0.0)
     coords = np.ascontiguousarray(grid, dtype=np.int32)
-    common = [("units", "W/m^2"), ("spacing", f"{s:.9g}"), ("hirad:version", __version__),
+    unit = label(cfg.units, "irradiance")
+    common = [("units", unit), ("spacing", f"{s:.9g}"), ("hirad:version", __version__),
               ("hirad:rays", str(int(vc.rays)))]
     grids = [("irradiance", coords, np.ascontiguousarray(s0, dtype=np.float32),
               common + [("definition", _VOLUME_DEFINITION)]),
@@ -63,7 +65,7 @@ def write_volume(cfg, result, scene, staging: Path) -> dict:
     for a, axis in enumerate("xyz"):
         grids.append((f"sh1_{axis}", coords, np.ascontiguousarray(s1[:, a, :], dtype=np.float32), common))
     meta = [("hirad:version", __version__), ("hirad:sceneFingerprint", scene_fingerprint(scene)),
-            ("hirad:units", "W/m^2"), ("hirad:spacing", f"{s:.9g}"), ("hirad:definition", _VOLUME_DEFINITION),
+            ("hirad:units", unit), ("hirad:spacing", f"{s:.9g}"), ("hirad:definition", _VOLUME_DEFINITION),
             ("hirad:worldUnits", "metres (the stage's metersPerUnit applied), stage up axis " + str(scene.up_axis))]
     _engine.write_vdb(str(staging / "volume.vdb"), grids, s, [0.0, 0.0, 0.0], meta)
     return {"file": "volume.vdb", "probes": int(len(coords)), "candidates": total, "spacing": s,
