@@ -250,7 +250,13 @@ def _stored_luminaires(path, data) -> list:
     name = (getattr(data, "metadata", None) or {}).get("hirad:luminaires")
     if not name:
         return []
+    from .usd import SceneError
+
     file = Path(path).parent / str(name)
     if not file.is_file():
-        raise BakeError(f"{path}: names its luminaires file {name}, which is missing beside it")
-    return load_luminaires(file)
+        raise SceneError(f"{path}: names its luminaires file {name}, which is missing beside it (their light "
+                         "would be lost)")
+    try:
+        return load_luminaires(file)
+    except BakeError as e:
+        raise SceneError(str(e)) from None
