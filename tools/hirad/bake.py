@@ -203,12 +203,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     grid_report = None
     if grids:
         with rep.stage("grids", total=len(grids)) as update:
-            results = evaluate_grids(grids, result.illuminance_evaluator(GRID_RAYS, cfg.seed),
+            results = evaluate_grids(grids, result.illuminance_evaluator(cfg.grid_rays, cfg.seed),
                                      maintenance_factor=cfg.maintenance_factor)
             update(len(grids), f"{len(grids)} grids")
             grid_report = write_grid_study(
                 results, staging / "grids", units=cfg.units, maintenance_factor=cfg.maintenance_factor,
-                seed=cfg.seed, rays=GRID_RAYS, title=f"Lighting study: {Path(cfg.scene).name}",
+                seed=cfg.seed, rays=cfg.grid_rays, title=f"Lighting study: {Path(cfg.scene).name}",
                 solver={"method": f"{cfg.method}, {method}", "iterations": solved.iterations,
                         "residual": solved.residual, "tolerance": cfg.solver.tolerance,
                         "energy balance (max relative error)": balance.get("max_relative_error")},
@@ -286,7 +286,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
 # calculation grids
 # --------------------------------------------------------------------------------------
 
-# Hemisphere rays per sensor point for the grids' indirect light (hirad grid --rays's default).
+# Hemisphere rays per sensor point for the grids' indirect light: hirad grid --rays's default (the
+# config's grid_rays has the same default).
 GRID_RAYS = 512
 UNITS = {
     "photometric": {"illuminance": "lx", "luminance": "cd/m2", "exitance": "lm/m2"},

@@ -205,3 +205,18 @@ def test_radiometric_units_and_a_bad_study_key(baked, tmp_path):
     proc = run_cli("grid", solution, bad, "--output", tmp_path / "b")
     assert proc.returncode == 2 and "grids.plane.heigth" in proc.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_grid_rays_key_is_validated_and_unused_without_grids(tmp_path):
+    """`grid_rays` sets the grids' hemisphere rays (the report says which); below 16 it is a
+    located error; without grids it is named as unused."""
+    cfg = _config(tmp_path, tmp_path / "out", grid_rays=8)
+    with pytest.raises(ConfigError) as ei:
+        load_config(cfg)
+    assert ei.value.key == "grid_rays"
+    data = yaml.safe_load(cfg.read_text())
+    data["grid_rays"] = 64
+    del data["grids"]
+    del data["maintenance_factor"]
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    assert any(w.startswith("grid_rays:") for w in load_config(cfg).ignored_settings())

@@ -708,6 +708,14 @@ class Config(BaseModel):
             " A points grid's `file` is relative to the config file's directory."
         ),
     )
+    grid_rays: Annotated[int, Strict(), Field(ge=16, le=1_000_000)] = Field(
+        default=512,
+        description=(
+            "Hemisphere rays per grid point for the grids' indirect light (stratified, cosine"
+            " distributed; the direct light of emitters and luminaires is exact whatever this is)."
+            " The indirect part's noise falls as 1/sqrt(rays)."
+        ),
+    )
     maintenance_factor: Annotated[float, Strict(), Field(gt=0.0, le=1.0)] = Field(
         default=1.0,
         description=(
@@ -812,6 +820,9 @@ class Config(BaseModel):
                 out.append("hierarchy: not used by method: flat")
         if "links" in given and self.solver.method != "block_southwell":
             out.append("links: only used by solver.method: block_southwell")
+        for key in ("grid_rays", "maintenance_factor"):
+            if key in given and not self.grids:
+                out.append(f"{key}: only used by grids (none given)")
         return out
 
     def link_store(self) -> Path:
