@@ -255,6 +255,16 @@ def info(scene: Path = typer.Argument(..., help="USD scene, or a YAML config (it
             faces = int(np.count_nonzero(s.face_mesh == i))
             emits = bool((s.face_emission[s.face_mesh == i] > 0).any())
             print(f"  {m.path}: {faces} faces{' (emitter)' if emits else ''}{' uv' if m.has_uv else ''}")
+        specs = list(s.luminaires)
+        if cfg is not None and cfg.lights:
+            from .photometry.luminaires import with_config_lights
+
+            specs = with_config_lights(s, cfg)
+        if specs:
+            print(f"luminaires: {len(specs)}, {sum(l.lumens for l in specs):.6g} lm in all")
+            for l in specs:
+                ies = f", IES {l.ies} ({l.ies_mode})" if l.ies else ""
+                print(f"  {l.source}: {l.label or l.kind}, {l.lumens:.6g} lm, {len(l.points)} points{ies}")
         for c in s.cameras:
             print(f"camera: {c.path} fov {c.vertical_fov_degrees:.2f} deg")
         for w in s.warnings:

@@ -205,3 +205,14 @@ def test_energy_balance_closes_with_a_luminaire_in_a_closed_grey_room(tmp_path, 
     assert bal["emitted_W"][1] == pytest.approx(4 * math.pi * i, rel=1e-6)  # float32 USD attributes
     assert bal["luminaire_received_W"][1] == pytest.approx(4 * math.pi * i, rel=0.005)
     assert bal["max_relative_error"] < 0.01
+
+
+def test_hirad_info_lists_the_luminaires_with_their_flux(tmp_path):
+    scene = tmp_path / "scene.usda"
+    scene.write_text(_usda(_sphere("Bulb", 100.0 / (math.pi * 0.05 ** 2), 0.05)))
+    proc = run_cli("info", scene)
+    assert proc.returncode == 0, proc.stderr
+    line = next(l for l in proc.stdout.splitlines() if l.startswith("luminaires:"))
+    assert line.startswith("luminaires: 1,") and float(line.split(",")[1].split()[0]) == pytest.approx(
+        4 * math.pi * 100.0, rel=1e-5)
+    assert "/World/Bulb" in proc.stdout
