@@ -41,7 +41,8 @@ class OptionError(BakeError):
 
 
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
-         snapshots: int | None = None, resume: bool = False, reuse_links: bool = False) -> Result:
+         snapshots: int | None = None, resume: bool = False, reuse_links: bool = False,
+         overrides: tuple[str, ...] | list[str] = ()) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
     Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID-X/`) and moved into
@@ -55,10 +56,14 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     removed. Out of core (method: hierarchical, solver.method: block_southwell), `resume`
     continues what a killed bake with the same inputs left in the link store, and `reuse_links`
     solves on the stored links of the same geometry and refinement settings (new materials)
-    without computing any form factor; for any other bake they are an error.
+    without computing any form factor; for any other bake they are an error. `overrides`
+    (`KEY=VALUE` strings, `hirad bake --set`) are set on the config file's values before
+    validation (hirad.config.load_config).
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
-    cfg = config if isinstance(config, Config) else load_config(config)
+    cfg = config if isinstance(config, Config) else load_config(config, overrides)
+    if overrides and isinstance(config, Config):
+        raise OptionError("overrides (--set) apply to a config file, not to a Config object")
     if threads is not None:
         cfg.threads = threads
     if snapshots is not None:
@@ -93,7 +98,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
             if store is not None:
                 files.make_link_store(store, __version__)
             with Reporter(quiet) as rep:
-                result = _run(cfg, staging, rep, source, resume, reuse_links)
+                result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides))
             del scene_layers
             files.finish_staging(staging, __version__)
             with interrupts.deferred():
@@ -107,7 +112,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
 
 
 def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, resume: bool = False,
-         reuse_links: bool = False) -> Result:
+         reuse_links: bool = False, overrides: tuple[str, ...] = ()) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
@@ -222,6 +227,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "method": cfg.method,
         "config": str(source) if source is not None else None,
         "config_fingerprint": cfg.fingerprint(),
+        # what determines the result (scene files' contents, the settings but not the output
+        # path nor the thread count): hirad.config.content
+        "content_key": cfg.content_key(),
+        "overrides": list(overrides),
         "scene": str(cfg.scene),
         "threads": cfg.thread_count(),
         "timings_s": {**rep.timings, "total": round(time.perf_counter() - wall, 4)},

@@ -153,14 +153,17 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
                                      help="Out of core: continue what a killed bake of the same inputs left"),
          reuse_links: bool = typer.Option(False, "--reuse-links",
                                           help="Out of core: solve on the stored links (same geometry and "
-                                               "refinement settings; new materials), computing no form factor")):
+                                               "refinement settings; new materials), computing no form factor"),
+         sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
+                                        help="Override a config key (dotted: meshing.max_patch_area=0.02, "
+                                             "lights[0].intensity=100; the value is YAML); repeatable")):
     """Solve a scene and write its outputs (USD layer, lightmaps, preview, report)."""
     import json
 
     from .bake import bake as run
 
     result = _run_guarded(lambda: run(config, quiet=quiet or as_json, threads=threads, snapshots=snapshots,
-                                      resume=resume, reuse_links=reuse_links))
+                                      resume=resume, reuse_links=reuse_links, overrides=tuple(sets)))
     if as_json:
         print(json.dumps(result.report, indent=2))
     elif not quiet:

@@ -7,6 +7,8 @@ for an annotated example).
     cfg = load_config("configs/cornell.yaml")      # raises ConfigError
     cfg.meshing.max_patch_area                     # 0.0006
     cfg.fingerprint()                              # sha256 hex of the settings
+    load_config(path, ["meshing.max_patch_area=0.02"])  # `hirad bake --set`: errors name the --set
+    cfg.content_key()                              # sha256 of what determines the result
 
 Every problem is reported as a :class:`ConfigError` whose text reads
 ``file:line: key: problem``, with the line of the offending key in the YAML
@@ -34,7 +36,8 @@ located errors), `describe` (the schema as text: :func:`schema_text`).
 
 from .describe import schema_text
 from .errors import DICT_SOURCE, ConfigError
-from .loader import config_from_dict, load_config
+from .content import content_key
+from .loader import apply_overrides, config_from_dict, load_config, parse_override
 from .schema import (Config, FormFactorConfig, HierarchyConfig, LightmapOutputConfig, LinksConfig, MaterialsConfig,
                      MeshingConfig, OutputsConfig, PreviewOutputConfig, ReconstructionConfig, SolverConfig,
                      VolumeOutputConfig, parse_bytes)
@@ -51,7 +54,10 @@ __all__ = [
     "ReconstructionConfig",
     "SolverConfig",
     "VolumeOutputConfig",
+    "apply_overrides",
     "config_from_dict",
+    "content_key",
+    "parse_override",
     "load_config",
     "schema_text",
 ]

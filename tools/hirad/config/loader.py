@@ -7,7 +7,7 @@ import os
 import re
 import stat
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any, Optional, Sequence, Union
 
 import yaml
 from pydantic import (
@@ -247,8 +247,19 @@ def _describe(err: dict[str, Any]) -> str:
 
 
 def _validate(
-    data: Any, *, file: str, root: Optional[Node], base_dir: Path, name: Optional[str]
+    data: Any, *, file: str, root: Optional[Node], base_dir: Path, name: Optional[str],
+    overrides: Optional[dict[tuple[Any, ...], str]] = None,
 ) -> Config:
+    overrides = overrides or {}
+
+    def where(loc: tuple[Any, ...]) -> tuple[str, int]:
+        """The place to name for a problem at `loc`: the --set argument that gave it (or gave a
+        value inside it), else the file and line."""
+        label = _override_for(overrides, loc)
+        if label is not None:
+            return label, 0
+        return file, (_locate(root, loc) if root is not None else 0)
+
     if not isinstance(data, dict):
         line = _line(root) if root is not None else (1 if file != DICT_SOURCE else 0)
         got = "nothing" if data is None else type(data).__name__
@@ -259,13 +270,12 @@ def _validate(
     except ValidationError as exc:
         for err in exc.errors(include_url=False):
             loc = _grid_loc(tuple(err["loc"]))[0]
-            line = _locate(root, loc) if root is not None else 0
-            problems.append(ConfigError(file, line, _format_key(loc), _describe(err)))
+            problems.append(ConfigError(*where(loc), _format_key(loc), _describe(err)))
     else:
         for loc, problem in _grid_file_problems(config) + _light_file_problems(config):
-            problems.append(ConfigError(file, _locate(root, loc) if root is not None else 0, _format_key(loc), problem))
+            problems.append(ConfigError(*where(loc), _format_key(loc), problem))
     if problems:
-        problems.sort(key=lambda e: e.line)
+        problems.sort(key=lambda e: (e.file != file, e.line))
         first = problems[0]
         first.errors = problems
         raise first from None
@@ -385,13 +395,122 @@ def _read_text(file: str) -> str:
         raise ConfigError(file, 0, "", f"config file is not UTF-8 text ({exc.reason})") from None
 
 
-def load_config(path: Union[str, os.PathLike[str]]) -> Config:
-    """Read and validate a YAML config file.
+# --------------------------------------------------------------------------
+# Overrides: `hirad bake CONFIG --set key=value`
+# --------------------------------------------------------------------------
+
+_KEY_PART = re.compile(r"(?:^|\.)([^.\[\]=\s]+)|\[(\d+)\]")
+
+
+def parse_key(key: str, label: str) -> tuple[Any, ...]:
+    """A dotted key (`outputs.lightmaps.texels_per_metre`, `lights[0].intensity`) as a location
+    tuple; a ConfigError named by `label` when it is not one."""
+    key = key.strip()
+    loc: list[Any] = []
+    pos = 0 if not key.startswith(".") else len(key) + 1
+    while pos < len(key):
+        m = _KEY_PART.match(key, pos)
+        if m is None or m.end() == pos:
+            loc = []
+            break
+        loc.append(m.group(1) if m.group(1) is not None else int(m.group(2)))
+        pos = m.end()
+    if not loc or not isinstance(loc[0], str):
+        raise ConfigError(label, 0, key, "not a key: use dotted names such as meshing.max_patch_area or "
+                                         "lights[0].intensity")
+    return tuple(loc)
+
+
+def parse_override(arg: str) -> tuple[tuple[Any, ...], Any, str]:
+    """`KEY=VALUE` (VALUE read as YAML: `16`, `1e-4`, `true`, `[0.5, 0.5, 0.5]`, `{a: 1}`, a
+    string) as (location, value, label); the label `--set KEY=VALUE` names it in errors."""
+    label = f"--set {arg}"
+    key, eq, text = arg.partition("=")
+    if not eq or not key.strip():
+        raise ConfigError(label, 0, "", "expected KEY=VALUE, e.g. --set meshing.max_patch_area=0.02")
+    loc = parse_key(key, label)
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        value = loader.construct_document(node) if node is not None else None
+    except _TooBig as exc:
+        raise ConfigError(label, 0, _format_key(loc), exc.problem) from None
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(label, 0, _format_key(loc), f"malformed YAML value: {problem}") from None
+    finally:
+        loader.dispose()
+    return loc, value, label
+
+
+def apply_overrides(data: Any, overrides: list[tuple[tuple[Any, ...], Any, str]]) -> dict:
+    """`data` (a config mapping, None for an empty file) with each override set in order;
+    mappings on the way are made when missing. A ConfigError names the --set argument when its
+    path crosses a value that is not a mapping (or a list, for an index)."""
+    import copy
+
+    data = {} if data is None else copy.deepcopy(data)
+    if not isinstance(data, dict):
+        return data  # _validate reports it
+    for loc, value, label in overrides:
+        node: Any = data
+        for depth, part in enumerate(loc[:-1]):
+            here = _format_key(loc[:depth + 1])
+            if isinstance(part, int):
+                if not isinstance(node, list):
+                    raise ConfigError(label, 0, _format_key(loc), f"{_format_key(loc[:depth]) or 'the config'} is "
+                                                                  "not a list")
+                if part >= len(node):
+                    raise ConfigError(label, 0, _format_key(loc), f"{here}: the list has {len(node)} entries")
+                node = node[part]
+                continue
+            if not isinstance(node, dict):
+                raise ConfigError(label, 0, _format_key(loc), f"{_format_key(loc[:depth])} is not a mapping")
+            if node.get(part) is None:
+                node[part] = [] if isinstance(loc[depth + 1], int) else {}
+            node = node[part]
+        last = loc[-1]
+        if isinstance(last, int):
+            if not isinstance(node, list):
+                raise ConfigError(label, 0, _format_key(loc), f"{_format_key(loc[:-1])} is not a list")
+            if last > len(node):
+                raise ConfigError(label, 0, _format_key(loc), f"{_format_key(loc[:-1])} has {len(node)} entries")
+            if last == len(node):
+                node.append(value)
+            else:
+                node[last] = value
+        else:
+            if not isinstance(node, dict):
+                raise ConfigError(label, 0, _format_key(loc), f"{_format_key(loc[:-1])} is not a mapping")
+            node[last] = value
+    return data
+
+
+def _override_for(overrides: dict[tuple[Any, ...], str], loc: tuple[Any, ...]) -> Optional[str]:
+    """The --set argument a problem at `loc` comes from: the last one that set `loc` or a key
+    above it, else (for a problem of a whole section, such as two lights' settings that
+    contradict) one that set a key inside it."""
+    best = None
+    for key, label in overrides.items():
+        if loc[:len(key)] == key:
+            best = label
+    if best is None and loc:
+        for key, label in overrides.items():
+            if key[:len(loc)] == loc:
+                best = label
+    return best
+
+
+def load_config(path: Union[str, os.PathLike[str]], overrides: Sequence[str] = ()) -> Config:
+    """Read and validate a YAML config file, with `overrides` (`KEY=VALUE` strings, as
+    `hirad bake --set`) applied on top before validation.
 
     Raises :class:`ConfigError` for an unreadable file, malformed YAML, unknown
     keys, wrong types, out-of-range values, missing required keys and a scene
-    file that does not exist.
+    file that does not exist. A problem with a value an override gave is named by its
+    ``--set KEY=VALUE`` argument instead of a file and line.
     """
+    parsed = [parse_override(arg) for arg in overrides]
     file = os.fspath(path)
     config_path = Path(file)
     text = _read_text(file)
@@ -424,7 +543,10 @@ def load_config(path: Union[str, os.PathLike[str]]) -> Config:
         raise errors[0]
 
     base_dir = config_path.expanduser().absolute().parent
-    return _validate(data, file=file, root=root, base_dir=base_dir, name=config_path.stem)
+    if parsed:
+        data = apply_overrides(data, parsed)
+    return _validate(data, file=file, root=root, base_dir=base_dir, name=config_path.stem,
+                     overrides={loc: label for loc, _, label in parsed})
 
 
 def config_from_dict(

@@ -861,6 +861,14 @@ class Config(BaseModel):
         )
         return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
 
+    def content_key(self) -> str:
+        """SHA-256 (hex) of what determines the bake's result: the scene files' contents and
+        the settings, not the output path, the thread count or where links are kept
+        (hirad.config.content)."""
+        from .content import content_key
+
+        return content_key(self)
+
     def thread_count(self) -> int:
         """The number of worker threads to use: ``threads``, or all cores if 0."""
         return self.threads or (os.cpu_count() or 1)
