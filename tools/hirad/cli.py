@@ -437,6 +437,134 @@ def ies(path: Path = typer.Argument(..., help="IES LM-63 photometric file"),
     _run_guarded(go)
 
 
+EXIT_BATCH_FAILED = 5  # hirad batch: some jobs failed (the others are done)
+
+
+def _batch_status(study_path: Path, as_json: bool) -> None:
+    import json
+
+    from .batch import load_study
+    from .batch.index import Index, status_rows
+
+    study = load_study(study_path, validate=False)
+    if not study.index_path.exists():
+        _fail(f"{study_path}: no index yet ({study.index_path}): run `hirad batch {study_path}` first")
+    index = Index(study.index_path)
+    try:
+        rows, batches = status_rows(index), index.batches()
+    finally:
+        index.close()
+    if as_json:
+        print(json.dumps({"study": str(study.path), "index": str(study.index_path), "jobs": rows,
+                          "batches": batches}, indent=2))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"study {study.name}: {study.index_path}")
+    for col in ("job", "status", "attempts", "exit", "seconds", "key", "error"):
+        table.add_column(col, overflow="fold")
+    for r in rows:
+        table.add_row(r["name"], r["status"], str(r["attempts"]), "" if r["exit_code"] is None else str(r["exit_code"]),
+                      "" if r["seconds"] is None else f"{r['seconds']:.1f}", r["key"][:12], r["error"] or "")
+    Console(width=int(os.environ.get("COLUMNS", "0")) or None).print(table)
+    by = {}
+    for r in rows:
+        by[r["status"]] = by.get(r["status"], 0) + 1
+    print(", ".join(f"{v} {k}" for k, v in sorted(by.items())) or "no jobs")
+
+
+@app.command()
+def batch(study: Path = typer.Argument(..., metavar="STUDY.yaml", help="The study (or `status STUDY.yaml`)"),
+          status_of: Optional[Path] = typer.Argument(None, hidden=True),
+          scheduler: Optional[str] = typer.Option(None, "--scheduler",
+                                                  help="An existing Dask scheduler, tcp://HOST:PORT [a LocalCluster]"),
+          workers: Optional[int] = typer.Option(None, "--workers", min=1, help="LocalCluster workers [the study's]"),
+          force: bool = typer.Option(False, "--force", help="Run every job again, finished or not"),
+          dry_run: bool = typer.Option(False, "--dry-run", help="Validate the study and list its jobs; run nothing"),
+          as_json: bool = typer.Option(False, "--json", help="The result (or the status) as JSON on stdout"),
+          progress: str = typer.Option("auto", "--progress", help="auto, plain, jsonl or none (events on stderr)")):
+    """Run a study: a base config and its variants, each a bake of its own on Dask (a local
+    cluster by default), resumable; `hirad batch status STUDY.yaml` shows its index.
+    Exit 0: every job done; 5: some jobs failed; 2: a bad study or no scheduler."""
+    import json
+    import time
+
+    if progress not in ("auto", "plain", "jsonl", "none"):
+        _fail(f"--progress {progress!r}: auto, plain, jsonl or none")
+    if str(study) == "status":
+        if status_of is None:
+            _fail("hirad batch status STUDY.yaml: give the study")
+        return _run_guarded(lambda: _guard_batch(lambda: _batch_status(status_of, as_json)))
+    if status_of is not None:
+        _fail(f"hirad batch: one study at a time (got {study} and {status_of})")
+    t0 = time.monotonic()
+
+    def emit(e: dict) -> None:
+        if progress == "none":
+            return
+        if progress == "jsonl":
+            print(json.dumps({"elapsed": round(time.monotonic() - t0, 3), **e}), file=sys.stderr, flush=True)
+            return
+        kind = e["event"]
+        if kind == "plan":
+            text = f"{e['jobs']} jobs: {e['to_run']} to run, {e['skipped']} finished before (index {e['index']})"
+        elif kind == "cluster":
+            text = f"{e['cluster']}; dashboard {e['dashboard'] or 'not available'}"
+        elif kind == "job":
+            text = f"job {e['name']}: {e['status']}" + (f" in {e['seconds']:.1f} s" if e.get("seconds") else "") + \
+                   (f" after {e['attempts']} attempts" if e.get("attempts", 1) > 1 else "") + \
+                   (f": {e['error']}" if e.get("error") and e["status"] != "done" else "")
+        elif kind == "cancelling":
+            text = f"cancelling {e['jobs']} jobs"
+        else:
+            text = json.dumps(e)
+        print(f"hirad: [{time.monotonic() - t0:7.1f} s] batch: {text}", file=sys.stderr, flush=True)
+
+    def go():
+        from .batch import load_study
+        from .batch.index import Index
+        from .batch.runner import run_batch
+        from .batch.summary import write_summary
+
+        s = load_study(study)
+        if dry_run:
+            for j in s.jobs:
+                print(f"{j.name}\t{j.key[:12]}\t{j.output}\t{' '.join(o for o in j.overrides if not o.startswith('output='))}")
+            return None
+        counts = run_batch(s, scheduler=scheduler, workers=workers, force=force, emit=emit)
+        index = Index(s.index_path)
+        try:
+            csv_path, html_path = write_summary(s, index)
+        finally:
+            index.close()
+        return s, counts, csv_path, html_path
+
+    got = _run_guarded(lambda: _guard_batch(go))
+    if got is None:
+        return
+    s, counts, csv_path, html_path = got
+    if as_json:
+        print(json.dumps({"study": str(s.path), "index": str(s.index_path), "summary_csv": str(csv_path),
+                          "summary_html": str(html_path), **counts}, indent=2))
+    else:
+        print(f"{len(s.jobs)} jobs: {counts['run']} run ({counts['done']} done, {counts['failed']} failed), "
+              f"{counts['skipped']} finished before; index {s.index_path}; summary {html_path}")
+    if counts["failed"] or counts["cancelled"]:
+        raise typer.Exit(EXIT_BATCH_FAILED)
+
+
+def _guard_batch(fn):
+    """A study's own errors (StudyFileError, BatchError) as usage errors (exit 2)."""
+    from .batch.runner import BatchError
+    from .batch.study import StudyFileError
+
+    try:
+        return fn()
+    except (StudyFileError, BatchError) as e:
+        _fail(str(e), EXIT_USAGE)
+
+
 @app.command("config")
 def config_cmd(schema: bool = typer.Option(False, "--schema",
                                            help="Print every config key with its type, default and meaning")):

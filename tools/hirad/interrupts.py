@@ -82,6 +82,21 @@ def deferred() -> Iterator[None]:
     _raise_once()
 
 
+_patience: list[float] = []
+
+
+@contextlib.contextmanager
+def patient(seconds: float) -> Iterator[None]:
+    """A block whose cleanup after a signal takes longer than the watchdog's grace (`hirad
+    batch` cancelling its jobs and closing its cluster): the watchdog waits `seconds` before
+    it steps in."""
+    _patience.append(float(seconds))
+    try:
+        yield
+    finally:
+        _patience.pop()
+
+
 def _watchdog(fd: int, grace: float) -> None:
     while True:
         try:
@@ -93,7 +108,7 @@ def _watchdog(fd: int, grace: float) -> None:
         signums = [b for b in data if b in SIGNALS]
         if not signums:
             continue
-        if _finished.wait(grace):
+        if _finished.wait(max([grace] + _patience)):
             return
         signum = received() or signums[0]
         try:
