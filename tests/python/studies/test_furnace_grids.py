@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 from hirad_e2e_helpers import furnace_box, write_config
 
@@ -38,6 +38,7 @@ from hirad.bake import bake
 from hirad.studies import build_grids, evaluate_grids, resolve_room, study_from_dict
 from hirad.studies.pictures import camera_luminance, camera_luminance_picture
 from hirad.studies.report import LUMINANCE_FILE, Study, render_html, write_study
+from hirad.studies.usdgrids import grids_from_stage
 
 RHO, E, SIZE = 0.5, 1.0, 2.0
 B = E / (1 - RHO)
@@ -61,6 +62,23 @@ def _scene(root: Path) -> Path:
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     cam = UsdGeom.Camera.Define(stage, "/World/Cam")  # looks down its -Z: at the z = 0 wall
     cam.AddTranslateOp().Set(Gf.Vec3d(1.0, 1.0, 1.9))
+    # calculation surfaces: a Plane (never baked: hirad bakes Meshes) and an invisible Mesh
+    # (skipped as geometry, read as a grid)
+    desk = UsdGeom.Plane.Define(stage, "/World/Desk")
+    desk.CreateAxisAttr("Y")
+    desk.CreateWidthAttr(1.2)
+    desk.CreateLengthAttr(0.6)
+    desk.AddTranslateOp().Set(Gf.Vec3d(1.0, 0.75, 1.0))
+    desk.GetPrim().CreateAttribute("hirad:grid", Sdf.ValueTypeNames.Bool).Set(True)
+    desk.GetPrim().CreateAttribute("hirad:grid:spacing", Sdf.ValueTypeNames.Double).Set(0.2)
+    sensor = UsdGeom.Mesh.Define(stage, "/World/Sensor")
+    sensor.CreatePointsAttr([(1.8, 0.5, 0.5), (1.8, 0.5, 1.5), (1.8, 1.5, 1.5), (1.8, 1.5, 0.5)])
+    sensor.CreateFaceVertexCountsAttr([4])
+    sensor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])  # normal -X: facing into the room
+    sensor.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    sensor.GetPrim().CreateAttribute("hirad:grid:name", Sdf.ValueTypeNames.String).Set("sensor")
+    sensor.GetPrim().CreateAttribute("hirad:grid:spacing", Sdf.ValueTypeNames.Double).Set(0.25)
+    sensor.GetPrim().CreateAttribute("hirad:grid:measure", Sdf.ValueTypeNames.Token).Set("cylindrical")
     stage.GetRootLayer().Save()
     return scene
 
@@ -151,3 +169,20 @@ def test_report_with_the_luminance_image(furnace, tmp_path):
     written = write_study(study, tmp_path / "s", pdf=False)
     assert (tmp_path / "s" / LUMINANCE_FILE).read_bytes() == png
     assert tmp_path / "s" / LUMINANCE_FILE in written["files"]
+
+
+def test_usd_calculation_surfaces_in_the_furnace(furnace):
+    """The scene's own calculation surfaces (a Plane and an invisible Mesh with hirad:grid
+    attributes), evaluated with the bake's read-out: on them too Em = B and U0 = 1; neither
+    was baked as geometry (the six walls are the only meshes)."""
+    res = furnace["result"]
+    report = json.loads((furnace["out"] / "report.json").read_text())
+    assert report["counts"]["meshes"] == 6
+    grids = {g.name: g for g in grids_from_stage(furnace["scene"])}
+    assert set(grids) == {"Desk", "sensor"}
+    assert len(grids["Desk"].points) == 6 * 3 and np.allclose(grids["Desk"].points[:, 1], 0.75)
+    assert np.allclose(grids["sensor"].normals, [0, 1, 0])  # cylindrical: the point's direction is up
+    assert len(grids["sensor"].points) == 16 and np.allclose(grids["sensor"].points[:, 0], 1.8)
+    for r in evaluate_grids(list(grids.values()), res.illuminance_evaluator(512, 1)):
+        assert r.stats.em == pytest.approx(B, rel=TOL), r.name
+        assert 1.0 - TOL <= r.stats.u0 <= 1.0, r.name
