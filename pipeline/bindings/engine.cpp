@@ -122,6 +122,28 @@ void bind_engine(nb::module_& m) {
              "hierarchical solve from its start.")
         .def_prop_ro("luminaire_flux", [](const Engine& e) { return rows3({e.luminaire_flux()}); }, kOwned,
                      "(1, 3) the luminaires' total exact flux, lm (or W).")
+        .def("set_light_groups",
+             [](Engine& e, const std::vector<std::vector<uint32_t>>& meshes,
+                const std::vector<std::vector<Luminaire>>& luminaires) {
+                 if (meshes.size() != luminaires.size())
+                     throw nb::value_error("light groups: one list of meshes and one of luminaires per group");
+                 std::vector<LightGroup> g(meshes.size());
+                 for (size_t k = 0; k < g.size(); ++k) g[k] = LightGroup{meshes[k], luminaires[k]};
+                 e.set_light_groups(std::move(g));
+             },
+             "meshes"_a, "luminaires"_a,
+             "Light groups (per group: the input meshes whose faces' emission it holds, and its luminaires); "
+             "replaces earlier ones. Each group is then solved alone on the shared links: solve_groups (flat), "
+             "HierarchicalResult.groups (hierarchical, in memory and out of core).")
+        .def_prop_ro("num_light_groups", &Engine::num_light_groups)
+        .def("solve_groups",
+             [](Engine& e, const SolveOptions& o, const FormFactorOptions& ff) {
+                 std::vector<GroupSolution> r;
+                 run_released([&] { r = e.solve_groups(o, ff); });
+                 return r;
+             },
+             "options"_a, "form_factors"_a = FormFactorOptions{},
+             "Flat: each light group solved alone on the links (list of GroupSolution, per patch).")
         .def("mesh", &Engine::mesh, "options"_a, "Flat meshing: cuts every face into patches (MeshOptions).")
         .def_prop_ro("num_patches", &Engine::num_patches)
         .def("patch_arrays", &Engine::patch_arrays, "The current patches (PatchArrays).")
@@ -182,14 +204,15 @@ void bind_engine(nb::module_& m) {
              },
              "patch_values"_a, "Per-patch values (n, 3) reconstructed at the display mesh's points (points, 3).")
         .def("gather",
-             [](Engine& e, In<double> p, In<double> n, const GatherOptions& o, double max_distance) {
+             [](Engine& e, In<double> p, In<double> n, const GatherOptions& o, double max_distance, int group) {
                  auto pts = vec3_rows(p, "points");
                  auto nrm = vec3_rows(n, "normals", long(pts.size()));
                  nb::gil_scoped_release release;
-                 return e.gather(pts, nrm, o, max_distance);
+                 return e.gather(pts, nrm, o, max_distance, group);
              },
-             "points"_a, "normals"_a, "options"_a = GatherOptions{}, "max_distance"_a = 1e30,
-             "Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches().")
+             "points"_a, "normals"_a, "options"_a = GatherOptions{}, "max_distance"_a = 1e30, "group"_a = -1,
+             "Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: "
+             "that light group's solution alone.")
         .def("gather_flat",
              [](const Engine& e, In<double> p, In<double> n, In<double> b, int rays, uint64_t seed) {
                  auto pts = vec3_rows(p, "points");

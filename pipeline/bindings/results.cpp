@@ -92,6 +92,16 @@ void bind_results(nb::module_& m) {
         .def_ro("read_wait_seconds", &StreamingStats::read_wait_seconds)
         .def_ro("shoot_seconds", &StreamingStats::shoot_seconds);
 
+    nb::class_<GroupSolution>(m, "GroupSolution",
+                              "One light group solved alone on the shared links, per patch or leaf.")
+        .def_prop_ro("radiosity", rgb(&GroupSolution::radiosity), kOwned, "(n, 3) B_g, W/m^2.")
+        .def_prop_ro("irradiance", rgb(&GroupSolution::irradiance), kOwned,
+                     "(n, 3) irradiance from the surfaces, W/m^2 (add `direct` for the total).")
+        .def_prop_ro("direct", rgb(&GroupSolution::direct), kOwned, "(n, 3) the group's luminaires' irradiance, W/m^2.")
+        .def_ro("iterations", &GroupSolution::iterations)
+        .def_ro("residual", &GroupSolution::residual)
+        .def_ro("converged", &GroupSolution::converged);
+
     using H = HierarchicalResult;
     nb::class_<H>(m, "HierarchicalResult",
                   "A hierarchical solve. Per-leaf arrays follow the leaves that use_leaves_as_patches() makes the "
@@ -104,6 +114,7 @@ void bind_results(nb::module_& m) {
         .def_ro("iterations", &H::iterations, "All rounds.")
         .def_ro("residual_history", &H::residual_history, "In memory: all rounds; out of core: the last solve.")
         .def_ro("links", &H::links, "Final links.")
+        .def_ro("groups", &H::groups, "One GroupSolution per light group (Engine.set_light_groups), per leaf.")
         .def_ro("elements", &H::elements, "Leaves.")
         .def_ro("nodes", &H::nodes)
         .def_ro("clusters", &H::clusters)

@@ -77,6 +77,7 @@ struct Engine::Solved {
     std::vector<RGB> radiosity;              // per node
     std::vector<uint32_t> leaves;            // node of each leaf (of each published patch)
     std::vector<Patch> leaf_patches;         // the leaves' shapes, until published
+    std::vector<std::vector<RGB>> group_radiosity;  // per light group, per node
     std::string store_round;                 // out of core: the final links' store
     size_t groups = 0;                       // and its number of source groups
 };
@@ -152,6 +153,68 @@ RGB Engine::luminaire_flux() const {
     RGB f{};
     for (const Luminaire& l : luminaires_) f += l.flux();
     return f;
+}
+
+void Engine::set_light_groups(std::vector<LightGroup> groups) {
+    uint32_t meshes = 0;
+    for (const Face& f : scene_.faces) meshes = std::max(meshes, f.mesh + 1);
+    std::vector<std::vector<uint8_t>> in(groups.size());
+    for (size_t k = 0; k < groups.size(); ++k) {
+        for (const Luminaire& l : groups[k].luminaires) l.validate();
+        in[k].assign(meshes, 0);
+        for (uint32_t m : groups[k].meshes) {
+            if (m > (1u << 30)) throw std::invalid_argument("light group " + std::to_string(k) + ": mesh index out of range");
+            if (m < meshes) in[k][m] = 1;  // a mesh with no usable face: nothing to emit
+        }
+    }
+    groups_ = std::move(groups);
+    group_mesh_ = std::move(in);
+}
+
+RGB Engine::group_emission(const LightGroup& g, uint32_t face) const {
+    const size_t k = static_cast<size_t>(&g - groups_.data());
+    const Face& f = scene_.faces[face];
+    return (f.mesh < group_mesh_[k].size() && group_mesh_[k][f.mesh]) ? f.emission : RGB{};
+}
+
+std::vector<RGB> Engine::group_direct(const LightGroup& g, const Visibility& vis, const std::vector<Patch*>& shapes) const {
+    std::vector<RGB> mean(shapes.size());
+    if (g.luminaires.empty() || shapes.empty()) return mean;
+    std::vector<double> spread;
+    element_luminaire_irradiance(g.luminaires, vis, shapes.data(), shapes.size(), kLuminaireSamples, mean, spread);
+    return mean;
+}
+
+std::vector<HierarchicalSolution> Engine::solve_groups_on(
+    Hierarchy& h, const Visibility& vis,
+    const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve) const {
+    std::vector<HierarchicalSolution> out;
+    if (groups_.empty()) return out;
+    std::vector<Patch*> shapes;
+    for (Node& n : h.nodes)
+        if (!n.cluster) shapes.push_back(&n.shape);
+    std::vector<RGB> emission(shapes.size()), direct(shapes.size());
+    for (size_t k = 0; k < shapes.size(); ++k) {
+        emission[k] = shapes[k]->emission;
+        direct[k] = shapes[k]->direct;
+    }
+    for (const LightGroup& g : groups_) {
+        const std::vector<RGB> d = group_direct(g, vis, shapes);
+        for (size_t k = 0; k < shapes.size(); ++k) {
+            Patch& p = *shapes[k];
+            p.direct = d[k];
+            p.emission = group_emission(g, p.face) + mul(p.reflectance, d[k]);
+        }
+        // As every round's solve: from the emission (rounds.cpp).
+        std::vector<RGB> start = node_emission(h);
+        for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
+        out.push_back(solve(start));
+    }
+    for (size_t k = 0; k < shapes.size(); ++k) {
+        shapes[k]->emission = emission[k];
+        shapes[k]->direct = direct[k];
+    }
+    return out;
 }
 
 void Engine::light_patches(std::vector<Patch*>& patches, const Visibility& vis, std::vector<double>* spread) const {
@@ -346,6 +409,47 @@ Transport Engine::transport(const std::vector<RGB>& b, const FormFactorOptions& 
     return t;
 }
 
+std::vector<GroupSolution> Engine::solve_groups(const SolveOptions& o, const FormFactorOptions& ff) {
+    require_mesh();
+    std::vector<GroupSolution> out;
+    if (groups_.empty()) return out;
+    std::vector<Patch>& P = patches_.patches;
+    std::vector<Patch*> shapes;
+    for (Patch& p : P) shapes.push_back(&p);
+    std::vector<RGB> emission(P.size()), direct(P.size());
+    for (size_t i = 0; i < P.size(); ++i) {
+        emission[i] = P[i].emission;
+        direct[i] = P[i].direct;
+    }
+    struct Restore {
+        std::vector<Patch>& P;
+        const std::vector<RGB>& e;
+        const std::vector<RGB>& d;
+        ~Restore() {
+            for (size_t i = 0; i < P.size(); ++i) {
+                P[i].emission = e[i];
+                P[i].direct = d[i];
+            }
+        }
+    } restore{P, emission, direct};
+    for (const LightGroup& g : groups_) {
+        GroupSolution gs;
+        gs.direct = group_direct(g, *visibility_, shapes);
+        for (size_t i = 0; i < P.size(); ++i) {
+            P[i].direct = gs.direct[i];
+            P[i].emission = group_emission(g, P[i].face) + mul(P[i].reflectance, gs.direct[i]);
+        }
+        FlatSolveResult r = solve(o, ff);
+        gs.irradiance = transport(r.radiosity, ff).irradiance;
+        gs.radiosity = std::move(r.radiosity);
+        gs.iterations = r.iterations;
+        gs.residual = r.residual;
+        gs.converged = r.converged;
+        out.push_back(std::move(gs));
+    }
+    return out;
+}
+
 double Engine::residual_of(const std::vector<RGB>& b) const {
     if (!links_) throw std::invalid_argument("residual_of needs links: compute_links first");
     RadiositySystem sys = system();
@@ -406,7 +510,19 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
     Solved* st = state.get();
     RoundsRun run = run_in_memory(state->hierarchy, *state->visibility, ropt, o.max_rounds, kind, so, progress,
                                   [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
-    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
+    // Light groups: each solved alone on the final links (the refinement saw every emitter).
+    std::vector<HierarchicalSolution> groups = solve_groups_on(
+        state->hierarchy, *state->visibility, [&](const std::vector<RGB>& start) {
+            SolverOptions go = so;
+            go.on_iteration = {};
+            switch (kind) {
+                case PushPull::Jacobi: return solve_push_pull(st->hierarchy, run.links, start, go);
+                case PushPull::GaussSeidel: return solve_gauss_seidel_push_pull(st->hierarchy, run.links, start, go);
+                case PushPull::Southwell: break;
+            }
+            return solve_southwell_push_pull(st->hierarchy, run.links, start, go);
+        });
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(groups));
     if (run.log.refine_splits.size() > 1)
         r.splits_per_round.assign(run.log.refine_splits.begin() + 1, run.log.refine_splits.end());
     return r;
@@ -434,7 +550,40 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
                                  [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
     state->store_round = run.store_round;
     state->groups = run.groups;
-    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon);
+    std::vector<HierarchicalSolution> light_groups;
+    if (!groups_.empty()) {
+        // Each light group streamed again over the final round's links, from the store (or the
+        // links in memory when the store has no root), with no checkpoints.
+        std::unique_ptr<LinkChunks> chunks;
+        if (!run.store_round.empty()) {
+            chunks = std::make_unique<StoreChunks>(run.store_round, groups.count());
+        } else {
+            std::vector<std::vector<Link>> by_group(groups.count());
+            for (const Link& l : run.links) by_group[groups.of(h, l.source)].push_back(l);
+            for (auto& g : by_group) sort_part(g);
+            chunks = std::make_unique<MemoryChunks>(std::move(by_group));
+        }
+        std::vector<uint8_t> is_source(h.nodes.size(), 0);
+        std::vector<double> outgoing(h.nodes.size(), 0.0);
+        std::vector<Link> part;
+        for (size_t g = 0; g < chunks->groups(); ++g)
+            for (size_t p = 0; p < chunks->parts(g); ++p) {
+                chunks->read(g, p, part);
+                for (const Link& l : part) {
+                    is_source[l.source] = 1;
+                    outgoing[l.source] += double(l.coupling) / h.nodes[l.source].area;
+                }
+            }
+        StreamingOptions gso = so;
+        gso.checkpoint_path.clear();
+        gso.checkpoint_seconds = 0;
+        gso.on_round = {};
+        light_groups = solve_groups_on(h, *state->visibility, [&](const std::vector<RGB>& start) {
+            StreamingStats stats;
+            return solve_streaming(h, groups, *chunks, is_source, outgoing, start, gso, stats);
+        });
+    }
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(light_groups));
     for (size_t k = 0; k < run.log.refine_splits.size(); ++k)
         if (run.log.refine_kept[k]) r.splits_per_round.push_back(run.log.refine_splits[k]);
     r.out_of_core = true;
@@ -450,7 +599,9 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
 
 // Balances the solved hierarchy 2:1 for a display without cracks (new leaves carry their
 // parent's values) and keeps it for publishing and the final gather.
-HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts) {
+HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
+                                   std::vector<HierarchicalSolution> groups) {
+    const bool with_groups = !groups.empty();
     Hierarchy& h = state->hierarchy;
     HierarchicalSolution& sol = run.solution;
     state->links = std::move(run.links);
@@ -464,7 +615,31 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
         sol.irradiance.push_back(sol.irradiance[parent]);
         sol.outgoing.push_back(sol.outgoing[parent]);
     }
+    for (HierarchicalSolution& g : groups)
+        for (size_t i = g.radiosity.size(); i < h.nodes.size(); ++i) {
+            const uint32_t parent = h.nodes[i].parent;
+            g.radiosity.push_back(g.radiosity[parent]);
+            g.irradiance.push_back(g.irradiance[parent]);
+        }
     std::vector<uint32_t> leaves = h.leaves();
+    if (!groups.empty()) {
+        std::vector<Patch*> shapes;
+        for (uint32_t i : leaves) shapes.push_back(&h.nodes[i].shape);
+        for (size_t k = 0; k < groups.size(); ++k) {
+            GroupSolution gs;
+            gs.direct = group_direct(groups_[k], *state->visibility, shapes);
+            gs.radiosity.resize(leaves.size());
+            gs.irradiance.resize(leaves.size());
+            for (size_t j = 0; j < leaves.size(); ++j) {
+                gs.radiosity[j] = groups[k].radiosity[leaves[j]];
+                gs.irradiance[j] = groups[k].irradiance[leaves[j]];
+            }
+            gs.iterations = groups[k].iterations;
+            gs.residual = groups[k].residual;
+            gs.converged = groups[k].converged;
+            r.groups.push_back(std::move(gs));
+        }
+    }
     state->leaf_patches.reserve(leaves.size());
     r.radiosity.resize(leaves.size());
     r.irradiance.resize(leaves.size());
@@ -513,6 +688,8 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     }
     r.leaf_node.assign(leaves.begin(), leaves.end());
     state->radiosity = std::move(sol.radiosity);
+    if (with_groups)
+        for (HierarchicalSolution& g : groups) state->group_radiosity.push_back(std::move(g.radiosity));
     state->leaves = std::move(leaves);
     solved_ = std::move(state);
     leaves_published_ = false;
@@ -542,8 +719,13 @@ std::vector<RGB> Engine::vertex_values(const std::vector<RGB>& values) const {
 }
 
 PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
-                           const GatherOptions& options, double max_distance) {
+                           const GatherOptions& options, double max_distance, int group) {
     if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
+    if (group >= 0 && size_t(group) >= solved_->group_radiosity.size())
+        throw std::invalid_argument("gather: light group " + std::to_string(group) + " out of range (" +
+                                    std::to_string(solved_->group_radiosity.size()) + " solved)");
+    const std::vector<RGB>& radiosity = group < 0 ? solved_->radiosity : solved_->group_radiosity[group];
+    const std::vector<Luminaire>& lums = group < 0 ? luminaires_ : groups_[group].luminaires;
     if (!leaves_published_) throw std::invalid_argument("gather needs the leaves as patches: call use_leaves_as_patches()");
     require_points(points, normals);
     // Links of an out-of-core solve are read from its store on the first gather.
@@ -568,18 +750,22 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
         key.push_back(q);
         slot.push_back(q);
     }
-    Gatherer g(solved_->hierarchy, solved_->links, solved_->radiosity, *solved_->visibility, options);
+    Gatherer g(solved_->hierarchy, solved_->links, radiosity, *solved_->visibility, options);
     std::vector<RGB> e(leaf.size());
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data());
-    if (!luminaires_.empty()) {
+    if (!lums.empty()) {
         std::vector<Vec3> ln(leaf.size());
         for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.nodes[leaf[k]].shape.normal;
-        const std::vector<RGB> d = luminaire_light(x, ln, *solved_->visibility);
+        std::vector<RGB> d(x.size());
+        luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(),
+                             1e-5 * solved_->visibility->scene_size());
         for (size_t k = 0; k < leaf.size(); ++k) e[k] += d[k];
     }
     for (size_t k = 0; k < leaf.size(); ++k) {
+        const Patch& s = solved_->hierarchy.nodes[leaf[k]].shape;
         out.irradiance[slot[k]] = e[k];
-        out.radiance[slot[k]] = exitant(solved_->hierarchy.nodes[leaf[k]].shape, e[k]);
+        out.radiance[slot[k]] = group < 0 ? exitant(s, e[k])
+                                          : (group_emission(groups_[group], s.face) + mul(s.reflectance, e[k])) / kPi;
     }
     return out;
 }

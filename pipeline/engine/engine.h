@@ -26,6 +26,15 @@
 // min_area; elements made later by refinement are lit before each solve. The final gather
 // and the reference evaluate the luminaires exactly at their points.
 //
+// Light groups (set_light_groups): radiosity is linear in its source term, so the solution of
+// the whole scene is the sum of the solutions of each group's emitters alone (emitting faces of
+// some input meshes, some luminaires). With groups set, the links are computed once (flat
+// compute_links; the hierarchical refinement, driven by all the emitters together) and every
+// group is then solved again on those final links with only its own source term (solve_groups
+// for the flat method; the hierarchical and out-of-core solves do it before the leaves are
+// balanced, into HierarchicalResult::groups). The same inputs give the same bits whatever the
+// thread count; without groups nothing changes.
+//
 // Units: metres, m^2; radiosity B, irradiance H and emission E (exitance) in W/m^2 per RGB
 // channel; radiance L = B / pi in W/(m^2 sr); power in W. Colours are linear RGB.
 //
@@ -160,6 +169,22 @@ struct Transport {
                                       // (signed: sampling makes some rows sum above 1)
 };
 
+// A light group: the emission of the faces of some input meshes, and some luminaires.
+struct LightGroup {
+    std::vector<uint32_t> meshes;        // input meshes whose faces' emission is the group's
+    std::vector<Luminaire> luminaires;   // the group's luminaires (validated)
+};
+
+// One group's solution on the shared links, per patch (flat) or per leaf (hierarchical).
+struct GroupSolution {
+    std::vector<RGB> radiosity;       // B_g, W/m^2 (the group's own emission included)
+    std::vector<RGB> irradiance;      // from the surfaces, W/m^2 (flat: F B_g; hierarchical: gathered)
+    std::vector<RGB> direct;          // the group's luminaires' irradiance, W/m^2
+    uint64_t iterations = 0;
+    double residual = 0;
+    bool converged = false;
+};
+
 // A hierarchical solve. Per-leaf arrays follow the leaves of the 2:1 balanced hierarchy, the
 // patches that use_leaves_as_patches() makes.
 struct HierarchicalResult {
@@ -202,6 +227,9 @@ struct HierarchicalResult {
     std::vector<double> node_area;
     std::vector<uint8_t> node_cluster;
     std::vector<int32_t> leaf_node;    // per leaf
+    // One solution per light group (set_light_groups) on the final links, per leaf; empty
+    // without groups.
+    std::vector<GroupSolution> groups;
 };
 
 // Values at query points on the surfaces.
@@ -235,6 +263,11 @@ public:
     const std::vector<Luminaire>& luminaires() const { return luminaires_; }
     RGB luminaire_flux() const;  // their total flux (lm or W)
 
+    // Light groups replace any earlier ones (empty: none). Meshes must be input mesh indices;
+    // luminaires are validated (std::invalid_argument). They do not change the total solve.
+    void set_light_groups(std::vector<LightGroup> groups);
+    size_t num_light_groups() const { return groups_.size(); }
+
     // ---- flat method
     void mesh(const MeshOptions& options);
     size_t num_patches() const { return patches_.patches.size(); }
@@ -248,6 +281,9 @@ public:
                           const SnapshotFn& snapshot = {}, const FlatProgressFn& progress = {});
     // H and escaped power from B; couplings from the links, or sampled with `ff` without links.
     Transport transport(const std::vector<RGB>& radiosity, const FormFactorOptions& ff = {}) const;
+    // Each light group solved alone on the flat links (the same solver and tolerance; progressive:
+    // rows sampled with `ff` again), with its irradiance F B_g (transport) and its direct light.
+    std::vector<GroupSolution> solve_groups(const SolveOptions& options, const FormFactorOptions& ff = {});
     double residual_of(const std::vector<RGB>& radiosity) const;
     double form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) const;
     std::vector<double> hemicube_row(uint32_t i, int resolution, int points) const;  // dense F_i.
@@ -270,8 +306,10 @@ public:
     // Final gather after a hierarchical solve whose leaves are the patches: each point goes to
     // the nearest leaf facing along its normal within max_distance, every link reaching that
     // leaf is re-evaluated at the point.
+    // `group` >= 0: the gather of that light group's solution alone (its radiosity on the same
+    // links, its luminaires, its emission).
     PointValues gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
-                       const GatherOptions& options, double max_distance = 1e30);
+                       const GatherOptions& options, double max_distance = 1e30, int group = -1);
     // Final gather from a flat solution `radiosity` (per patch): O(patches) a point.
     PointValues gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                             const std::vector<RGB>& radiosity, int rays, uint64_t seed) const;
@@ -290,7 +328,16 @@ private:
     RadiositySystem system() const;
     void replace_patches(PatchSet patches);
     std::unique_ptr<Solved> fresh_hierarchy(const HierarchyOptions& options, double& emitted);
-    HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts);
+    HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
+                               std::vector<HierarchicalSolution> groups = {});
+    // Each group's source term on the hierarchy's elements, solved by `solve` (per node
+    // solutions); the total source term is restored afterwards.
+    std::vector<HierarchicalSolution> solve_groups_on(
+        Hierarchy& h, const Visibility& visibility,
+        const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve) const;
+    // A group's emission of face f.
+    RGB group_emission(const LightGroup& g, uint32_t face) const;
+    std::vector<RGB> group_direct(const LightGroup& g, const Visibility& vis, const std::vector<Patch*>& shapes) const;
     // The source term of patches lit by the luminaires: direct and emission = E_self + rho direct.
     void light_patches(std::vector<Patch*>& patches, const Visibility& visibility, std::vector<double>* spread) const;
     void light_new_elements(Hierarchy& h, const Visibility& visibility, std::vector<uint32_t>* fresh,
@@ -301,6 +348,8 @@ private:
 
     Scene scene_;
     std::vector<Luminaire> luminaires_;
+    std::vector<LightGroup> groups_;
+    std::vector<std::vector<uint8_t>> group_mesh_;  // per group: per input mesh, 1 when in it
     PatchSet patches_;
     std::unique_ptr<Visibility> visibility_;   // over patches_
     std::unique_ptr<LinkMatrix> links_;

@@ -545,6 +545,32 @@ class StreamingStats:
     @property
     def shoot_seconds(self) -> float: ...
 
+class GroupSolution:
+    """One light group solved alone on the shared links, per patch or leaf."""
+
+    @property
+    def radiosity(self) -> NDArray[numpy.float64]:
+        """(n, 3) B_g, W/m^2."""
+
+    @property
+    def irradiance(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3) irradiance from the surfaces, W/m^2 (add `direct` for the total).
+        """
+
+    @property
+    def direct(self) -> NDArray[numpy.float64]:
+        """(n, 3) the group's luminaires' irradiance, W/m^2."""
+
+    @property
+    def iterations(self) -> int: ...
+
+    @property
+    def residual(self) -> float: ...
+
+    @property
+    def converged(self) -> bool: ...
+
 class HierarchicalResult:
     """
     A hierarchical solve. Per-leaf arrays follow the leaves that use_leaves_as_patches() makes the engine's patches.
@@ -579,6 +605,10 @@ class HierarchicalResult:
     @property
     def links(self) -> int:
         """Final links."""
+
+    @property
+    def groups(self) -> list[GroupSolution]:
+        """One GroupSolution per light group (Engine.set_light_groups), per leaf."""
 
     @property
     def elements(self) -> int:
@@ -731,6 +761,19 @@ class Engine:
     def luminaire_flux(self) -> NDArray[numpy.float64]:
         """(1, 3) the luminaires' total exact flux, lm (or W)."""
 
+    def set_light_groups(self, meshes: Sequence[Sequence[int]], luminaires: Sequence[Sequence[Luminaire]]) -> None:
+        """
+        Light groups (per group: the input meshes whose faces' emission it holds, and its luminaires); replaces earlier ones. Each group is then solved alone on the shared links: solve_groups (flat), HierarchicalResult.groups (hierarchical, in memory and out of core).
+        """
+
+    @property
+    def num_light_groups(self) -> int: ...
+
+    def solve_groups(self, options: SolveOptions, form_factors: FormFactorOptions = ...) -> list[GroupSolution]:
+        """
+        Flat: each light group solved alone on the links (list of GroupSolution, per patch).
+        """
+
     def mesh(self, options: MeshOptions) -> None:
         """Flat meshing: cuts every face into patches (MeshOptions)."""
 
@@ -794,9 +837,9 @@ class Engine:
         Per-patch values (n, 3) reconstructed at the display mesh's points (points, 3).
         """
 
-    def gather(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], options: GatherOptions = ..., max_distance: float = 1e+30) -> PointValues:
+    def gather(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], options: GatherOptions = ..., max_distance: float = 1e+30, group: int = -1) -> PointValues:
         """
-        Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches().
+        Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: that light group's solution alone.
         """
 
     def gather_flat(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], radiosity: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int = 4, seed: int = 1) -> PointValues:

@@ -132,6 +132,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     luminaires = [s.to_engine() for s in specs]
     if luminaires:
         model.set_luminaires(luminaires)
+    light_groups = None
+    if cfg.light_groups:  # hirad.relight: each group solved alone on the shared links
+        from . import relight
+        light_groups = relight.resolve_groups(cfg, scene, specs, rep.warn)
+        group_luminaires = [[luminaires[i] for i in g.luminaires] for g in light_groups]
+        model.set_light_groups([g.meshes for g in light_groups], group_luminaires)
     skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "self_intersecting_faces",
                                               "nonmanifold_edges") if getattr(stats, k)}
     if skipped:
@@ -150,6 +156,19 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         solved, patches, b, h, escaped, snapshot_cb = _solve_flat(cfg, model, scene, staging, rep)
     # The irradiance from the surfaces plus the luminaires' direct light (their first bounce).
     h = np.asarray(h) + patches["direct"]
+    grouped = None
+    if light_groups:
+        with rep.stage("light groups"):
+            grouped = relight.group_solutions(cfg, model, solved, patches, light_groups)
+        grouped.luminaires = group_luminaires
+        # The total is the groups' weighted sum (dimmer x color), so relighting is exact.
+        b_solved = np.asarray(b)
+        b, h = grouped.total(grouped.radiosity), grouped.total(grouped.irradiance)
+        escaped = np.divide(np.asarray(escaped) * b, b_solved, out=np.zeros_like(b), where=b_solved != 0)
+        patches = dict(patches, emission=grouped.total(grouped.emission))
+        base_specs = specs
+        specs = relight.weighted_specs(specs, light_groups)
+        luminaires = [s.to_engine() for s in specs]
     n = model.num_patches
     method = cfg.solver.method
     ff = cfg.formfactors
@@ -157,12 +176,20 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(f"solver stopped after {solved.iterations} iterations at residual "
                  f"{solved.residual:.3e}, above the tolerance {cfg.solver.tolerance:g}")
     balance = energy_balance(patches, b, h, escaped,
-                             luminaire_flux=np.asarray(model.luminaire_flux)[0] if luminaires else None)
+                             luminaire_flux=(np.asarray(model.luminaire_flux)[0] if not grouped else
+                                             np.sum([s.flux for s in specs], axis=0)) if luminaires else None)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
         vertex_radiance = model.vertex_values(b) / np.pi
         vertex_irradiance = model.vertex_values(h)
+        if grouped:
+            # The reconstruction clamps (extrapolated boundary vertices): the total's vertex
+            # values are the groups' weighted sum, as relighting makes them.
+            grouped.vertex = [(model.vertex_values(bg) / np.pi, model.vertex_values(hg))
+                              for bg, hg in zip(grouped.radiosity, grouped.irradiance)]
+            vertex_radiance = grouped.total([v[0] for v in grouped.vertex])
+            vertex_irradiance = grouped.total([v[1] for v in grouped.vertex])
     faces = display["faces"]
     result = Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
                     vertex_radiance[faces], vertex_irradiance[faces],
@@ -175,7 +202,15 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
     for pm, fids in zip(meshes, mesh_faces):  # the emitters, for `hirad grid` on the stored layer
         pm.face_emission = patches["emission"][display["face_patch"][fids]]
-    if cfg.outputs.lightmaps.enabled:
+    if grouped:
+        group_store = _group_meshes(model, scene, patches, display, grouped, meshes)
+    lightmaps_info = None
+    if cfg.outputs.lightmaps.enabled and grouped:
+        with rep.stage("lightmaps"):
+            outputs["lightmaps"], outputs["lightmap_atlas"], lightmaps_info = _group_lightmaps(
+                cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces, staging, result, rep.warn,
+                model, grouped, group_store)
+    elif cfg.outputs.lightmaps.enabled:
         with rep.stage("lightmaps"):
             outputs["lightmaps"], outputs["lightmap_atlas"] = write_lightmaps(
                 cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces, staging, result, rep.warn)
@@ -206,10 +241,14 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if snapshot_cb:
         outputs["snapshots"] = "snapshots/"
     grid_report = None
+    grids_info = None
     if grids:
         with rep.stage("grids", total=len(grids)) as update:
-            results = evaluate_grids(grids, result.illuminance_evaluator(cfg.grid_rays, cfg.seed),
-                                     maintenance_factor=cfg.maintenance_factor)
+            if grouped:
+                evaluator, grids_info = _group_grid_evaluator(cfg, scene, grids, result, grouped, group_store)
+            else:
+                evaluator = result.illuminance_evaluator(cfg.grid_rays, cfg.seed)
+            results = evaluate_grids(grids, evaluator, maintenance_factor=cfg.maintenance_factor)
             update(len(grids), f"{len(grids)} grids")
             grid_report = write_grid_study(
                 results, staging / "grids", units=cfg.units, maintenance_factor=cfg.maintenance_factor,
@@ -219,6 +258,18 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                         "energy balance (max relative error)": balance.get("max_relative_error")},
                 warn=rep.warn, luminaires=_luminaire_schedule(specs, patches))
         outputs["grids"] = "grids/"
+        if grids_info is not None:
+            grids_info.update(units=cfg.units, maintenance_factor=cfg.maintenance_factor, seed=cfg.seed,
+                              rays=cfg.grid_rays, title=f"Lighting study: {Path(cfg.scene).name}",
+                              solver={"method": f"{cfg.method}, {method}", "iterations": solved.iterations,
+                                      "residual": solved.residual, "tolerance": cfg.solver.tolerance},
+                              luminaires=_luminaire_schedule(specs, patches))
+    if grouped:
+        relight.save_groups(staging, light_groups, meshes, group_store["per_group"], grids_info=grids_info,
+                            lightmaps_info=lightmaps_info, units=cfg.units, version=__version__,
+                            seconds=grouped.solve_seconds, specs=base_specs,
+                            names=[scene.meshes[pm.mesh_index].name for pm in meshes])
+        outputs["light_groups"] = [relight.GROUPS_FILE, relight.VALUES_FILE]
 
     stats = model.stats()
     hierarchical = cfg.method == "hierarchical"
@@ -281,6 +332,9 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             "last_solve": streaming_dict(solved.streaming),
         },
         "energy_balance": balance,
+        "light_groups": None if not grouped else {
+            g.name: {"dimmer": g.dimmer, "color": list(g.color), "members": g.members, "residual": r}
+            for g, r in zip(light_groups, grouped.residuals)},
         "grids": grid_report,
         "outputs": outputs,
         "warnings": rep.warnings,
@@ -385,6 +439,110 @@ def _luminaire_schedule(specs, patches: dict) -> list[dict]:
         rows.append({"type": "area emitters (Lambertian surfaces)", "count": 1, "lumens": flux, "ies": None,
                      "name": "emissive surfaces"})
     return rows
+
+
+def _group_meshes(model, scene, patches, display, grouped, meshes) -> dict:
+    """Each light group's values on the solution meshes: its primvars (pm.group_values) and the
+    arrays relighting keeps (vertex and face radiance and irradiance, face emission)."""
+    per_group = {}
+    corners = {}
+    faces = display["faces"]
+    for k, g in enumerate(grouped.groups):
+        b_g, h_g, e_g = grouped.radiosity[k], grouped.irradiance[k], grouped.emission[k]
+        vr, vi = grouped.vertex[k]
+        corners[g.name] = (vr[faces], vi[faces])
+        pms, fids_of = patch_meshes(scene, patches, display, vr, vi, b_g, h_g)
+        rows = []
+        for pm, pm_g, fids in zip(meshes, pms, fids_of):
+            pm.group_values = dict(pm.group_values or {})
+            pm.group_values[g.name] = (pm_g.vertex_radiance, pm_g.vertex_irradiance)
+            rows.append({"vertex_radiance": pm_g.vertex_radiance, "vertex_irradiance": pm_g.vertex_irradiance,
+                         "face_radiance": pm_g.face_radiance, "face_irradiance": pm_g.face_irradiance,
+                         "face_emission": e_g[display["face_patch"][fids]]})
+        per_group[g.name] = {"meshes": rows}
+    return {"per_group": per_group, "corners": corners, "face_patch": display["face_patch"]}
+
+
+def _group_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces, staging, result, warn,
+                     model, grouped, store):
+    """The lightmaps with light groups: each group's pages into OUT/groups/<name>/lightmaps/ (for
+    hirad relight), then the total's, whose final gather replays the groups' weighted sum."""
+    from . import relight
+
+    records = []
+    for k, g in enumerate(grouped.groups):
+        vr_c, vi_c = store["corners"][g.name]
+        emitted = np.ascontiguousarray(grouped.emission[k][display["face_patch"]] / np.pi)
+        lums = grouped.luminaires[k]  # the group's own, unweighted
+        res_g = relight.group_result(result, model, k, np.ascontiguousarray(vr_c), np.ascontiguousarray(vi_c),
+                                     emitted, lums)
+        records.append(relight.recording_gather(res_g))
+        out_g = staging / relight.GROUPS_DIR / g.name
+        out_g.mkdir(parents=True, exist_ok=True)
+        vi_g = grouped.vertex[k][1]
+        write_lightmaps(cfg, scene, dict(patches, emission=grouped.emission[k]), display, vi_g, meshes, mesh_faces,
+                        out_g, res_g, None)
+    total = relight.replay_result(result, records, grouped.weights) if cfg.outputs.lightmaps.mode == "final_gather" \
+        else result
+    written, atlas = write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces, staging,
+                                     total, warn)
+    from .outputs.meshes import lightmap_units_label
+
+    emission = {}
+    for pm in meshes:
+        of_mesh = patches["mesh"] == pm.mesh_index
+        area = patches["area"][of_mesh][:, None]
+        if pm.lightmap_emission is not None and area.sum() > 0:
+            emission[scene.meshes[pm.mesh_index].name] = [
+                ((e[of_mesh] * area).sum(axis=0) / area.sum() / np.pi).tolist() for e in grouped.emission]
+    info = {"pages": atlas["pages"], "mode": atlas["mode"], "emission": emission,
+            "metadata": [("hirad:units", lightmap_units_label(cfg.units)), ("hirad:version", __version__),
+                         ("hirad:texelsPerMetre", f"{atlas['texels_per_metre']:.9g}"),
+                         ("hirad:lightmapMode", atlas["mode"])]}
+    return written, atlas, info
+
+
+def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
+    """The grids with light groups: each group's sensor RGB evaluated alone (kept for hirad
+    relight), the total their weighted sum (illuminance is linear in the radiance, the emission
+    and the luminaires, and the seeded rays are the same for every group)."""
+    import json as _json
+
+    from .solution import SurfaceSolution
+
+    sols = []
+    for k, g in enumerate(grouped.groups):
+        vr_c, vi_c = store["corners"][g.name]
+        sols.append(SurfaceSolution(result.corners, result.nv, np.ascontiguousarray(vr_c), np.ascontiguousarray(vi_c),
+                                    cameras=result.cameras, up_axis=result.up_axis,
+                                    emitted_radiance=np.ascontiguousarray(
+                                        grouped.emission[k][store["face_patch"]] / np.pi),
+                                    luminaires=list(grouped.luminaires[k])))
+    calls = {"k": 0}
+
+    def evaluate(points, normals):
+        rgbs = [s.illuminance(points, normals, rays=cfg.grid_rays, seed=cfg.seed) for s in sols]
+        for g, rgb in zip(grouped.groups, rgbs):
+            store["per_group"][g.name].setdefault("grids", []).append(rgb)
+        calls["k"] += 1
+        return luminance_y(Replay_weighted(rgbs, grouped.weights))
+
+    rooms = {}
+    for name, spec in cfg.grids.items():
+        room = getattr(spec, "room", None)
+        if room is not None and room not in rooms:
+            rooms[room] = _json.loads(_json.dumps(_room_polygons(cfg.scene, room, scene.up_axis),
+                                                  default=lambda o: np.asarray(o).tolist()))
+    info = {"specs": {name: spec.model_dump(mode="json") for name, spec in cfg.grids.items()}, "rooms": rooms,
+            "up_axis": scene.up_axis}
+    return evaluate, info
+
+
+def Replay_weighted(arrays, weights):
+    out = None
+    for a, w in zip(arrays, weights):
+        out = a * w if out is None else out + a * w
+    return out
 
 
 def _thin(history: list, most: int) -> list:

@@ -348,6 +348,28 @@ def reference(scene: Path = typer.Argument(..., help="USD scene, or a YAML confi
 
 
 @app.command()
+def relight(out: Path = typer.Argument(..., help="output directory of a `hirad bake` with lights.groups"),
+            set_: list[str] = typer.Option([], "--set",
+                                           help="lights.groups.NAME.dimmer=X or lights.groups.NAME.color=[R,G,B]"),
+            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Directory to write [OUT-relit]"),
+            json_out: bool = typer.Option(False, "--json", help="Print the relight report as JSON")):
+    """A new output from a bake's stored light group solutions, with no solve: the solution
+    layer's primvars, the lightmaps and the grids with new dimmers and colours (hirad.relight)."""
+    def go():
+        import json
+
+        from .relight import relight as run
+
+        report = run(out, set_, output)
+        if json_out:
+            print(json.dumps(report, indent=1))
+        else:
+            print(f"relit {out} -> {report['output']} in {report['timings_s']['total']:.3f} s (no solve)")
+
+    _run_guarded(go)
+
+
+@app.command()
 def grid(solution: Path = typer.Argument(..., help="solution.usda written by `hirad bake`"),
          study: Path = typer.Argument(..., help="YAML of maintenance_factor, up_axis and grids: (as a config's grids)"),
          output: Optional[Path] = typer.Option(None, "--output", "-o",

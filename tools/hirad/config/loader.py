@@ -270,6 +270,8 @@ def _validate(
     except ValidationError as exc:
         for err in exc.errors(include_url=False):
             loc = _grid_loc(tuple(err["loc"]))[0]
+            if loc[:1] == ("light_groups",):  # written lights.groups (schema.Config._lights_mapping)
+                loc = ("lights", "groups") + loc[1:]
             problems.append(ConfigError(*where(loc), _format_key(loc), _describe(err)))
     else:
         for loc, problem in _grid_file_problems(config) + _light_file_problems(config):

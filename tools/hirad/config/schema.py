@@ -210,6 +210,46 @@ class LightConfig(BaseModel):
         return self
 
 
+# A light group's name: it names primvars (primvars:hirad:group:NAME:irradiance) and
+# `hirad relight --set lights.groups.NAME.dimmer=...` keys, so no dots or colons.
+LIGHT_GROUP_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
+REST_GROUP = "rest"
+
+
+class LightGroupConfig(BaseModel):
+    """A light group (`lights.groups.NAME`): lights and emitters chosen by prim path patterns or a
+    UsdCollectionAPI collection, solved alone on the shared links so that `hirad relight` can
+    dim and tint it without solving."""
+
+    model_config = _MODEL_CONFIG
+
+    paths: list[StrictStr] = Field(
+        default_factory=list,
+        description=(
+            "fnmatch patterns on the prim paths of lights and emitting meshes (luminaires: the USD"
+            " prim path, config lights: `lights.points[NAME]`'s name); a pattern matching nothing"
+            " is named in a warning."
+        ),
+    )
+    collection: Optional[StrictStr] = Field(
+        default=None,
+        description="A UsdCollectionAPI collection path (</World/Lights.collection:desk>) whose members are the group.",
+    )
+    each: StrictBool = Field(
+        default=False,
+        description=(
+            "Every matching light its own group, named NAME_<prim name> (without paths or collection:"
+            " every light of the scene)."
+        ),
+    )
+    dimmer: Annotated[float, Strict(), Field(ge=0.0)] = Field(
+        default=1.0, description="Multiplies the group's light (0: off)."
+    )
+    color: Optional[tuple[NonNegative, NonNegative, NonNegative]] = Field(
+        default=None, description="Linear RGB multiplier of the group's light (null: white)."
+    )
+
+
 class MeshingConfig(BaseModel):
     """How scene surfaces are subdivided into radiosity patches."""
 
@@ -735,6 +775,16 @@ class Config(BaseModel):
             " `rotation` (rotateXYZ, degrees); see hirad.photometry.luminaires."
         ),
     )
+    light_groups: dict[StrictStr, LightGroupConfig] = Field(
+        default_factory=dict,
+        description=(
+            "Written `lights: {points: [...], groups: {NAME: {...}}}` in a config (a plain list under"
+            " `lights` is the points alone): light groups by prim path pattern, collection or one per"
+            " light (`each: true`), each with a `dimmer` and an optional `color`; emitters in no group"
+            " form the group `rest`. Each group is solved alone on the shared links and stored, so"
+            " `hirad relight` changes dimmers and colours without solving."
+        ),
+    )
     units: Literal["photometric", "radiometric"] = Field(
         default="photometric",
         description=(
@@ -743,6 +793,36 @@ class Config(BaseModel):
             " W/(m^2 sr)). Grids report Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear RGB."
         ),
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _lights_mapping(cls, data: Any) -> Any:
+        # `lights: {points: [...], groups: {...}}`: the points stay `lights`, the groups become
+        # `light_groups` (errors are located under lights.groups by the loader).
+        if isinstance(data, dict) and isinstance(data.get("lights"), dict):
+            given = dict(data["lights"])
+            extra = sorted(set(given) - {"points", "groups"})
+            if extra:
+                raise ValueError(f"lights: unknown key {extra[0]!r}; expected a list of point lights, or a "
+                                 "mapping of `points` (the list) and `groups`")
+            data = dict(data)
+            data["lights"] = given.get("points") if given.get("points") is not None else []
+            if "light_groups" in data:
+                raise ValueError("give the light groups as lights.groups only")
+            if given.get("groups") is not None:
+                data["light_groups"] = given["groups"]
+        return data
+
+    @field_validator("light_groups", mode="after")
+    @classmethod
+    def _group_names(cls, value: dict) -> dict:
+        for name in value:
+            if not LIGHT_GROUP_NAME.match(name):
+                raise ValueError(f"light group name {name!r}: use letters, digits, '_' and '-' (it names "
+                                 "primvars and relight keys)")
+            if name == REST_GROUP:
+                raise ValueError(f"light group name {name!r} is reserved for the emitters in no group")
+        return value
 
     @field_validator("grids", mode="after")
     @classmethod

@@ -48,6 +48,9 @@ class PatchMeshData:
     # (F,3) self-emitted exitance E of each face, W/m^2 (primvars:hirad:emission, uniform):
     # what `hirad grid` needs to tell the emitters from the rest; None in layers written before
     face_emission: np.ndarray | None = None
+    # light groups (lights.groups): name -> (vertex radiance (P,3), vertex irradiance (P,3)) of
+    # that group's solution alone, written as primvars:hirad:group:<name>:radiance / :irradiance
+    group_values: dict | None = None
 
 
 @dataclass
@@ -219,6 +222,9 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
     color_pv("hirad:patchIrradiance", pm.face_irradiance, UsdGeom.Tokens.uniform)
     if pm.face_emission is not None:
         color_pv("hirad:emission", pm.face_emission, UsdGeom.Tokens.uniform)
+    for group, (g_radiance, g_irradiance) in (pm.group_values or {}).items():
+        color_pv(f"hirad:group:{group}:radiance", g_radiance, UsdGeom.Tokens.vertex)
+        color_pv(f"hirad:group:{group}:irradiance", g_irradiance, UsdGeom.Tokens.vertex)
     color_pv("displayColor", np.clip(np.nan_to_num(np.asarray(pm.vertex_radiance)), 0.0, 1.0), UsdGeom.Tokens.vertex)
 
     prim = mesh.GetPrim()
