@@ -42,7 +42,7 @@ class OptionError(BakeError):
 
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False,
-         overrides: tuple[str, ...] | list[str] = ()) -> Result:
+         overrides: tuple[str, ...] | list[str] = (), progress: str = "auto") -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
     Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID-X/`) and moved into
@@ -58,7 +58,8 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     solves on the stored links of the same geometry and refinement settings (new materials)
     without computing any form factor; for any other bake they are an error. `overrides`
     (`KEY=VALUE` strings, `hirad bake --set`) are set on the config file's values before
-    validation (hirad.config.load_config).
+    validation (hirad.config.load_config). `progress` is hirad.report.Reporter's mode (auto,
+    bar, plain, jsonl, none).
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
@@ -97,7 +98,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
         with files.removed_on_failure(staging):
             if store is not None:
                 files.make_link_store(store, __version__)
-            with Reporter(quiet) as rep:
+            with Reporter(quiet, mode=progress) as rep:
                 result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides))
             del scene_layers
             files.finish_staging(staging, __version__)
@@ -124,7 +125,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
     for w in cfg.ignored_settings():
         rep.warn(w)
-    grids = _build_config_grids(cfg, scene, source) if cfg.grids else []
+    grids = _build_config_grids(cfg, scene, source)
 
     with rep.stage("build scene"):
         model = build_engine(scene)
@@ -256,7 +257,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                 solver={"method": f"{cfg.method}, {method}", "iterations": solved.iterations,
                         "residual": solved.residual, "tolerance": cfg.solver.tolerance,
                         "energy balance (max relative error)": balance.get("max_relative_error")},
-                warn=rep.warn, luminaires=_luminaire_schedule(specs, patches))
+                warn=rep.warn, luminaires=_luminaire_schedule(specs, patches),
+                luminance=_luminance_image(cfg, result, scene, rep.warn))
         outputs["grids"] = "grids/"
         if grids_info is not None:
             grids_info.update(units=cfg.units, maintenance_factor=cfg.maintenance_factor, seed=cfg.seed,
@@ -267,6 +269,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if grouped:
         relight.save_groups(staging, light_groups, meshes, group_store["per_group"], grids_info=grids_info,
                             lightmaps_info=lightmaps_info, units=cfg.units, version=__version__,
+                            preview=None if not cfg.outputs.preview.enabled else {
+                                k: getattr(cfg.outputs.preview, k) for k in ("camera", "width", "height", "samples")},
                             seconds=grouped.solve_seconds, specs=base_specs,
                             names=[scene.meshes[pm.mesh_index].name for pm in meshes])
         outputs["light_groups"] = [relight.GROUPS_FILE, relight.VALUES_FILE]
@@ -356,11 +360,6 @@ UNITS = {
     "photometric": {"illuminance": "lx", "luminance": "cd/m2", "exitance": "lm/m2"},
     "radiometric": {"illuminance": "W/m2", "luminance": "W/(m2 sr)", "exitance": "W/m2"},
 }
-_RADIOMETRIC_TEXT = ("Radiometric units: the values labelled lx are irradiance in W/m², luminance values are "
-                     "radiance in W/(m² sr), exitance W/m²; lengths in metres (m). Each value is Y = 0.2126 R + "
-                     "0.7152 G + 0.0722 B of the linear Rec.709 channels. Maintained values are the maintenance "
-                     "factor × the values of the new installation; U0 = Emin/Em and Ud = Emin/Emax are ratios.")
-
 
 def _build_config_grids(cfg: Config, scene, source: Path | None) -> list:
     """The config's grids, built before anything is solved (in the scene's up axis); a grid
@@ -381,7 +380,36 @@ def _build_config_grids(cfg: Config, scene, source: Path | None) -> list:
             line = config_line(source, ("grids", name)) if source is not None else 0
             raise ConfigError(str(source) if source is not None else DICT_SOURCE, line, f"grids.{name}",
                               str(e)) from None
-    return out
+    # the scene's own calculation surfaces (hirad:grid on a Mesh or a Plane: studies/usdgrids.py)
+    from .studies.usdgrids import grids_from_stage
+
+    try:
+        stage_grids = grids_from_stage(str(cfg.scene), scene.up_axis)
+    except StudyError as e:
+        raise BakeError(f"{cfg.scene}: {e}") from None
+    for g in stage_grids:
+        if g.name in cfg.grids:
+            raise BakeError(f"{cfg.scene}: the calculation surface {g.source} is named {g.name!r}, as the config's "
+                            f"grids.{g.name}; rename one of them (hirad:grid:name)")
+    return out + stage_grids
+
+
+def _luminance_image(cfg: Config, result, scene, warn=None):
+    """(caption, PNG) of the preview camera's view in cd/m^2 (W/(m^2 sr) radiometric), for the
+    study report."""
+    from .studies.pictures import camera_luminance_picture
+
+    pv = cfg.outputs.preview
+    view = pv.camera or (scene.cameras[0].path if scene.cameras else "the default view")
+    unit = "cd/m²" if cfg.units == "photometric" else "W/(m² sr)"
+    try:
+        png = camera_luminance_picture(result, pv.camera, width=pv.width, height=pv.height, samples=pv.samples,
+                                       units=cfg.units)
+    except StudyError as e:
+        if warn is not None:
+            warn(f"grids: no luminance image ({e})")
+        return None
+    return (f"Luminance of {view} ({unit})", png)
 
 
 def _room_polygons(stage_path, room: str, up_axis: str) -> list:
@@ -394,15 +422,15 @@ def _room_polygons(stage_path, room: str, up_axis: str) -> list:
 
 
 def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: float, seed: int, rays: int,
-                     title: str, solver: dict, subtitle: str = "", warn=None, luminaires=()) -> dict:
+                     title: str, solver: dict, subtitle: str = "", warn=None, luminaires=(), luminance=None) -> dict:
     """Writes the evaluated grids into `out_dir` (per grid NAME.csv, NAME.json, NAME.png;
     report.html and, when WeasyPrint works, report.pdf) and returns what report.json says of
     them: units, maintenance factor, seed, rays and each grid's statistics."""
-    from .studies.report import UNITS_TEXT, Study, pdf_engine, write_report_pdf, write_study
+    from .studies.report import Study, pdf_engine, units_text, write_report_pdf, write_study
 
     study = Study(results=results, maintenance_factor=maintenance_factor, title=title, subtitle=subtitle,
                   luminaires=list(luminaires),
-                  units=UNITS_TEXT if units == "photometric" else _RADIOMETRIC_TEXT,
+                  units=units_text(units), unit_system=units, luminance=luminance,
                   solver={**solver, "units": units, "grid seed": seed, "rays per point": rays})
     written = write_study(study, out_dir, pdf=False)
     pdf = None

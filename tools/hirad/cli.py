@@ -40,9 +40,31 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=N
 IMAGE_SUFFIXES = {".png": "PNG", ".exr": "EXR", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 
-def _fail(message: str, code: int = EXIT_USAGE) -> None:
+# `--json` (bake, batch): errors also as one JSON object on stdout, where the result would be:
+# {"error": {"exit_code": 2, "kind": "usage", "message": "...", ...}} (a config error adds
+# file, line, key, problem and every problem found as `problems`).
+_json_errors = False
+_KINDS = {1: "internal", 2: "usage", 3: "scene", 4: "failed", 5: "batch_jobs_failed", 130: "interrupted",
+          143: "terminated"}
+
+
+def _json_error(message: str, code: int, details: dict | None = None) -> None:
+    if _json_errors:
+        import json
+
+        print(json.dumps({"error": {"exit_code": code, "kind": _KINDS.get(code, "error"), "message": message,
+                                    **(details or {})}}), flush=True)
+
+
+def _fail(message: str, code: int = EXIT_USAGE, details: dict | None = None) -> None:
     print(f"hirad: error: {message}", file=sys.stderr, flush=True)
+    _json_error(message, code, details)
     raise typer.Exit(code)
+
+
+def _config_details(e) -> dict:
+    one = lambda x: {"file": x.file, "line": x.line, "key": x.key, "problem": x.problem}  # noqa: E731
+    return {**one(e), "problems": [one(x) for x in getattr(e, "errors", [e])]}
 
 
 def _one_line(e: BaseException) -> str:
@@ -79,6 +101,7 @@ def _run_guarded(fn):
     except interrupts.Interrupted as e:
         interrupts.finished()
         print(f"hirad: {e}; partial output removed", file=sys.stderr, flush=True)
+        _json_error(f"{e}; partial output removed", e.exit_code)
         raise typer.Exit(e.exit_code)
     except BaseException as e:
         signum = interrupts.received()
@@ -90,7 +113,9 @@ def _run_guarded(fn):
             traceback.print_exc()
         if isinstance(e, KeyboardInterrupt):
             raise typer.Exit(130)
-        if isinstance(e, (ConfigError, UnsafePathError, OptionError, StudyError)):
+        if isinstance(e, ConfigError):
+            _fail(str(e), EXIT_USAGE, _config_details(e))
+        if isinstance(e, (UnsafePathError, OptionError, StudyError)):
             _fail(str(e), EXIT_USAGE)
         if isinstance(e, SceneError):
             _fail(str(e), EXIT_SCENE)
@@ -156,14 +181,24 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
                                                "refinement settings; new materials), computing no form factor"),
          sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
                                         help="Override a config key (dotted: meshing.max_patch_area=0.02, "
-                                             "lights[0].intensity=100; the value is YAML); repeatable")):
+                                             "lights[0].intensity=100; the value is YAML); repeatable"),
+         progress: str = typer.Option("auto", "--progress",
+                                      help="Progress on stderr: auto (bars on a terminal, a plain line every few "
+                                           "seconds otherwise), bar, plain, jsonl (JSON lines: stage, fraction, "
+                                           "elapsed, eta) or none")):
     """Solve a scene and write its outputs (USD layer, lightmaps, preview, report)."""
     import json
 
     from .bake import bake as run
 
-    result = _run_guarded(lambda: run(config, quiet=quiet or as_json, threads=threads, snapshots=snapshots,
-                                      resume=resume, reuse_links=reuse_links, overrides=tuple(sets)))
+    global _json_errors
+    _json_errors = as_json
+    if progress not in ("auto", "bar", "plain", "jsonl", "none"):
+        _fail(f"--progress {progress!r}: auto, bar, plain, jsonl or none")
+    mode = "none" if quiet or (as_json and progress == "auto") else progress
+    result = _run_guarded(lambda: run(config, quiet=mode == "none", threads=threads, snapshots=snapshots,
+                                      resume=resume, reuse_links=reuse_links, overrides=tuple(sets),
+                                      progress=mode))
     if as_json:
         print(json.dumps(result.report, indent=2))
     elif not quiet:
@@ -512,6 +547,8 @@ def batch(study: Path = typer.Argument(..., metavar="STUDY.yaml", help="The stud
     import json
     import time
 
+    global _json_errors
+    _json_errors = as_json
     if progress not in ("auto", "plain", "jsonl", "none"):
         _fail(f"--progress {progress!r}: auto, plain, jsonl or none")
     if str(study) == "status":

@@ -26,10 +26,24 @@ class Reporter:
     `interval` seconds (default 5, or HIRAD_PROGRESS_SECONDS), each with the time since the bake
     started, the stage, its fraction done when known and the engine's detail, e.g.
     `hirad: [   12.3 s] form factors 45% 1200/2600 patches`.
+
+    `mode` chooses: "auto" (bars on a terminal, plain lines otherwise), "bar", "plain", "none"
+    (as quiet) or "jsonl": one JSON object a line, for a farm's log parser, e.g.
+    `{"event": "progress", "stage": "form factors", "fraction": 0.45, "elapsed": 12.3,
+    "stage_elapsed": 4.1, "eta": 5.0, "detail": "1200/2600 patches"}` (events `stage`,
+    `progress` at most every `interval` seconds (1 s when not set), `stage_done`, `warning`;
+    `fraction` and `eta`, the seconds the stage still needs at its pace so far, are null when
+    the stage's total is not known).
     """
 
-    def __init__(self, quiet: bool = False, stream=None, interval: float | None = None):
+    def __init__(self, quiet: bool = False, stream=None, interval: float | None = None, mode: str = "auto"):
+        if mode not in ("auto", "bar", "plain", "jsonl", "none"):
+            raise ValueError(f"progress mode {mode!r}: auto, bar, plain, jsonl or none")
+        quiet = quiet or mode == "none"
         self.quiet = quiet
+        self._jsonl = mode == "jsonl" and not quiet
+        if self._jsonl and interval is None and "HIRAD_PROGRESS_SECONDS" not in os.environ:
+            interval = 1.0
         self.timings: dict[str, float] = {}
         self.warnings: list[str] = []
         self.stream = stream if stream is not None else sys.stderr
@@ -42,7 +56,7 @@ class Reporter:
         self._start = time.perf_counter()
         self._lock = threading.Lock()
         self._progress = None
-        interactive = not quiet and _is_terminal(self.stream)
+        interactive = not quiet and not self._jsonl and mode != "plain" and (mode == "bar" or _is_terminal(self.stream))
         if interactive:
             from rich.console import Console
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -50,7 +64,14 @@ class Reporter:
             self._progress = Progress(TextColumn("{task.description:<22}", markup=False), BarColumn(),
                                       TextColumn("{task.fields[detail]}", markup=False), TimeElapsedColumn(),
                                       console=Console(file=self.stream), transient=False)
-        self._log = not quiet and not interactive
+        self._log = not quiet and not interactive and not self._jsonl
+
+    def _event(self, event: str, **fields) -> None:
+        import json
+
+        elapsed = round(time.perf_counter() - self._start, 3)
+        print(json.dumps({"event": event, "elapsed": elapsed, **fields}, allow_nan=False), file=self.stream,
+              flush=True)
 
     def __enter__(self):
         if self._progress:
@@ -75,8 +96,23 @@ class Reporter:
         last = [start]
         if self._log:
             self._line(f"{name} ...")
+        if self._jsonl:
+            self._event("stage", stage=name, total=total)
 
         def update(completed: float | None = None, detail: str = "") -> None:
+            if self._jsonl:
+                now = time.perf_counter()
+                with self._lock:
+                    if now - last[0] < self.interval:
+                        return
+                    last[0] = now
+                fraction = eta = None
+                if completed is not None and total:
+                    fraction = min(1.0, max(0.0, float(completed) / float(total)))
+                    eta = round((now - start) * (1.0 - fraction) / fraction, 3) if fraction > 0 else None
+                self._event("progress", stage=name, fraction=None if fraction is None else round(fraction, 4),
+                            stage_elapsed=round(now - start, 3), eta=eta, detail=detail or None)
+                return
             if task is not None:
                 self._progress.update(task, completed=completed, detail=detail)
             elif self._log:
@@ -103,10 +139,14 @@ class Reporter:
                 self._progress.update(task, total=total or 1, completed=total or 1)
             elif self._log:
                 self._line(f"{name} {'done in' if ok else 'stopped after'} {time.perf_counter() - start:.1f} s")
+            elif self._jsonl:
+                self._event("stage_done", stage=name, ok=ok, seconds=round(time.perf_counter() - start, 4))
 
     def warn(self, message: str) -> None:
         self.warnings.append(message)
-        if not self.quiet:
+        if self._jsonl:
+            self._event("warning", message=message)
+        elif not self.quiet:
             if self._progress:
                 self._progress.console.print(f"hirad: warning: {message}", markup=False, highlight=False,
                                              soft_wrap=True)

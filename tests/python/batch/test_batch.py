@@ -255,7 +255,7 @@ def test_failing_job_is_retried_marked_failed_and_the_batch_carries_on(tmp_path)
 # a worker killed with kill -9 during a job; SIGTERM to the batch
 # ---------------------------------------------------------------------------------------------
 
-SLOW = {**BASE, "meshing": {"max_patch_area": 0.0016, "max_edge_length": 0.04}}
+SLOW = {**BASE, "meshing": {"max_patch_area": 0.0025, "max_edge_length": 0.05}}
 
 
 def _bake_processes(marker: str) -> list[tuple[int, int]]:
@@ -291,14 +291,13 @@ def _partials(root: Path) -> list[Path]:
 
 
 def test_worker_killed_mid_job_is_retried_with_the_same_bits(tmp_path):
-    path = write_study(tmp_path, [{"name": "k1"}, {"name": "k2", "set": {"seed": 3}}], base=SLOW)
+    path = write_study(tmp_path, [{"name": "k1"}, {"name": "k2", "set": {"meshing": COARSE}}], base=SLOW)
     out = tmp_path / "out" / "study"
     proc = subprocess.Popen([sys.executable, "-m", "hirad.cli", "batch", str(path), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     bakes = _wait_for_bakes(str(out / "jobs" / "k1"), proc)
     time.sleep(1.5)  # well into the bake
     bake_pid, worker_pid = bakes[0]
-    assert "distributed" in Path(f"/proc/{worker_pid}/cmdline").read_bytes().decode(errors="replace") or True
     os.kill(worker_pid, signal.SIGKILL)
     stdout, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr[-3000:]
@@ -316,7 +315,7 @@ def test_worker_killed_mid_job_is_retried_with_the_same_bits(tmp_path):
     assert _partials(tmp_path) == []
     # the same bits as a clean bake of the variant
     clean = tmp_path / "clean"
-    bake(tmp_path / "base.yaml", overrides=[f"output={clean}", "threads=1"])
+    bake(tmp_path / "base.yaml", overrides=[f"output={clean}", "threads=2"])
     assert_same_primvars(out / "jobs" / "k1" / "solution.usda", clean / "solution.usda")
 
 
