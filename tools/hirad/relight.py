@@ -224,7 +224,7 @@ class Replay:
 
 def save_groups(staging: Path, groups: Sequence[LightGroup], meshes_data: list, per_group: dict, *,
                 grids_info: dict | None, lightmaps_info: dict | None, units: str, version: str,
-                seconds: float, specs=(), names=None) -> None:
+                seconds: float, specs=(), names=None, preview: dict | None = None) -> None:
     """Writes OUT/groups/groups.json and values.npz: per group and solution mesh the vertex and
     face radiance and irradiance and face emission (float64), the grid sensors' RGB."""
     from . import files
@@ -252,6 +252,7 @@ def save_groups(staging: Path, groups: Sequence[LightGroup], meshes_data: list, 
                    for i, pm in enumerate(meshes_data)],
         "grids": grids_info,
         "lightmaps": lightmaps_info,
+        "preview": preview,
         "group_solve_seconds": round(seconds, 4),
     }
     files.write_json(staging / GROUPS_FILE, doc)
@@ -481,7 +482,19 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
     if gi_doc:
         grid_report = _relit_grids(staging, gi_doc, values, weights, doc, settings)
         written.append("grids/")
-    not_relit = [n for n in ("volume.vdb", "preview.png", "preview.exr") if (out_dir / n).exists()]
+    pv = doc.get("preview")
+    if pv and (staging / "solution.usda").is_file():
+        from .outputs import images
+        from .solution import load_solution
+        from . import units as _units
+
+        sol = load_solution(staging / "solution.usda")
+        img = sol.render(pv["camera"], pv["width"], pv["height"], pv["samples"])
+        _engine.write_exr(str(staging / "preview.exr"), np.ascontiguousarray(img, dtype=np.float32),
+                          [("hirad:units", "exitant " + _units.label(doc.get("units", "photometric"), "radiance"))])
+        images.write_png(staging / "preview.png", img)
+        written += ["preview.png", "preview.exr"]
+    not_relit = [n for n in ("volume.vdb",) if (out_dir / n).exists()]
     return {
         "hirad_version": version,
         "relit_from": str(out_dir),

@@ -226,3 +226,46 @@ def test_relit_lightmaps_are_the_weighted_group_pages(tmp_path):
     # half-float pages: equal to their rounding (2^-10 relative, a few roundings)
     assert np.abs(relit - (total - rest)).max() <= 4e-3 * total.max()
     assert np.abs(relit - total).max() > 1e-2 * total.max()
+
+
+def test_out_of_core_groups_sum_to_the_total_and_relight(tmp_path):
+    """block_southwell: each group streamed again over the store's final links."""
+    scene = room(tmp_path / "room.usda")
+    extra = {"solver": {"method": "block_southwell", "tolerance": 1e-6}}
+    g = hirad.bake(str(config(tmp_path / "g.yaml", scene, tmp_path / "g", GROUPS, **extra)))
+    p = hirad.bake(str(config(tmp_path / "p.yaml", scene, tmp_path / "p", None, **extra)))
+    b_g, b_p = np.asarray(g.patch_radiosity), np.asarray(p.patch_radiosity)
+    assert b_g.shape == b_p.shape and np.abs(b_g - b_p).max() <= 50 * TOL * np.abs(b_p).max()
+    r = _cli("relight", tmp_path / "g", "--set", "lights.groups.sky.dimmer=0.3", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    before, after = _primvars(tmp_path / "g" / "solution.usda"), _primvars(tmp_path / "r" / "solution.usda")
+    for (mesh, name), total in before.items():
+        if name == "hirad:irradiance":
+            want = total - 0.7 * before[(mesh, "hirad:group:sky:irradiance")]
+            assert np.abs(after[(mesh, name)] - want).max() <= 4e-7 * max(1.0, np.abs(total).max())
+
+
+@pytest.mark.parametrize("method", ["hierarchical", "flat"])
+def test_group_solutions_do_not_depend_on_the_thread_count(tmp_path, method):
+    scene = room(tmp_path / "room.usda")
+    path = config(tmp_path / "g.yaml", scene, tmp_path / "g", GROUPS, method=method)
+    one = hirad.bake(str(path), threads=1)
+    vals1 = np.load(tmp_path / "g" / R.VALUES_FILE)
+    a = {k: vals1[k].copy() for k in vals1.files}
+    many = hirad.bake(str(path), threads=4)
+    vals4 = np.load(tmp_path / "g" / R.VALUES_FILE)
+    assert sorted(a) == sorted(vals4.files)
+    for k in a:
+        assert np.array_equal(a[k], vals4[k]), k
+    assert np.array_equal(np.asarray(one.patch_radiosity), np.asarray(many.patch_radiosity))
+
+
+def test_set_parsing():
+    assert R.parse_sets(["lights.groups.desk.dimmer=0.3", "lights.groups.sky.color=[1, 0.9, 0.8]"],
+                        ["desk", "sky"]) == {"desk": {"dimmer": 0.3}, "sky": {"color": (1.0, 0.9, 0.8)}}
+    for bad, words in (("lights.groups.desk.dimmer=abc", "dimmer must be"), ("lights.groups.desk.color=[1,2]", "color"),
+                       ("lights.groups.desk.intensity=2", "not a relight key"), ("threads=2", "not a relight key"),
+                       ("lights.groups.Desk.dimmer=1", "did you mean 'desk'")):
+        with pytest.raises(R.RelightError) as e:
+            R.parse_sets([bad], ["desk", "sky"])
+        assert words in str(e.value) and bad in str(e.value)
