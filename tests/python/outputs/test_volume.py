@@ -56,7 +56,7 @@ def test_vdb_has_named_grids_and_metadata(cornell_volume):
     assert float(vdb["metadata"]["hirad:spacing"]) == pytest.approx(SPACING)
     assert len(vdb["metadata"]["hirad:sceneFingerprint"]) == 64
     irr = vdb["grids"]["irradiance"]
-    assert irr["metadata"]["units"] == "W/m^2" and float(irr["metadata"]["spacing"]) == pytest.approx(SPACING)
+    assert irr["metadata"]["units"] == "illuminance lx (lm/m^2)" and float(irr["metadata"]["spacing"]) == pytest.approx(SPACING)
     assert irr["metadata"]["hirad:version"] == __version__
     assert irr["voxel_size"] == pytest.approx(SPACING) and np.allclose(irr["origin"], 0)
     n = len(irr["coords"])
