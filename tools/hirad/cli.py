@@ -589,7 +589,8 @@ def batch(study: Path = typer.Argument(..., metavar="STUDY.yaml", help="The stud
         s = load_study(study)
         if dry_run:
             for j in s.jobs:
-                print(f"{j.name}\t{j.key[:12]}\t{j.output}\t{' '.join(o for o in j.overrides if not o.startswith('output='))}")
+                reuse = f"\t(reuses the links of {j.after})" if j.after else ""
+                print(f"{j.name}\t{j.key[:12]}\t{j.output}\t{' '.join(o for o in j.overrides if not o.startswith('output='))}{reuse}")
             return None
         counts = run_batch(s, scheduler=scheduler, workers=workers, force=force, emit=emit)
         index = Index(s.index_path)

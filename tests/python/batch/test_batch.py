@@ -29,7 +29,10 @@ VARIANTS = [
     {"name": "ref"},
     {"name": "tight", "set": {"solver.tolerance": 1e-5}},
     {"name": "jacobi", "set": {"solver": {"method": "jacobi"}}},
-    {"name": "lm16", "set": {"outputs.lightmaps.texels_per_metre": 16.0}},
+    {"name": "lm16", "set": {"outputs.lightmaps.texels_per_metre": 16.0, "grid_rays": 16,
+                             "grids": {"floor": {"kind": "rectangle", "corner": [0.1, 0.01, 0.1],
+                                                 "edge_u": [0.35, 0.0, 0.0], "edge_v": [0.0, 0.0, 0.35],
+                                                 "normal": [0.0, 1.0, 0.0]}}}},
     {"name": "seed7", "set": {"seed": 7, "formfactors.samples": 4}},
 ]
 
@@ -156,6 +159,10 @@ def test_summary_csv_and_html(study):
         json.loads((study["out"] / "jobs" / "ref" / "report.json").read_text())["energy_balance"]["max_relative_error"],
         rel=1e-5)
     assert by["tight"]["variant"] == "solver.tolerance=1e-05"
+    floor = rep["grids"]["grids"]["floor"]
+    assert float(by["lm16"]["floor Em (lx)"]) == pytest.approx(floor["em"], rel=1e-5)
+    assert float(by["lm16"]["floor U0"]) == pytest.approx(floor["u0"], rel=1e-5, abs=1e-12)
+    assert by["ref"]["floor Em (lx)"] == ""  # a variant without the grid
     page = (study["out"] / "summary.html").read_text()
     assert page.count("<tr>") == 1 + len(VARIANTS) and "energy_balance_error" in page
 
@@ -346,3 +353,49 @@ def test_sigterm_cancels_the_batch_cleanly(tmp_path):
     st = json.loads(batch("status", path, "--json").stdout)
     assert st["batches"][-1]["status"] == "cancelled"
     assert not list(out.glob(".cancel-*"))
+
+
+# ---------------------------------------------------------------------------------------------
+# share_links: out-of-core jobs of one geometry and refinement share one link store
+# ---------------------------------------------------------------------------------------------
+
+OOC = {"scene": str(CORNELL), "method": "hierarchical",
+       "hierarchy": {"epsilon": 1e-3, "min_area": 0.002, "samples": 4, "max_rounds": 3},
+       "solver": {"method": "block_southwell", "tolerance": 1e-4}, "links": {"group_faces": 4},
+       "outputs": {"preview": {"enabled": False}, "lightmaps": {"max_size": 256, "texels_per_metre": 32.0}}}
+
+
+def test_share_links_computes_links_once_per_geometry(tmp_path):
+    variants = [{"name": "a"},
+                {"name": "b", "set": {"outputs.lightmaps.texels_per_metre": 16.0}},
+                {"name": "c", "set": {"outputs.lightmaps.enabled": False}},
+                {"name": "other", "set": {"hierarchy.epsilon": 2e-3}}]
+    path = write_study(tmp_path, variants, base=OOC, share_links=True)
+    proc = batch(path, "--json")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = tmp_path / "out" / "study"
+    reps = {n: json.loads((out / "jobs" / n / "report.json").read_text()) for n in ("a", "b", "c", "other")}
+    assert reps["a"]["links"]["reused"] is False and reps["a"]["links"]["form_factors_computed"] > 0
+    assert reps["other"]["links"]["reused"] is False
+    for n in ("b", "c"):
+        assert reps[n]["links"]["reused"] is True and reps[n]["links"]["form_factors_computed"] == 0
+        assert reps[n]["links"]["store"] == reps["a"]["links"]["store"]
+    assert reps["other"]["links"]["store"] != reps["a"]["links"]["store"]
+    assert len(list((out / "links").iterdir())) == 2
+    # the links' owner is the bake alone, bit for bit; a reusing job solves the same links
+    alone = tmp_path / "alone"
+    bake(tmp_path / "base.yaml", overrides=[f"output={alone}"])
+    assert_same_primvars(out / "jobs" / "a" / "solution.usda", alone / "solution.usda")
+    pa, pb = primvars(out / "jobs" / "a" / "solution.usda"), primvars(out / "jobs" / "b" / "solution.usda")
+    radiance = [k for k in pa if k.endswith("primvars:hirad:radiance")]
+    assert radiance and all(pa[k].tobytes() == pb[k].tobytes() for k in radiance)
+    # rerun: nothing; one reusing variant changed: only it runs, on the stored links
+    assert json.loads(batch(path, "--json").stdout)["run"] == 0
+    data = yaml.safe_load(path.read_text())
+    data["variants"][1]["set"]["outputs.lightmaps.texels_per_metre"] = 20.0
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    again = batch(path, "--json")
+    assert again.returncode == 0 and json.loads(again.stdout)["run"] == 1
+    rows = index_rows(out)
+    assert rows["b"]["runs"] == 2 and rows["a"]["runs"] == 1
+    assert json.loads((out / "jobs" / "b" / "report.json").read_text())["links"]["reused"] is True

@@ -74,8 +74,8 @@ def _last_error(log: Path, offset: int) -> str | None:
     return pick[:2000] if pick else None
 
 
-def bake_command(base: Path, overrides: list[str], threads: int | None) -> list[str]:
-    cmd = [sys.executable, "-m", "hirad.cli", "bake", str(base), "--quiet"]
+def bake_command(base: Path, overrides: list[str], threads: int | None, reuse_links: bool = False) -> list[str]:
+    cmd = [sys.executable, "-m", "hirad.cli", "bake", str(base), "--quiet"] + (["--reuse-links"] if reuse_links else [])
     for o in overrides:
         cmd += ["--set", o]
     if threads is not None:
@@ -83,9 +83,13 @@ def bake_command(base: Path, overrides: list[str], threads: int | None) -> list[
     return cmd
 
 
-def run_job(spec: dict) -> dict:
+def run_job(spec: dict, after: Any = None) -> dict:
     """One attempt of one job, on a worker: the bake as a child process. Returns what the index
-    records; raises JobFailed for a failure worth retrying."""
+    records; raises JobFailed for a failure worth retrying. `after` is the result of the job
+    whose link store this one reuses (Dask runs this one after it)."""
+    if after is not None and after.get("exit_code") != 0:
+        raise JobFailed(f"the job {spec.get('after')} whose links this one reuses did not finish: "
+                        f"{after.get('error') or after.get('exit_code')}", None)
     try:
         from distributed import get_worker
 
@@ -93,6 +97,9 @@ def run_job(spec: dict) -> dict:
     except Exception:
         worker = f"{socket.gethostname()}:{os.getpid()}"
     log, attempts, cancel = Path(spec["log"]), Path(spec["attempts"]), Path(spec["cancel"])
+    if cancel.exists():  # the batch is being cancelled: do not start
+        return {"exit_code": None, "started_at": None, "seconds": None, "worker": worker, "error": "cancelled",
+                "cancelled": True}
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(attempts, "a", encoding="utf-8") as f:
         f.write(json.dumps({"time": time.time(), "worker": worker, "pid": os.getpid()}) + "\n")
@@ -136,7 +143,7 @@ def output_complete(job: Job) -> bool:
     report = job.output / "report.json"
     if report.exists():
         try:
-            return json.loads(report.read_text(encoding="utf-8")).get("content_key") == job.key
+            return json.loads(report.read_text(encoding="utf-8")).get("content_key") == (job.report_key or job.key)
         except (OSError, ValueError):
             return False
     return True
@@ -229,6 +236,8 @@ def _run_batch(study: Study, scheduler, workers, force, emit) -> dict:
             return counts
         client, cluster, what = open_cluster(study, scheduler, workers)
         batch = index.start_batch(what)
+        for stale in study.output.glob(".cancel-*"):
+            stale.unlink(missing_ok=True)
         cancel = study.output / f".cancel-{batch}"
         logs = study.output / "logs"
         logs.mkdir(parents=True, exist_ok=True)
@@ -241,41 +250,53 @@ def _run_batch(study: Study, scheduler, workers, force, emit) -> dict:
         try:
             from distributed import as_completed
 
+            by_name: dict = {}
             for job in todo:
                 threads = job.threads if job.threads is not None else \
                     max(1, ncores // max(1, study.spec.workers * study.spec.jobs_per_worker))
                 attempts = logs / f"{job.name}.attempts"
                 attempts.write_text("")
-                spec = {"name": job.name, "command": bake_command(study.base, job.overrides, threads),
+                spec = {"name": job.name, "command": bake_command(study.base, job.overrides, threads, job.reuse_links),
                         "log": str(logs / f"{job.name}.log"), "attempts": str(attempts), "cancel": str(cancel),
-                        "timeout": study.spec.timeout}
+                        "timeout": study.spec.timeout, "after": job.after}
                 index.queued(job.name, batch)
-                fut = client.submit(run_job, spec, key=f"hirad-{study.name}-{batch}-{job.name}", pure=False,
+                after = by_name.get(job.after) if job.after else None
+                fut = client.submit(run_job, spec, after, key=f"hirad-{study.name}-{batch}-{job.name}", pure=False,
                                     retries=study.spec.retries)
                 futures[fut] = job
+                by_name[job.name] = fut
             for fut in as_completed(list(futures), loop=client.loop):
                 job = futures[fut]
                 _record(index, job, fut, logs, counts, emit)
             status = "done"
         except BaseException:
-            # cancel: the running bakes stop and remove their partial output; the rest never start
+            # cancel: every job sees the cancel file (a running one stops its bake, which
+            # removes its partial output; one not started returns at once), so each future
+            # finishes soon, on a local or a remote cluster alike
             try:
                 cancel.write_text("cancel\n")
                 emit({"event": "cancelling", "jobs": sum(1 for f in futures if not f.done())})
-                client.cancel([f for f in futures if f.status == "pending"])
                 deadline = time.time() + 60
                 for fut, job in futures.items():
-                    while fut.status == "pending" and time.time() < deadline:
+                    while not fut.done() and time.time() < deadline:
                         time.sleep(0.1)
                     row = index.job(job.name)
-                    if row and row["status"] in ("queued", "running"):
-                        if fut.status == "finished" and not fut.result().get("cancelled"):
-                            _record(index, job, fut, logs, counts, emit)
-                        else:
-                            index.finished(job.name, ok=False, exit_code=None, error="cancelled", cancelled=True,
-                                           attempts=_attempts(logs, job), started_at=None, seconds=None,
-                                           worker=None, key=job.key)
-                            counts["cancelled"] += 1
+                    if not row or row["status"] not in ("queued", "running"):
+                        continue
+                    res = None
+                    if fut.status == "finished":
+                        try:
+                            res = fut.result()
+                        except Exception:
+                            res = None
+                    if res is not None and not res.get("cancelled") and res["exit_code"] == 0:
+                        _record(index, job, fut, logs, counts, emit)  # it finished before the cancel
+                    else:
+                        index.finished(job.name, ok=False, exit_code=None if res is None else res["exit_code"],
+                                       error="cancelled", cancelled=True, attempts=_attempts(logs, job),
+                                       started_at=None, seconds=None, worker=None, key=job.key)
+                        counts["cancelled"] += 1
+                client.cancel([f for f in futures if not f.done()])
             finally:
                 raise
         finally:

@@ -15,6 +15,8 @@
     jobs_per_worker: 1              # Dask threads per worker: bakes one worker runs at once
     threads: 1                      # the engine threads of each bake (--threads) [cores / workers]
     retries: 2                      # a failed run of a job is tried again this many times
+    timeout: 3600                   # seconds a job may run [none]
+    share_links: false              # out-of-core jobs of one geometry share one link store
     cluster: local                  # local | slurm | pbs | sge (dask-jobqueue) | scheduler address
     cluster_options: {}             # for dask-jobqueue: queue, account, cores, memory, walltime...
 
@@ -75,6 +77,9 @@ class StudySpec(BaseModel):
     threads: Optional[Annotated[int, Strict(), Field(ge=0)]] = None
     retries: Annotated[int, Strict(), Field(ge=0, le=100)] = 2
     timeout: Optional[Annotated[float, Strict(), Field(gt=0)]] = Field(default=None, description="seconds a job may run")
+    share_links: Annotated[bool, Strict()] = Field(
+        default=False, description="Out-of-core jobs of the same geometry and refinement settings share one link "
+                                   "store: the first bakes it, the others run after it with --reuse-links")
     cluster: Annotated[str, Strict()] = "local"
     cluster_options: dict[str, Any] = Field(default_factory=dict)
 
@@ -87,6 +92,9 @@ class Job:
     key: str                      # the content key (hirad.config.content)
     where: str                    # the study's place that made it (for messages)
     threads: Optional[int] = None
+    report_key: str = ""          # the content key its report.json carries (the bake's own)
+    after: Optional[str] = None   # share_links: the job whose links it reuses (runs after it)
+    reuse_links: bool = False
 
 
 @dataclass
@@ -225,5 +233,51 @@ def load_study(path: Union[str, os.PathLike], *, validate: bool = True) -> Study
                 cfg = load_config(base, job.overrides)
             except ConfigError as e:
                 raise located(loc, f"job {job.name!r}: {e}", _format_key(loc) or "base") from None
-            job.key = cfg.content_key()
+            job.key = job.report_key = cfg.content_key()
+            job._links_key = link_key(cfg) if spec.share_links else None
+        if spec.share_links:
+            _share_links(study)
     return study
+
+
+def link_key(cfg) -> Optional[str]:
+    """What an out-of-core bake's links depend on (the engine's store fingerprints: the scene's
+    geometry and luminaires, hierarchy.*, seed, links.group_faces), conservatively: the scene
+    files' whole contents, the config's lights and those settings; None for a bake that keeps
+    no links."""
+    import hashlib
+
+    from .. import __version__
+    from ..config.content import content_inputs
+
+    if not (cfg.method == "hierarchical" and cfg.solver.method == "block_southwell"):
+        return None
+    inputs = content_inputs(cfg)
+    settings = inputs["settings"]
+    keep = {"hierarchy": settings["hierarchy"], "seed": settings["seed"], "lights": settings.get("lights"),
+            "group_faces": settings["links"]["group_faces"], "scene": settings["scene"],
+            "photometry": settings.get("photometry")}
+    text = json.dumps({"v": __version__, "files": inputs["scene_files"], "settings": keep}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _share_links(study: Study) -> None:
+    """Jobs of one link key share `<output>/links/<key>`: the first bakes the links, each of the
+    others runs after the previous one with --reuse-links (one store is never written by two
+    bakes at once). A reusing job's key covers the links' job's key (its result depends on
+    which links it solves on)."""
+    import hashlib
+
+    previous: dict[str, Job] = {}
+    for job in study.jobs:
+        lk = getattr(job, "_links_key", None)
+        if lk is None:
+            continue
+        store = study.output / "links" / lk[:16]
+        job.overrides.insert(len(job.overrides) - 1, _override("links.store", str(store)))
+        first = previous.get(lk)
+        if first is not None:
+            owner = next(j for j in study.jobs if getattr(j, "_links_key", None) == lk)
+            job.after, job.reuse_links = first.name, True
+            job.key = hashlib.sha256(f"{job.report_key}+links:{owner.key}".encode()).hexdigest()
+        previous[lk] = job
