@@ -1,8 +1,10 @@
 """CIE 171:2006 analytical test cases, engine level: `python bench/cie171.py` prints, for every
 implemented case and point, the expected value (published table or closed form), hirad's
-value and the error in %, and each case's wall time. The scenes and runners are the tests'
-(tests/python/photometry/cie171_scenes.py); the tests' tolerances are 1 % (5.3, 5.8), 2 % (5.8
-through the illuminance binding's sensors) and 0.5 % (free-space square)."""
+value and the error in %, and each case's wall time: 5.2, 5.3, 5.4, 5.8 here, then 5.6 and 5.7
+(bench/cie171_56_57.py, run from here too). The scenes and runners are the tests'
+(tests/python/photometry/cie171_scenes.py, cie171_cases.py); the tests' tolerances are 1 % (5.2,
+5.3, 5.8), 0.2 % (5.4), 2 % (5.6, 5.7, and 5.8 through the illuminance binding's sensors) and
+0.5 % (free-space square)."""
 
 from __future__ import annotations
 
@@ -26,6 +28,19 @@ def main() -> int:
     t_all = time.perf_counter()
     print(f"{'case':<24} {'point':<22} {'expected':>10} {'hirad':>10} {'error %':>8}")
     failures = 0
+
+    rows, dt = cie.timed(cie.run_case_52)
+    for name, table, closed, got in rows:
+        line = row("5.2 point source (lx)", f"{name} (closed {closed:.2f})", table, got, 1.0)
+        failures += line.endswith("FAIL")
+        print(line)
+    print(f"{'':<24} {'wall time':<22} {dt:>10.2f} s")
+
+    for method in ("flat", "hierarchical", "out_of_core"):
+        (lumens, got, n), dt = cie.timed(cie.run_case_54, method)
+        line = row(f"5.4 flux, {method[:4]} (lm)", f"absorbed ({n} p)", lumens, got, 0.2)
+        failures += line.endswith("FAIL")
+        print(f"{line}   {dt:.2f} s")
 
     rows, dt = cie.timed(cie.run_case_53)
     for name, expected, got, _d, _i in rows:
@@ -56,7 +71,11 @@ def main() -> int:
 
     print(f"total wall time {time.perf_counter() - t_all:.1f} s, {os.cpu_count()} cores, "
           f"load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {failures} outside tolerance")
-    return 0
+    print()
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import cie171_56_57
+
+    return 1 if cie171_56_57.main() or failures else 0
 
 
 if __name__ == "__main__":

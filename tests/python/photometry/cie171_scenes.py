@@ -222,3 +222,75 @@ def run_case_58_sensors(rho: float, rays: int = 256) -> tuple:
     area = patches["area"]
     mean = float(((luminous(ill.direct) + luminous(ill.indirect)) * area).sum() / area.sum())
     return case_58_expected(rho), mean, len(area)
+
+
+# ---- 5.2 and 5.4: point sources (luminaires) -------------------------------------------------
+
+NG = 361  # gamma nodes of the test tables (0.5 degree)
+GAMMA = np.radians(np.linspace(0.0, 180.0, NG))
+
+
+def point_luminaire(position, candela, frame=np.eye(3), name="l"):
+    """A one-point luminaire of candela table `candela` (nc, ng) or (ng,) in white light."""
+    candela = np.atleast_2d(np.asarray(candela, dtype=np.float64))
+    return _engine.Luminaire(name, np.array([position], dtype=np.float64), np.ones(1), np.asarray(frame, float),
+                             np.ascontiguousarray(candela), np.ones((1, 3)))
+
+
+def isotropic_point(position, lumens: float):
+    """An isotropic point of flux `lumens` (I = lumens / 4 pi)."""
+    return point_luminaire(position, np.full((1, 2), lumens / (4 * math.pi)), name="isotropic")
+
+
+def lambertian_point(position, i0: float = 1000.0):
+    """CIE 171 5.2's source: a downward Lambertian point, I = i0 cos(gamma) below, 0 above."""
+    return point_luminaire(position, np.where(GAMMA <= math.pi / 2, i0 * np.cos(GAMMA), 0.0)[None, :],
+                           name="lambertian")
+
+
+def closed_box(sx: float, sy: float, sz: float, rho: float):
+    """A closed room [0,sx]x[0,sy]x[0,sz], faces inward, uniform grey reflectance rho."""
+    polys = [rect(2, 0.0, (0, 0), (sx, sy), +1), rect(2, sz, (0, 0), (sx, sy), -1),
+             rect(0, 0.0, (0, 0), (sy, sz), +1), rect(0, sx, (0, 0), (sy, sz), -1),
+             rect(1, 0.0, (0, 0), (sz, sx), +1), rect(1, sy, (0, 0), (sz, sx), -1)]
+    return scene_of(polys, rho, 0.0)
+
+
+# CIE 171:2006 Table (5.2): point (x, y) on the floor, 3 m below the source, and E in lux.
+CASE_52 = {"A": (0, 0, 111.11), "B": (0.5, 0, 105.21), "C": (1, 0, 90.02), "D": (1.5, 0, 71.11),
+           "E": (0.5, 0.5, 99.73), "F": (1, 0.5, 85.64), "G": (1.5, 0.5, 68.06), "H": (1, 1, 74.36),
+           "I": (1.5, 1, 59.98), "J": (1.5, 1.5, 49.39)}
+HEIGHT_52 = 3.0
+
+
+def run_case_52() -> list[tuple]:
+    """[(name, table lx, closed form 1000 h^2 / d^4, hirad lx)]: the points as sensors of
+    SurfaceField.illuminance at floor height, in free space (a black sheet 10 m below)."""
+    sheet = np.array([[[-50, -50, -10], [50, -50, -10], [50, 50, -10], [-50, 50, -10]]], dtype=np.float64)
+    field = _engine.SurfaceField(sheet, np.array([4], np.int32), np.zeros((1, 4, 3)), np.zeros((1, 4, 3)))
+    field.set_luminaires([lambertian_point([0, 0, HEIGHT_52])])
+    pts = np.array([[x, y, 0.0] for x, y, _ in CASE_52.values()])
+    e = field.illuminance(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), np.zeros((1, 3)), rays=16, seed=1)
+    got = luminous(np.asarray(e.direct) + np.asarray(e.indirect))
+    h2 = HEIGHT_52 ** 2
+    return [(name, table, 1000 * h2 / (x * x + y * y + h2) ** 2, float(v))
+            for (name, (x, y, table)), v in zip(CASE_52.items(), got)]
+
+
+def run_case_54(method: str, lumens: float = 10000.0) -> tuple:
+    """(lumens, received lm, elements): an isotropic source at (2, 2, 2) in a black 4 x 4 x 3 m
+    room; the received flux is the sum of the elements' direct light x area (all absorbed)."""
+    engine = build_engine(closed_box(4, 4, 3, 0.0))
+    engine.set_luminaires([isotropic_point([2.0, 2.0, 2.0], lumens)])
+    if method == "flat":
+        engine.mesh(_engine.MeshOptions(max_patch_area=0.04, max_edge_length=0.2))
+    else:
+        ho = _engine.HierarchyOptions(epsilon=1e-4, min_area=0.01)
+        so = _engine.SolveOptions(method="jacobi")
+        if method == "out_of_core":
+            engine.solve_out_of_core(ho, so, _engine.OutOfCoreOptions())
+        else:
+            engine.solve_hierarchical(ho, so)
+        engine.use_leaves_as_patches()
+    p = patch_dict(engine.patch_arrays())
+    return lumens, float(luminous((p["direct"] * p["area"][:, None]).sum(axis=0))), len(p["area"])

@@ -29,31 +29,13 @@ _engine = pytest.importorskip("hirad._engine")
 import cie171_scenes as cie  # noqa: E402
 from hirad.engine import build_engine, patch_dict  # noqa: E402
 
-NG = 361
-GAMMA = np.radians(np.linspace(0.0, 180.0, NG))
+NG = cie.NG
+GAMMA = cie.GAMMA
 UP = np.array([0.0, 0.0, 1.0])
-
-
-def luminaire(position, candela, frame=np.eye(3), name="l", colour=(1.0, 1.0, 1.0)):
-    candela = np.atleast_2d(np.asarray(candela, dtype=np.float64))
-    return _engine.Luminaire(name, np.array([position], dtype=np.float64), np.ones(1), np.asarray(frame, float),
-                             np.ascontiguousarray(candela), np.array([colour], dtype=np.float64))
-
-
-def isotropic(position, lumens):
-    return luminaire(position, np.full((1, 2), lumens / (4 * math.pi)), name="isotropic")
-
-
-def lambertian_down(position, i0=1000.0):
-    return luminaire(position, np.where(GAMMA <= math.pi / 2, i0 * np.cos(GAMMA), 0.0)[None, :], name="lambertian")
-
-
-def box(sx, sy, sz, rho):
-    """A closed room [0,sx]x[0,sy]x[0,sz], faces inward, uniform grey reflectance rho."""
-    polys = [cie.rect(2, 0.0, (0, 0), (sx, sy), +1), cie.rect(2, sz, (0, 0), (sx, sy), -1),
-             cie.rect(0, 0.0, (0, 0), (sy, sz), +1), cie.rect(0, sx, (0, 0), (sy, sz), -1),
-             cie.rect(1, 0.0, (0, 0), (sz, sx), +1), cie.rect(1, sy, (0, 0), (sz, sx), -1)]
-    return cie.scene_of(polys, rho, 0.0)
+luminaire = cie.point_luminaire
+isotropic = cie.isotropic_point
+lambertian_down = cie.lambertian_point
+box = cie.closed_box
 
 
 def received(patches) -> float:
@@ -102,26 +84,13 @@ def test_bad_luminaires_are_refused_by_name():
 
 # ---- CIE 171:2006 5.2: point source over a floor ----------------------------------------------
 
-CIE_52 = {"A": (0, 0, 111.11), "B": (0.5, 0, 105.21), "C": (1, 0, 90.02), "D": (1.5, 0, 71.11),
-          "E": (0.5, 0.5, 99.73), "F": (1, 0.5, 85.64), "G": (1.5, 0.5, 68.06), "H": (1, 1, 74.36),
-          "I": (1.5, 1, 59.98), "J": (1.5, 1.5, 49.39)}
-
-
 def test_cie_5_2_point_source_grid_in_free_space_matches_the_table_and_the_closed_form():
     """The sensors of a grid at floor height, read by SurfaceField.illuminance with nothing
     else in the scene but a far-off black sheet below them (free space): every point within
     1 % of CIE 171:2006 Table 5.2 and within 1e-4 of 1000 h^2 / d^4 (the 0.5 degree table)."""
-    h = 3.0
-    sheet = np.array([[[-50, -50, -10], [50, -50, -10], [50, 50, -10], [-50, 50, -10]]], dtype=np.float64)
-    field = _engine.SurfaceField(sheet, np.array([4], np.int32), np.zeros((1, 4, 3)), np.zeros((1, 4, 3)))
-    field.set_luminaires([lambertian_down([0, 0, h])])
-    pts = np.array([[x, y, 0.0] for x, y, _ in CIE_52.values()])
-    e = field.illuminance(pts, np.tile(UP, (len(pts), 1)), np.zeros((1, 3)), rays=16, seed=1)
-    got = cie.luminous(np.asarray(e.direct) + np.asarray(e.indirect))
-    for (name, (x, y, table)), value in zip(CIE_52.items(), got):
-        d2 = x * x + y * y + h * h
+    for name, table, closed, value in cie.run_case_52():
         assert value == pytest.approx(table, rel=0.01), name
-        assert value == pytest.approx(1000 * h * h / d2 ** 2, rel=1e-4), name
+        assert value == pytest.approx(closed, rel=1e-4), name
 
 
 def test_cie_5_2_on_a_black_floor_through_the_bake_path():
@@ -133,9 +102,9 @@ def test_cie_5_2_on_a_black_floor_through_the_bake_path():
     engine.set_luminaires([lambertian_down([0, 0, h])])
     engine.mesh(_engine.MeshOptions(max_patch_area=0.05, max_edge_length=0.25))
     n = engine.num_patches
-    pts = np.array([[x, y, 0.0] for x, y, _ in CIE_52.values()])
+    pts = np.array([[x, y, 0.0] for x, y, _ in cie.CASE_52.values()])
     g = engine.gather_flat(pts, np.tile(UP, (len(pts), 1)), np.zeros((n, 3)), 4, 1)
-    for (name, (x, y, _t)), value in zip(CIE_52.items(), cie.luminous(g.irradiance)):
+    for (name, (x, y, _t)), value in zip(cie.CASE_52.items(), cie.luminous(g.irradiance)):
         assert value == pytest.approx(1000 * h * h / (x * x + y * y + h * h) ** 2, rel=1e-4), name
 
 
@@ -145,23 +114,12 @@ def test_cie_5_4_isotropic_source_in_a_black_room_flux_is_absorbed_within_0_2_pe
     """A 10,000 lm isotropic source at (2, 2, 2) in a black 4 x 4 x 3 m room: the flux the
     surfaces receive (sum of direct x area) is 10,000 lm within 0.2 %, flat, hierarchical and
     out of core; the table's flux itself is exact."""
-    source = isotropic([2.0, 2.0, 2.0], 10000.0)
-    assert cie.luminous(source.flux)[0] == pytest.approx(10000.0, rel=1e-12)
-    flat = build_engine(box(4, 4, 3, 0.0))
-    flat.set_luminaires([source])
-    flat.mesh(_engine.MeshOptions(max_patch_area=0.04, max_edge_length=0.2))
-    assert received(patch_dict(flat.patch_arrays())) == pytest.approx(10000.0, rel=0.002)
-    for out_of_core in (False, True):
-        e = build_engine(box(4, 4, 3, 0.0))
-        e.set_luminaires([source])
-        ho = _engine.HierarchyOptions(epsilon=1e-4, min_area=0.01)
-        so = _engine.SolveOptions(method="jacobi")
-        r = e.solve_out_of_core(ho, so, _engine.OutOfCoreOptions()) if out_of_core else e.solve_hierarchical(ho, so)
-        e.use_leaves_as_patches()
-        patches = patch_dict(e.patch_arrays())
-        assert received(patches) == pytest.approx(10000.0, rel=0.002), out_of_core
-        # the elements were split where the light varies: more leaves than the 6 faces
-        assert r.elements > 100
+    assert cie.luminous(isotropic([2.0, 2.0, 2.0], 10000.0).flux)[0] == pytest.approx(10000.0, rel=1e-12)
+    for method in ("flat", "hierarchical", "out_of_core"):
+        lumens, got, elements = cie.run_case_54(method)
+        assert got == pytest.approx(lumens, rel=0.002), method
+        # the hierarchy's elements were split where the light varies: more than the 6 faces
+        assert elements > 100, method
 
 
 def test_closed_grey_room_total_exitance_is_rho_phi_over_one_minus_rho():
