@@ -399,3 +399,23 @@ def test_share_links_computes_links_once_per_geometry(tmp_path):
     rows = index_rows(out)
     assert rows["b"]["runs"] == 2 and rows["a"]["runs"] == 1
     assert json.loads((out / "jobs" / "b" / "report.json").read_text())["links"]["reused"] is True
+
+
+def test_existing_cluster_through_scheduler_address(tmp_path):
+    """`--scheduler tcp://...` on a LocalCluster this test starts (2 worker processes): the jobs
+    run on its workers, the cluster outlives the batch."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    path = write_study(tmp_path, [{"name": "x"}, {"name": "y", "set": {"seed": 9}}])
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        proc = batch(path, "--scheduler", cluster.scheduler_address, "--json")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert cluster.scheduler_address in proc.stderr
+        rows = index_rows(tmp_path / "out" / "study")
+        assert {r["status"] for r in rows.values()} == {"done"}
+        workers = set(client.scheduler_info()["workers"])
+        assert len(workers) == 2 and {r["worker"] for r in rows.values()} <= workers
+    assert json.loads(batch(path, "--json").stdout)["run"] == 0
