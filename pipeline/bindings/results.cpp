@@ -100,7 +100,8 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("direct", rgb(&GroupSolution::direct), kOwned, "(n, 3) the group's luminaires' irradiance, W/m^2.")
         .def_ro("iterations", &GroupSolution::iterations)
         .def_ro("residual", &GroupSolution::residual)
-        .def_ro("converged", &GroupSolution::converged);
+        .def_ro("converged", &GroupSolution::converged)
+        .def_ro("seconds", &GroupSolution::seconds, "Wall time of its solve (with its direct light), s.");
 
     using H = HierarchicalResult;
     nb::class_<H>(m, "HierarchicalResult",

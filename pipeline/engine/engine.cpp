@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <stdexcept>
 
 #include "pipeline/geometry/formfactors.h"
@@ -187,7 +188,8 @@ std::vector<RGB> Engine::group_direct(const LightGroup& g, const Visibility& vis
 
 std::vector<HierarchicalSolution> Engine::solve_groups_on(
     Hierarchy& h, const Visibility& vis,
-    const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve) const {
+    const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve,
+    std::vector<double>* seconds) const {
     std::vector<HierarchicalSolution> out;
     if (groups_.empty()) return out;
     std::vector<Patch*> shapes;
@@ -199,6 +201,7 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
         direct[k] = shapes[k]->direct;
     }
     for (const LightGroup& g : groups_) {
+        const auto t0 = std::chrono::steady_clock::now();
         const std::vector<RGB> d = group_direct(g, vis, shapes);
         for (size_t k = 0; k < shapes.size(); ++k) {
             Patch& p = *shapes[k];
@@ -209,6 +212,8 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
         std::vector<RGB> start = node_emission(h);
         for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
         out.push_back(solve(start));
+        if (seconds)
+            seconds->push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
     for (size_t k = 0; k < shapes.size(); ++k) {
         shapes[k]->emission = emission[k];
@@ -433,6 +438,7 @@ std::vector<GroupSolution> Engine::solve_groups(const SolveOptions& o, const For
         }
     } restore{P, emission, direct};
     for (const LightGroup& g : groups_) {
+        const auto t0 = std::chrono::steady_clock::now();
         GroupSolution gs;
         gs.direct = group_direct(g, *visibility_, shapes);
         for (size_t i = 0; i < P.size(); ++i) {
@@ -445,6 +451,7 @@ std::vector<GroupSolution> Engine::solve_groups(const SolveOptions& o, const For
         gs.iterations = r.iterations;
         gs.residual = r.residual;
         gs.converged = r.converged;
+        gs.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         out.push_back(std::move(gs));
     }
     return out;
@@ -511,6 +518,7 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
     RoundsRun run = run_in_memory(state->hierarchy, *state->visibility, ropt, o.max_rounds, kind, so, progress,
                                   [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
     // Light groups: each solved alone on the final links (the refinement saw every emitter).
+    std::vector<double> group_seconds;
     std::vector<HierarchicalSolution> groups = solve_groups_on(
         state->hierarchy, *state->visibility, [&](const std::vector<RGB>& start) {
             SolverOptions go = so;
@@ -521,8 +529,8 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
                 case PushPull::Southwell: break;
             }
             return solve_southwell_push_pull(st->hierarchy, run.links, start, go);
-        });
-    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(groups));
+        }, &group_seconds);
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(groups), group_seconds);
     if (run.log.refine_splits.size() > 1)
         r.splits_per_round.assign(run.log.refine_splits.begin() + 1, run.log.refine_splits.end());
     return r;
@@ -551,6 +559,7 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     state->store_round = run.store_round;
     state->groups = run.groups;
     std::vector<HierarchicalSolution> light_groups;
+    std::vector<double> group_seconds;
     if (!groups_.empty()) {
         // Each light group streamed again over the final round's links, from the store (or the
         // links in memory when the store has no root), with no checkpoints.
@@ -581,9 +590,9 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
         light_groups = solve_groups_on(h, *state->visibility, [&](const std::vector<RGB>& start) {
             StreamingStats stats;
             return solve_streaming(h, groups, *chunks, is_source, outgoing, start, gso, stats);
-        });
+        }, &group_seconds);
     }
-    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(light_groups));
+    HierarchicalResult r = publish(std::move(state), run, ropt.epsilon, std::move(light_groups), group_seconds);
     for (size_t k = 0; k < run.log.refine_splits.size(); ++k)
         if (run.log.refine_kept[k]) r.splits_per_round.push_back(run.log.refine_splits[k]);
     r.out_of_core = true;
@@ -600,7 +609,8 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
 // Balances the solved hierarchy 2:1 for a display without cracks (new leaves carry their
 // parent's values) and keeps it for publishing and the final gather.
 HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
-                                   std::vector<HierarchicalSolution> groups) {
+                                   std::vector<HierarchicalSolution> groups,
+                                   const std::vector<double>& group_seconds) {
     const bool with_groups = !groups.empty();
     Hierarchy& h = state->hierarchy;
     HierarchicalSolution& sol = run.solution;
@@ -637,6 +647,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
             gs.iterations = groups[k].iterations;
             gs.residual = groups[k].residual;
             gs.converged = groups[k].converged;
+            gs.seconds = k < group_seconds.size() ? group_seconds[k] : 0.0;
             r.groups.push_back(std::move(gs));
         }
     }

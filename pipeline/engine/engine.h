@@ -183,6 +183,7 @@ struct GroupSolution {
     uint64_t iterations = 0;
     double residual = 0;
     bool converged = false;
+    double seconds = 0;               // wall time of its solve (and its direct light)
 };
 
 // A hierarchical solve. Per-leaf arrays follow the leaves of the 2:1 balanced hierarchy, the
@@ -329,12 +330,14 @@ private:
     void replace_patches(PatchSet patches);
     std::unique_ptr<Solved> fresh_hierarchy(const HierarchyOptions& options, double& emitted);
     HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
-                               std::vector<HierarchicalSolution> groups = {});
+                               std::vector<HierarchicalSolution> groups = {},
+                               const std::vector<double>& group_seconds = {});
     // Each group's source term on the hierarchy's elements, solved by `solve` (per node
     // solutions); the total source term is restored afterwards.
     std::vector<HierarchicalSolution> solve_groups_on(
         Hierarchy& h, const Visibility& visibility,
-        const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve) const;
+        const std::function<HierarchicalSolution(const std::vector<RGB>& start)>& solve,
+        std::vector<double>* seconds = nullptr) const;
     // A group's emission of face f.
     RGB group_emission(const LightGroup& g, uint32_t face) const;
     std::vector<RGB> group_direct(const LightGroup& g, const Visibility& vis, const std::vector<Patch*>& shapes) const;

@@ -571,6 +571,10 @@ class GroupSolution:
     @property
     def converged(self) -> bool: ...
 
+    @property
+    def seconds(self) -> float:
+        """Wall time of its solve (with its direct light), s."""
+
 class HierarchicalResult:
     """
     A hierarchical solve. Per-leaf arrays follow the leaves that use_leaves_as_patches() makes the engine's patches.

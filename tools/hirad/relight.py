@@ -607,7 +607,9 @@ def group_solutions(cfg, model, solved, patches, groups, seconds: float = 0.0) -
         emission.append(patches["emission"] * on[mesh_of][:, None])
     return GroupSolve(groups, [np.asarray(s.radiosity) for s in sols],
                       [np.asarray(s.irradiance) + np.asarray(s.direct) for s in sols], emission,
-                      np.array([g.weight for g in groups]), seconds + time.perf_counter() - t0,
+                      np.array([g.weight for g in groups]),
+                      sum(float(x.seconds) for x in sols) if cfg.method == "hierarchical"
+                      else seconds + time.perf_counter() - t0,
                       [float(s.residual) for s in sols])
 
 
