@@ -419,3 +419,37 @@ def test_existing_cluster_through_scheduler_address(tmp_path):
         workers = set(client.scheduler_info()["workers"])
         assert len(workers) == 2 and {r["worker"] for r in rows.values()} <= workers
     assert json.loads(batch(path, "--json").stdout)["run"] == 0
+
+
+def test_batch_killed_with_kill_9_leaves_a_consistent_index(tmp_path):
+    path = write_study(tmp_path, [{"name": f"d{i}", "set": {"seed": i + 1}} for i in range(3)], base=SLOW)
+    out = tmp_path / "out" / "study"
+    proc = subprocess.Popen([sys.executable, "-m", "hirad.cli", "batch", str(path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    bakes = _wait_for_bakes(str(out / "jobs"), proc, n=2)
+    time.sleep(1.0)
+    proc.kill()
+    proc.communicate(timeout=60)
+    for pid, _ in bakes:  # the workers, and their bakes, go with the batch
+        for _ in range(200):
+            if not Path(f"/proc/{pid}").exists():
+                break
+            time.sleep(0.1)
+        assert not Path(f"/proc/{pid}").exists(), f"bake {pid} outlived its batch"
+    assert _partials(tmp_path) == []
+    con = sqlite3.connect(str(out / "study.sqlite"))
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    con.close()
+    st = json.loads(batch("status", path, "--json").stdout)
+    for j in st["jobs"]:
+        assert j["status"] in ("done", "interrupted"), j
+        if j["status"] == "done":
+            assert (Path(j["output"]) / "report.json").exists()
+        else:
+            assert not Path(j["output"]).exists()
+    interrupted = [j["name"] for j in st["jobs"] if j["status"] == "interrupted"]
+    assert interrupted and sum(j["attempts"] >= 1 for j in st["jobs"] if j["status"] == "interrupted") >= 2
+    again = batch(path, "--json")
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads(again.stdout)["run"] == len(interrupted)
+    assert {j["status"] for j in json.loads(batch("status", path, "--json").stdout)["jobs"]} == {"done"}

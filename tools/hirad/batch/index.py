@@ -175,7 +175,14 @@ def status_rows(index: Index) -> list[dict]:
         if status in ("queued", "running") and b is not None and (b["finished_at"] is not None or
                                                                   not _pid_alive(b["pid"], b["host"])):
             status = "interrupted"
-        rows.append({"name": j["name"], "status": status, "key": j["key"], "attempts": j["attempts"],
+        attempts = j["attempts"]
+        if status in ("queued", "running", "interrupted"):  # the attempts so far, from the jobs' own file
+            try:
+                text = (index.path.parent / "logs" / f"{j['name']}.attempts").read_text(encoding="utf-8")
+                attempts = sum(1 for line in text.splitlines() if line.strip())
+            except OSError:
+                pass
+        rows.append({"name": j["name"], "status": status, "key": j["key"], "attempts": attempts,
                      "runs": j["runs"], "exit_code": j["exit_code"], "error": j["error"], "seconds": j["seconds"],
                      "started_at": j["started_at"], "finished_at": j["finished_at"], "worker": j["worker"],
                      "output": j["output"], "overrides": json.loads(j["overrides"])})
