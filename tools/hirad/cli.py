@@ -11,10 +11,14 @@ traceback (set HIRAD_DEBUG=1 to see one). Exit codes:
     3    scene error: the USD scene (or a solution layer) cannot be used
     4    the run failed: the bake could not finish, an output could not be written (disk full,
          permissions), not enough memory
+    5    hirad batch: some jobs failed or were cancelled (the others are done; `hirad batch
+         status STUDY.yaml` says which and why)
     130  interrupted by SIGINT (Ctrl-C); the partial output is removed
     143  terminated by SIGTERM; the partial output is removed
 
-A link store is kept after 130/143 so that `hirad bake --resume` can continue.
+A link store is kept after 130/143 so that `hirad bake --resume` can continue. With `--json`
+(bake, batch) an error is also one JSON object on stdout: {"error": {"exit_code", "kind",
+"message", ...}}.
 """
 
 from __future__ import annotations
