@@ -172,7 +172,10 @@ def open_cluster(study: Study, scheduler: str | None, workers: int | None):
     cannot start is a BatchError."""
     import logging
 
-    from distributed import Client, LocalCluster
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise BatchError("hirad batch runs on Dask: pip install distributed (make installs it)") from None
 
     spec = study.spec
     address = scheduler or (spec.cluster if "://" in spec.cluster else None)
