@@ -494,6 +494,21 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
                           [("hirad:units", "exitant " + _units.label(doc.get("units", "photometric"), "radiance"))])
         images.write_png(staging / "preview.png", img)
         written += ["preview.png", "preview.exr"]
+    # --- the group solutions again, with the new dimmers and colours: a relit output relights too
+    src_groups = out_dir / GROUPS_DIR
+    (staging / GROUPS_DIR).mkdir(exist_ok=True)
+    for path in sorted(src_groups.rglob("*")):
+        rel = path.relative_to(out_dir)
+        if path.is_symlink():
+            continue
+        if path.is_dir():
+            (staging / rel).mkdir(parents=True, exist_ok=True)
+        elif rel.as_posix() != GROUPS_FILE:
+            shutil.copyfile(path, staging / rel)
+    relit_doc = dict(doc, groups=[dict(g, dimmer=settings[g["name"]]["dimmer"], color=settings[g["name"]]["color"])
+                                  for g in doc["groups"]])
+    files.write_json(staging / GROUPS_FILE, relit_doc)
+    written.append(GROUPS_DIR + "/")
     not_relit = [n for n in ("volume.vdb",) if (out_dir / n).exists()]
     return {
         "hirad_version": version,

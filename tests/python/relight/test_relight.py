@@ -207,6 +207,13 @@ def test_relight_twice_replaces_its_own_output(baked, tmp_path):
         r = _cli("relight", d / "grouped", "--set", f"lights.groups.sky.dimmer={dimmer}", "-o", tmp_path / "r")
         assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "r" / "report.json").read_text())["groups"]["sky"]["dimmer"] == 0.25
+    # a relit output relights again: dimmers are absolute, so sky back to 1 is the bake's values
+    r = _cli("relight", tmp_path / "r", "--set", "lights.groups.sky.dimmer=1", "-o", tmp_path / "back")
+    assert r.returncode == 0, r.stderr
+    a, b = _primvars(d / "grouped" / "solution.usda"), _primvars(tmp_path / "back" / "solution.usda")
+    for key, v in a.items():
+        if key[1] in ("hirad:radiance", "hirad:irradiance"):
+            assert np.abs(b[key] - v).max() <= 4e-7 * max(1.0, np.abs(v).max()), key
 
 
 def test_relit_lightmaps_are_the_weighted_group_pages(tmp_path):
