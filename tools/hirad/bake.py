@@ -536,6 +536,7 @@ def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
     and the luminaires, and the seeded rays are the same for every group)."""
     import json as _json
 
+    from . import relight
     from .solution import SurfaceSolution
 
     sols = []
@@ -553,7 +554,7 @@ def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
         for g, rgb in zip(grouped.groups, rgbs):
             store["per_group"][g.name].setdefault("grids", []).append(rgb)
         calls["k"] += 1
-        return luminance_y(Replay_weighted(rgbs, grouped.weights))
+        return luminance_y(relight.weighted_sum(rgbs, grouped.weights))
 
     rooms = {}
     for name, spec in cfg.grids.items():
@@ -564,13 +565,6 @@ def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
     info = {"specs": {name: spec.model_dump(mode="json") for name, spec in cfg.grids.items()}, "rooms": rooms,
             "up_axis": scene.up_axis}
     return evaluate, info
-
-
-def Replay_weighted(arrays, weights):
-    out = None
-    for a, w in zip(arrays, weights):
-        out = a * w if out is None else out + a * w
-    return out
 
 
 def _thin(history: list, most: int) -> list:

@@ -181,45 +181,18 @@ def weighted_specs(specs, groups: Sequence[LightGroup]):
             for s, wi in zip(specs, w)]
 
 
-def mesh_weights(n_meshes: int, groups: Sequence[LightGroup]) -> np.ndarray:
-    """(M, 3) each mesh's emission multiplier (1 for a mesh in no group: it emits nothing)."""
-    w = np.ones((n_meshes, 3))
-    for g in groups:
-        for m in g.meshes:
-            w[m] = g.weight
-    return w
-
-
 # --------------------------------------------------------------------------------------
 # the bake's side: what is stored for relighting
 # --------------------------------------------------------------------------------------
 
 
-class Replay:
-    """Records, per light group, what an evaluation returned call by call, and replays the
-    weighted sum: the k-th call of the total gives sum_g w_g x (group g's k-th result). The
-    lightmaps and grids evaluate the same points in the same order whatever the solution."""
-
-    def __init__(self):
-        self.calls: list[list[np.ndarray]] = []
-
-    def recording(self, fn):
-        rec: list[np.ndarray] = []
-        self.calls.append(rec)
-
-        def call(*args, **kwargs):
-            out = fn(*args, **kwargs)
-            rec.append(np.array(out, dtype=np.float64, copy=True))
-            return out
-        return call, rec
-
-    @staticmethod
-    def weighted(records: list[list[np.ndarray]], weights: np.ndarray, k: int) -> np.ndarray:
-        out = None
-        for rec, w in zip(records, weights):
-            v = rec[k] * w
-            out = v if out is None else out + v
-        return out
+def weighted_sum(arrays, weights) -> np.ndarray:
+    """sum_g weights[g] x arrays[g] (weights (G, 3) per RGB channel), in group order."""
+    out = None
+    for a, w in zip(arrays, weights):
+        v = np.asarray(a, dtype=np.float64) * w
+        out = v if out is None else out + v
+    return out
 
 
 def save_groups(staging: Path, groups: Sequence[LightGroup], meshes_data: list, per_group: dict, *,
@@ -389,8 +362,6 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
     from pxr import Gf, Sdf, UsdGeom, Vt
 
     from . import _engine, files
-    from .usd.solution import COLOR_SPACE, find_solution_root, _usd_reason
-    from .usd.common import _open_stage
 
     written = ["report.json"]
     # --- the solution layer: new primvars on the same meshes
@@ -594,7 +565,7 @@ class GroupSolve:
     vertex: list = field(default_factory=list)      # per group: (vertex radiance, vertex irradiance)
 
     def total(self, arrays: list) -> np.ndarray:
-        return Replay.weighted([[a] for a in arrays], self.weights, 0)
+        return weighted_sum(arrays, self.weights)
 
 
 def group_solutions(cfg, model, solved, patches, groups, seconds: float = 0.0) -> GroupSolve:
@@ -662,7 +633,7 @@ def replay_result(result, records: list, weights: np.ndarray):
             self._calls += 1
             out = {"patch": records[0][k]["patch"]}
             for key in ("irradiance", "radiance"):
-                out[key] = Replay.weighted([[r[k][key]] for r in records], weights, 0)
+                out[key] = weighted_sum([r[k][key] for r in records], weights)
             return out
 
     r = _Replayed(**{f: getattr(result, f) for f in result.__dataclass_fields__})
