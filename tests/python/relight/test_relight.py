@@ -165,6 +165,19 @@ def test_a_bad_group_definition_is_a_located_config_error(tmp_path):
         hirad.bake(str(path))
     assert e.value.key == "lights.groups.desk.dimmer" and e.value.line > 0
     assert not (tmp_path / "o").exists()
+    # a group name that cannot name primvars, and `rest`
+    for bad, words in (("a.b", "letters, digits"), ("rest", "reserved")):
+        path = config(tmp_path / "c.yaml", scene, tmp_path / "o", {bad: {"paths": ["/x"]}})
+        with pytest.raises(ConfigError) as e:
+            hirad.bake(str(path))
+        assert words in str(e.value)
+    # the point lights of a `lights:` mapping keep their located errors
+    path = tmp_path / "p.yaml"
+    path.write_text(f"scene: {scene}\nlights:\n  points:\n    - {{name: a, position: [0, 0, 1], intensity: -1}}\n"
+                    "  groups: {desk: {paths: ['/World/Lights/Desk']}}\n")
+    with pytest.raises(ConfigError) as e:
+        hirad.bake(str(path))
+    assert e.value.key == "lights.points[0].intensity" and e.value.line == 4
 
 
 def test_unknown_group_in_set_is_a_located_error(baked, tmp_path):

@@ -272,6 +272,8 @@ def _validate(
             loc = _grid_loc(tuple(err["loc"]))[0]
             if loc[:1] == ("light_groups",):  # written lights.groups (schema.Config._lights_mapping)
                 loc = ("lights", "groups") + loc[1:]
+            elif loc[:1] == ("lights",) and len(loc) > 1 and isinstance(data.get("lights"), dict):
+                loc = ("lights", "points") + loc[1:]  # the points of a lights: mapping
             problems.append(ConfigError(*where(loc), _format_key(loc), _describe(err)))
     else:
         for loc, problem in _grid_file_problems(config) + _light_file_problems(config):
