@@ -385,7 +385,8 @@ def note_written(path: str | os.PathLike) -> None:
         return
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process of this id runs on this machine (one we may not signal counts)."""
     if pid <= 0:
         return False
     try:
@@ -413,7 +414,7 @@ def remove_stale_staging(out_dir: str | os.PathLike) -> list[Path]:
         if prefix is None:
             continue
         pid = name[len(prefix):].split("-")[0]
-        if not pid.isdigit() or int(pid) == os.getpid() or _pid_alive(int(pid)):
+        if not pid.isdigit() or int(pid) == os.getpid() or pid_alive(int(pid)):
             continue
         p = out.parent / name
         if p.is_symlink() or not p.is_dir() or _read_marker(p, OUTPUT_MARKER, _OUTPUT_FORMAT) is None:

@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
+from .. import files
+
 STATUSES = ("pending", "queued", "running", "done", "failed", "cancelled")
 
 _SCHEMA = """
@@ -155,13 +157,7 @@ class Index:
 def _pid_alive(pid: int, host: str | None) -> bool:
     if host and host != os.uname().nodename:
         return True  # cannot tell: assume it runs
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+    return files.pid_alive(pid)
 
 
 def status_rows(index: Index) -> list[dict]:

@@ -343,6 +343,37 @@ def _floor_polygons(name: str, spec: WorkplaneGrid, up_axis: str,
     return out, floor
 
 
+def plane_lattice(name: str, local, border: float, spacing, rounding: str, *, no_area: str, no_point: str):
+    """The cell centres of a regular lattice over 2D outlines `local` (polygons in a plane's
+    (u, v) metres), kept inside them and at least `border` from their boundary: the cells
+    span the outlines' box less the border on each side, their number by `spacing` (metres,
+    or "en12464") and `rounding` (_cells). Returns (uv (k, 2), ii, jj (k) the kept cells'
+    indices, (nu, nv, du, dv, rule), (umin, umax, vmin, vmax) the evaluation box). StudyError
+    `no_area` (formatted with span_u, span_v: the outlines' box) when the border leaves no box,
+    `no_point` when no cell centre is kept."""
+    allp = np.concatenate(local)
+    umin, vmin = allp.min(axis=0) + border
+    umax, vmax = allp.max(axis=0) - border
+    if not (umax > umin and vmax > vmin):
+        raise StudyError(no_area.format(span_u=umax - umin + 2 * border, span_v=vmax - vmin + 2 * border))
+    lu, lv = umax - umin, vmax - vmin
+    nu, nv, rule = _cells(name, lu, lv, spacing, rounding)
+    du, dv = float(lu / nu), float(lv / nv)
+    ii, jj = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    ii, jj = ii.ravel(), jj.ravel()
+    uv = np.stack([umin + (ii + 0.5) * du, vmin + (jj + 0.5) * dv], axis=1)
+    edges = boundary_edges(local)
+    keep = _inside(uv, edges)
+    if border > 0:
+        dmin = np.full(len(uv), np.inf)
+        for a, b in edges:
+            dmin = np.minimum(dmin, _segment_distance(uv, a, b))
+        keep &= dmin >= border * (1.0 - 1e-12)
+    if not keep.any():
+        raise StudyError(no_point)
+    return uv[keep], ii[keep], jj[keep], (nu, nv, du, dv, rule), (umin, umax, vmin, vmax)
+
+
 def _workplane(name: str, spec: WorkplaneGrid, up_axis: str, polygons=None):
     polys, floor = _floor_polygons(name, spec, up_axis, polygons)
     e1, e2, up = frame(up_axis)
@@ -350,28 +381,11 @@ def _workplane(name: str, spec: WorkplaneGrid, up_axis: str, polygons=None):
     # local (u, v): the grid's rows along u = c e1 + s e2
     rot = np.array([[c, s], [-s, c]])
     local = [p @ rot.T for p in polys]
-    allp = np.concatenate(local)
-    umin, vmin = allp.min(axis=0) + spec.border
-    umax, vmax = allp.max(axis=0) - spec.border
-    if not (umax > umin and vmax > vmin):
-        raise StudyError(f"grid {name}: the border band of {spec.border:g} m leaves no area "
-                         f"(the floor spans {umax - umin + 2 * spec.border:g} x {vmax - vmin + 2 * spec.border:g} m)")
-    lu, lv = umax - umin, vmax - vmin
-    nu, nv, rule = _cells(name, lu, lv, spec.spacing, spec.rounding)
-    du, dv = float(lu / nu), float(lv / nv)
-    ii, jj = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    ii, jj = ii.ravel(), jj.ravel()
-    uv = np.stack([umin + (ii + 0.5) * du, vmin + (jj + 0.5) * dv], axis=1)
-    edges = boundary_edges(local)
-    keep = _inside(uv, edges)
-    if spec.border > 0:
-        dmin = np.full(len(uv), np.inf)
-        for a, b in edges:
-            dmin = np.minimum(dmin, _segment_distance(uv, a, b))
-        keep &= dmin >= spec.border * (1.0 - 1e-12)
-    if not keep.any():
-        raise StudyError(f"grid {name}: no grid point lies inside the floor less its {spec.border:g} m border band")
-    uv, ii, jj = uv[keep], ii[keep], jj[keep]
+    uv, ii, jj, (nu, nv, du, dv, rule), (umin, umax, vmin, vmax) = plane_lattice(
+        name, local, spec.border, spec.spacing, spec.rounding,
+        no_area=f"grid {name}: the border band of {spec.border:g} m leaves no area (the floor spans "
+                "{span_u:g} x {span_v:g} m)",
+        no_point=f"grid {name}: no grid point lies inside the floor less its {spec.border:g} m border band")
     axis_u = c * e1 + s * e2
     axis_v = -s * e1 + c * e2
     origin = (floor + spec.height) * up

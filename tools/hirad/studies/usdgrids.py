@@ -60,8 +60,7 @@ from typing import Optional, Union
 import numpy as np
 from pydantic import ValidationError
 
-from .grids import (Grid, Layout, _cells, _check_count, _inside, _segment_distance, _sensors, boundary_edges,
-                    build_grid, frame)
+from .grids import Grid, Layout, _check_count, _inside, _sensors, build_grid, frame, plane_lattice
 from .spec import _NAME, Measure, RectangleGrid, StudyError, _Spacing
 
 PREFIX = "hirad:grid"
@@ -279,30 +278,12 @@ def _grid(name, kind, measure, pts, nrm, w, up_axis, layout=None, area=None, spa
 def _planar_mesh_grid(name, path, faces, n, c, attrs: _SurfaceAttrs, up_axis: str, mpu: float) -> Grid:
     u, v = _basis(n, up_axis)
     local = [np.stack([f @ u, f @ v], axis=1) for f, _, _ in faces]
-    allp = np.concatenate(local)
-    border = attrs.border * mpu
-    umin, vmin = allp.min(axis=0) + border
-    umax, vmax = allp.max(axis=0) - border
-    if not (umax > umin and vmax > vmin):
-        raise StudyError(f"prim {path}: attribute {PREFIX}:border: {attrs.border:g} leaves no area of the surface")
-    lu, lv = umax - umin, vmax - vmin
-    nu, nv, rule = _cells(name, lu, lv, attrs.spacing if attrs.spacing == "en12464" else attrs.spacing * mpu,
-                          attrs.rounding)
-    du, dv = float(lu / nu), float(lv / nv)
-    ii, jj = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    ii, jj = ii.ravel(), jj.ravel()
-    uv = np.stack([umin + (ii + 0.5) * du, vmin + (jj + 0.5) * dv], axis=1)
-    edges = boundary_edges(local)
-    keep = _inside(uv, edges)
-    if border > 0:
-        dmin = np.full(len(uv), np.inf)
-        for a, b in edges:
-            dmin = np.minimum(dmin, _segment_distance(uv, a, b))
-        keep &= dmin >= border * (1.0 - 1e-12)
-    if not keep.any():
-        raise StudyError(f"prim {path}: no grid point lies on the surface (spacing {attrs.spacing}, border "
-                         f"{attrs.border:g}); use a smaller spacing")
-    uv, ii, jj = uv[keep], ii[keep], jj[keep]
+    uv, ii, jj, (nu, nv, du, dv, rule), (umin, umax, vmin, vmax) = plane_lattice(
+        name, local, attrs.border * mpu, attrs.spacing if attrs.spacing == "en12464" else attrs.spacing * mpu,
+        attrs.rounding,
+        no_area=f"prim {path}: attribute {PREFIX}:border: {attrs.border:g} leaves no area of the surface",
+        no_point=f"prim {path}: no grid point lies on the surface (spacing {attrs.spacing}, border "
+                 f"{attrs.border:g}); use a smaller spacing")
     origin = (c + attrs.offset * mpu) * n
     pts = origin + uv[:, :1] * u + uv[:, 1:] * v
     layout = Layout(origin=origin, axis_u=u, axis_v=v, nu=nu, nv=nv, du=du, dv=dv, u0=umin + 0.5 * du,
