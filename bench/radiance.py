@@ -38,19 +38,15 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-HALL = ROOT.parent / "shared/data/modern_hall/usd/modern_hall.usda"
-LUM = np.array([0.2126, 0.7152, 0.0722])
-
-
-def load() -> str:
-    return f"load {os.getloadavg()[0]:.2f}"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from grids import HALL, LUM, ROOT, load  # noqa: E402  (the same scene, weights and load line as bench/grids.py)
 
 
 def radiance_env() -> dict:

@@ -112,50 +112,74 @@ uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires) {
     return f;
 }
 
+namespace {
+
+// The light of every luminaire point that reaches x, one shadow ray each (from `start`, x
+// lifted off its surface): per arrival the unit direction towards the light, w_k I, r^2, the
+// receiver's cosine (1 without a normal) and the luminaire. With a normal, points below the
+// receiver's plane are skipped before any ray is traced.
+struct Arrivals {
+    std::vector<Vec3> from, to, dir;
+    std::vector<double> wi, r2, cosr;
+    std::vector<uint32_t> owner;
+    std::vector<uint8_t> seen;
+
+    void collect(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
+                 const Vec3* n, const Vec3& start) {
+        from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear();
+        for (uint32_t li = 0; li < luminaires.size(); ++li) {
+            const Luminaire& l = luminaires[li];
+            for (size_t k = 0; k < l.points.size(); ++k) {
+                if (!(l.weights[k] > 0)) continue;
+                const Vec3 d = l.points[k] - x;  // receiver -> light
+                const double dd = dot(d, d);
+                if (!(dd > 0)) continue;
+                const double rr = std::sqrt(dd);
+                const double c = n ? dot(*n, d) / rr : 1.0;
+                if (!(c > 0)) continue;
+                const double i = l.intensity(-d);  // light -> receiver
+                if (!(i > 0)) continue;
+                from.push_back(start);
+                to.push_back(l.points[k]);
+                dir.push_back(d / rr);
+                wi.push_back(l.weights[k] * i);
+                r2.push_back(dd);
+                cosr.push_back(c);
+                owner.push_back(li);
+            }
+        }
+        seen.assign(from.size(), 1);
+        if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
+    }
+};
+
+RGB irradiance_of(const std::vector<Luminaire>& luminaires, const Arrivals& a) {
+    RGB sum{};
+    for (size_t s = 0; s < a.from.size(); ++s)
+        if (a.seen[s]) sum += luminaires[a.owner[s]].colour * (a.wi[s] * a.cosr[s] / a.r2[s]);
+    return sum;
+}
+
+}  // namespace
+
+RGB luminaire_irradiance_at(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
+                            const Vec3& n, double lift) {
+    Arrivals a;
+    a.collect(luminaires, visibility, x, &n, x + n * lift);
+    return irradiance_of(luminaires, a);
+}
+
 void luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
                           const Vec3* n, size_t count, RGB* out, double lift) {
-    size_t per = 0;
-    for (const Luminaire& l : luminaires) per += l.points.size();
-    if (per == 0) {
+    if (luminaires.empty()) {
         std::fill(out, out + count, RGB{});
         return;
     }
     tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 64), [&](const tbb::blocked_range<size_t>& r) {
-        std::vector<Vec3> from, to;
-        std::vector<double> value;   // unoccluded contribution per segment (per unit colour)
-        std::vector<uint32_t> owner; // luminaire of each segment
-        std::vector<uint8_t> seen;
+        Arrivals a;
         for (size_t q = r.begin(); q < r.end(); ++q) {
-            from.clear();
-            to.clear();
-            value.clear();
-            owner.clear();
-            const Vec3 xq = x[q], nq = n[q];
-            const Vec3 start = xq + nq * lift;
-            for (uint32_t li = 0; li < luminaires.size(); ++li) {
-                const Luminaire& l = luminaires[li];
-                for (size_t k = 0; k < l.points.size(); ++k) {
-                    if (!(l.weights[k] > 0)) continue;
-                    const Vec3 d = l.points[k] - xq;  // receiver -> light
-                    const double r2 = dot(d, d);
-                    if (!(r2 > 0)) continue;
-                    const double rr = std::sqrt(r2);
-                    const double cosr = dot(nq, d) / rr;
-                    if (!(cosr > 0)) continue;
-                    const double i = l.intensity(-d);  // light -> receiver
-                    if (!(i > 0)) continue;
-                    from.push_back(start);
-                    to.push_back(l.points[k]);
-                    value.push_back(l.weights[k] * i * cosr / r2);
-                    owner.push_back(li);
-                }
-            }
-            seen.assign(from.size(), 1);
-            if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
-            RGB sum{};
-            for (size_t s = 0; s < from.size(); ++s)
-                if (seen[s]) sum += luminaires[owner[s]].colour * value[s];
-            out[q] = sum;
+            a.collect(luminaires, visibility, x[q], &n[q], x[q] + n[q] * lift);
+            out[q] = irradiance_of(luminaires, a);
         }
     });
 }
@@ -164,32 +188,14 @@ void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibilit
                        size_t count, RGB* s0, std::array<RGB, 3>* s1) {
     if (luminaires.empty()) return;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 64), [&](const tbb::blocked_range<size_t>& r) {
-        std::vector<Vec3> from, to, dir;
-        std::vector<RGB> value;
-        std::vector<uint8_t> seen;
+        Arrivals a;
         for (size_t q = r.begin(); q < r.end(); ++q) {
-            from.clear();
-            to.clear();
-            dir.clear();
-            value.clear();
-            for (const Luminaire& l : luminaires)
-                for (size_t k = 0; k < l.points.size(); ++k) {
-                    const Vec3 d = l.points[k] - x[q];
-                    const double r2 = dot(d, d);
-                    if (!(r2 > 0) || !(l.weights[k] > 0)) continue;
-                    const double i = l.intensity(-d);
-                    if (!(i > 0)) continue;
-                    from.push_back(x[q]);
-                    to.push_back(l.points[k]);
-                    dir.push_back(d / std::sqrt(r2));
-                    value.push_back(l.colour * (l.weights[k] * i / r2));
-                }
-            seen.assign(from.size(), 1);
-            if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
-            for (size_t s = 0; s < from.size(); ++s) {
-                if (!seen[s]) continue;
-                s0[q] += value[s];
-                for (int a = 0; a < 3; ++a) s1[q][a] += value[s] * dir[s][a];
+            a.collect(luminaires, visibility, x[q], nullptr, x[q]);
+            for (size_t s = 0; s < a.from.size(); ++s) {
+                if (!a.seen[s]) continue;
+                const RGB v = luminaires[a.owner[s]].colour * (a.wi[s] / a.r2[s]);
+                s0[q] += v;
+                for (int c = 0; c < 3; ++c) s1[q][c] += v * a.dir[s][c];
             }
         }
     });
@@ -213,7 +219,7 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
                     xs[size_t(a) * g + b] = p.point((a + 0.5) / g, (b + 0.5) / g);
                     ns[size_t(a) * g + b] = p.normal;
                 }
-            luminaire_irradiance(luminaires, &visibility, xs.data(), ns.data(), m, hs.data(), lift);
+            for (size_t k = 0; k < m; ++k) hs[k] = luminaire_irradiance_at(luminaires, &visibility, xs[k], ns[k], lift);
             RGB sum{};
             double lo = 1e300, hi = -1e300;
             for (const RGB& h : hs) {

@@ -65,6 +65,10 @@ struct Luminaire {
 void luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3* x,
                           const Vec3* n, size_t count, RGB* out, double lift);
 
+// The same at one receiver, on the calling thread (a path tracer's vertex).
+RGB luminaire_irradiance_at(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
+                            const Vec3& n, double lift);
+
 // The luminaires' light arriving at points in free space (irradiance probes), as full-sphere
 // moments: s0 = sum_k w_k I / r_k^2 V (the cosine-free integral of a point source's delta of
 // radiance) and s1_a = the same sum times the unit direction towards the light, component a.

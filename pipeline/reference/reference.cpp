@@ -88,11 +88,7 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
             const bool lit = em.total > 0 || !luminaires.empty();
             for (int bounce = 0; lit || bounce == 0; ++bounce) {
                 if (em.total > 0) l += mul(beta, direct(patches, vis, em, x, n, lift, rng));
-                if (!luminaires.empty()) {
-                    RGB h;
-                    luminaire_irradiance(luminaires, &vis, &x, &n, 1, &h, lift);
-                    l += mul(beta, h);
-                }
+                if (!luminaires.empty()) l += mul(beta, luminaire_irradiance_at(luminaires, &vis, x, n, lift));
                 Vec3 t, b;
                 frame(n, t, b);
                 double r1 = rng.uniform(), r2 = rng.uniform();

@@ -99,13 +99,18 @@ class Reporter:
         if self._jsonl:
             self._event("stage", stage=name, total=total)
 
+        def due(now: float) -> bool:  # one line or event per `interval` at most
+            with self._lock:
+                if now - last[0] < self.interval:
+                    return False
+                last[0] = now
+                return True
+
         def update(completed: float | None = None, detail: str = "") -> None:
             if self._jsonl:
                 now = time.perf_counter()
-                with self._lock:
-                    if now - last[0] < self.interval:
-                        return
-                    last[0] = now
+                if not due(now):
+                    return
                 fraction = eta = None
                 if completed is not None and total:
                     fraction = min(1.0, max(0.0, float(completed) / float(total)))
@@ -117,10 +122,8 @@ class Reporter:
                 self._progress.update(task, completed=completed, detail=detail)
             elif self._log:
                 now = time.perf_counter()
-                with self._lock:
-                    if now - last[0] < self.interval:
-                        return
-                    last[0] = now
+                if not due(now):
+                    return
                 parts = [name]
                 if completed is not None and total:
                     parts.append(f"{100.0 * min(1.0, max(0.0, completed / total)):.0f}%")
