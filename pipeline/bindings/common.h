@@ -8,6 +8,9 @@
 #include <array>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <stdexcept>
 #include <exception>
 #include <string>
 #include <thread>
@@ -100,6 +103,55 @@ void run_reporting(Work&& work, Tick&& tick) {
     if (error) std::rethrow_exception(error);
     tick();
 }
+
+// A call from the engine's worker thread into Python (distributed refinement's dispatch): the
+// worker posts it and waits; the calling thread, which holds the GIL, serves it at its next
+// tick. A Python error fails the worker's call (so the engine unwinds) and is raised here.
+struct RemoteCall {
+    std::mutex m;
+    std::condition_variable cv;
+    bool pending = false, done = false;
+    int round = 0;
+    uint32_t groups = 0;
+    std::string error;
+
+    void run(int r, uint32_t g) {  // on the engine's worker thread
+        std::unique_lock<std::mutex> lock(m);
+        round = r;
+        groups = g;
+        pending = true;
+        done = false;
+        error.clear();
+        cv.wait(lock, [&] { return done; });
+        if (!error.empty()) throw std::runtime_error(error);
+    }
+    void serve(const nb::object& fn) {  // with the GIL
+        int r = 0;
+        uint32_t g = 0;
+        {
+            std::lock_guard<std::mutex> lock(m);
+            if (!pending) return;
+            r = round;
+            g = groups;
+        }
+        try {
+            fn(r, g);
+        } catch (const std::exception& e) {
+            finish(std::string("distributed refinement of round ") + std::to_string(r) + ": " + e.what());
+            throw;
+        }
+        finish({});
+    }
+    void finish(std::string failure) {
+        {
+            std::lock_guard<std::mutex> lock(m);
+            pending = false;
+            done = true;
+            error = failure.empty() ? std::string() : std::move(failure);
+        }
+        cv.notify_all();
+    }
+};
 
 template <typename Work>
 void run_released(Work&& work) {

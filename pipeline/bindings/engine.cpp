@@ -83,9 +83,10 @@ FlatSolveResult solve(Engine& e, const SolveOptions& o, const FormFactorOptions&
     return r;
 }
 
-// Progress of the hierarchical solves: progress(round, links, iteration, residual).
-template <typename Call>
-HierarchicalResult solve_rounds(nb::object progress, Call&& call) {
+// Progress of the hierarchical solves: progress(round, links, iteration, residual); `serve`
+// is ticked too (RemoteCall).
+template <typename Call, typename Serve = void (*)()>
+HierarchicalResult solve_rounds(nb::object progress, Call&& call, Serve serve = [] {}) {
     std::atomic<int> round{0};
     std::atomic<uint64_t> links{0}, iteration{0};
     std::atomic<double> residual{1.0};
@@ -95,9 +96,11 @@ HierarchicalResult solve_rounds(nb::object progress, Call&& call) {
     HierarchicalResult r;
     run_reporting([&] { r = call(fn); }, [&] {
         if (!progress.is_none()) progress(round.load(), links.load(), iteration.load(), residual.load());
+        serve();
     });
     return r;
 }
+
 
 std::vector<RGB> rgb_rows(const In<double>& a, size_t n, const char* what) { return vec3_rows(a, what, long(n)); }
 
@@ -184,14 +187,34 @@ void bind_engine(nb::module_& m) {
              "The patches stay as they were until use_leaves_as_patches().")
         .def("solve_out_of_core",
              [](Engine& e, const HierarchyOptions& h, const SolveOptions& s, const OutOfCoreOptions& c,
-                nb::object progress) {
-                 return solve_rounds(progress,
-                                     [&](const RoundProgressFn& fn) { return e.solve_out_of_core(h, s, c, fn); });
+                nb::object progress, nb::object refine_groups) {
+                 if (refine_groups.is_none())
+                     return solve_rounds(progress,
+                                         [&](const RoundProgressFn& fn) { return e.solve_out_of_core(h, s, c, fn); });
+                 RemoteCall call;
+                 RemoteRefineFn remote = [&](int round, uint32_t groups) { call.run(round, groups); };
+                 return solve_rounds(
+                     progress, [&](const RoundProgressFn& fn) { return e.solve_out_of_core(h, s, c, fn, remote); },
+                     [&] { call.serve(refine_groups); });
              },
              "hierarchy"_a, "solve"_a = SolveOptions{}, "out_of_core"_a = OutOfCoreOptions{},
-             "progress"_a.none() = nb::none(),
+             "progress"_a.none() = nb::none(), "refine_groups"_a.none() = nb::none(),
              "Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell "
-             "(HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches().")
+             "(HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches(). "
+             "refine_groups(round, groups): distributed link generation; called (with the GIL) for every "
+             "refinement, it has workers run refine_groups on ranges covering [0, groups) and returns when all are "
+             "complete; the result is the same bits as without.")
+        .def("refine_groups",
+             [](Engine& e, const HierarchyOptions& h, const OutOfCoreOptions& c, int round, uint32_t begin,
+                uint32_t end) {
+                 SpillLog log;
+                 run_released([&] { log = e.refine_groups(h, c, round, begin, end); });
+                 return log;
+             },
+             "hierarchy"_a, "out_of_core"_a, "round"_a, "begin"_a, "end"_a,
+             "A worker's share of a distributed out-of-core bake: round `round`'s refinement of source groups "
+             "[begin, end) from the link store's state, written to its spill directory (SpillLog). The scene, "
+             "luminaires and options must be the driver's.")
         .def("use_leaves_as_patches", &Engine::use_leaves_as_patches,
              "Makes the last hierarchical solve's leaves the patches (in the order of its per-leaf arrays), for "
              "patch_arrays, display_mesh, vertex_values, gather and reference.")

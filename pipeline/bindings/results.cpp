@@ -75,6 +75,18 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("escaped", rgb(&Transport::escaped), kOwned,
                      "(n, 3) (A_i - sum_j G_ij) B_i, W: power that leaves and reaches no patch (signed).");
 
+    nb::class_<SpillLog>(m, "SpillLog", "What a worker of a distributed refinement made of its source groups.")
+        .def_ro("begin", &SpillLog::begin)
+        .def_ro("end", &SpillLog::end)
+        .def_ro("nodes", &SpillLog::nodes, "Nodes of the hierarchy the worker started from.")
+        .def_prop_ro("subdivisions", [](const SpillLog& s) { return s.log.size(); }, "Elements it subdivided.")
+        .def_prop_ro("link_estimates", [](const SpillLog& s) { return s.stats.evaluated; })
+        .def_prop_ro("splits", [](const SpillLog& s) { return s.stats.split; })
+        .def_prop_ro("rays", [](const SpillLog& s) { return s.stats.rays; })
+        .def_ro("held", &SpillLog::held, "The most links it held at once.")
+        .def_ro("group_seconds", &SpillLog::group_seconds, "Per group: wall time of its refinement, s.")
+        .def_ro("group_links", &SpillLog::group_links, "Per group: links kept.");
+
     nb::class_<StreamingStats>(m, "StreamingStats", "The last streaming (out-of-core) solve.")
         .def_ro("rounds", &StreamingStats::rounds)
         .def_ro("groups_shot", &StreamingStats::groups_shot)
@@ -139,6 +151,8 @@ void bind_results(nb::module_& m) {
         .def_ro("peak_refine_links", &H::peak_refine_links)
         .def_ro("source_groups", &H::source_groups)
         .def_ro("streaming", &H::streaming, "The last streaming solve (out of core).")
+        .def_ro("merge_seconds", &H::merge_seconds,
+                "Distributed: per refinement done by workers, the driver's merge of their spills, s.")
         .def_prop_ro("link_receiver", arr(&H::link_receiver), kOwned)
         .def_prop_ro("link_source", arr(&H::link_source), kOwned)
         .def_prop_ro("link_coupling", arr(&H::link_coupling), kOwned, "G, m^2.")

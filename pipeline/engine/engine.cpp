@@ -536,8 +536,27 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
     return r;
 }
 
+SpillLog Engine::refine_groups(const HierarchyOptions& o, const OutOfCoreOptions& c, int round, uint32_t begin,
+                               uint32_t end) {
+    double emitted = 0;
+    auto state = fresh_hierarchy(o, emitted);
+    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    const SourceGroups groups = SourceGroups::cut(state->hierarchy, c.group_faces);
+    const RunStore store = run_store(o, c, groups.count());
+    if (!store.on_disk()) throw std::invalid_argument("refine_groups: out_of_core.store must name the link store");
+    return refine_range(state->hierarchy, *state->visibility, ropt, groups, store, round, begin, end);
+}
+
+RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c, size_t groups) const {
+    return RunStore(c.store,
+                    StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
+                                          luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_)),
+                    groups);
+}
+
 HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const SolveOptions& s,
-                                             const OutOfCoreOptions& c, const RoundProgressFn& progress) {
+                                             const OutOfCoreOptions& c, const RoundProgressFn& progress,
+                                             const RemoteRefineFn& remote) {
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
     Hierarchy& h = state->hierarchy;
@@ -548,14 +567,12 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     so.memory_budget = c.memory_budget;
     so.checkpoint_seconds = c.checkpoint_seconds;
     const SourceGroups groups = SourceGroups::cut(h, c.group_faces);
-    RunStore store(c.store,
-                   StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
-                                         luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_)),
-                   groups.count());
+    RunStore store = run_store(o, c, groups.count());
     Solved* st = state.get();
     RoundsRun run = run_streamed(h, *state->visibility, ropt, o.max_rounds, groups, so, store, c.resume,
                                  c.reuse_links, progress,
-                                 [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); });
+                                 [this, st] { light_new_elements(st->hierarchy, *st->visibility, nullptr, nullptr); },
+                                 remote);
     state->store_round = run.store_round;
     state->groups = run.groups;
     std::vector<HierarchicalSolution> light_groups;
@@ -603,6 +620,7 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     r.peak_refine_links = run.peak_refine_links;
     r.source_groups = run.groups;
     r.streaming = run.last_solve;
+    r.merge_seconds = run.merge_seconds;
     return r;
 }
 

@@ -221,6 +221,7 @@ struct HierarchicalResult {
     uint64_t peak_refine_links = 0;   // most links refinement held at once
     uint64_t source_groups = 0;
     StreamingStats streaming;         // the last streaming solve
+    std::vector<double> merge_seconds;  // distributed: per remote refinement, the driver's merge (s)
     // The hierarchy and its links as plain arrays (tests, inspection).
     std::vector<int32_t> link_receiver, link_source;
     std::vector<double> link_coupling, link_unoccluded;  // G, m^2
@@ -293,8 +294,17 @@ public:
     // ---- hierarchical method (replaces any earlier hierarchical solve and drops flat links)
     HierarchicalResult solve_hierarchical(const HierarchyOptions& hierarchy, const SolveOptions& solve,
                                           const RoundProgressFn& progress = {});
+    // With `remote`, link generation is distributed (rounds.h: every refinement's source groups
+    // refined by workers, merged here in group order; the same bits as without).
     HierarchicalResult solve_out_of_core(const HierarchyOptions& hierarchy, const SolveOptions& solve,
-                                         const OutOfCoreOptions& out_of_core, const RoundProgressFn& progress = {});
+                                         const OutOfCoreOptions& out_of_core, const RoundProgressFn& progress = {},
+                                         const RemoteRefineFn& remote = {});
+    // A worker's share of a distributed out-of-core bake (rounds.h, refine_range): round
+    // `round`'s refinement of source groups [begin, end) from what the link store
+    // out_of_core.store holds, into its spill directory. Options and scene must be the driver's
+    // (checked through the store's fingerprints when the driver merges).
+    SpillLog refine_groups(const HierarchyOptions& hierarchy, const OutOfCoreOptions& out_of_core, int round,
+                           uint32_t begin, uint32_t end);
     // Makes the last hierarchical solve's leaves the patches (in the order of the result's
     // per-leaf arrays), so that patch_arrays, display_mesh, vertex_values, gather and
     // reference work on them. Until then the patches are the flat meshing's (if any).
@@ -329,6 +339,7 @@ private:
     RadiositySystem system() const;
     void replace_patches(PatchSet patches);
     std::unique_ptr<Solved> fresh_hierarchy(const HierarchyOptions& options, double& emitted);
+    RunStore run_store(const HierarchyOptions& options, const OutOfCoreOptions& out_of_core, size_t groups) const;
     HierarchicalResult publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
                                std::vector<HierarchicalSolution> groups = {},
                                const std::vector<double>& group_seconds = {});

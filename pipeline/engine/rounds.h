@@ -100,6 +100,8 @@ struct RoundsRun {
     int resumed_from_round = 0;
     uint64_t store_bytes = 0, transport_bytes = 0, peak_refine_links = 0;
     StreamingStats last_solve;
+    // distributed only: per round refined remotely, the workers' ranges and the driver's merge
+    std::vector<double> merge_seconds;
 };
 
 enum class PushPull { Jacobi, GaussSeidel, Southwell };
@@ -109,10 +111,37 @@ RoundsRun run_in_memory(Hierarchy& h, const Visibility& vis, const RefineOptions
                         PushPull solver, const SolverOptions& solve, const RoundProgressFn& progress,
                         const PrepareFn& prepare = {});
 
+// Distributed link generation. Refinement visits the source groups one after the other, and a
+// group's links all leave nodes of its own subtree. What it decides depends on the hierarchy the
+// round started from, the radiosity it judges by, and the nodes a link joins through their keys
+// (Node::key seeds the estimates), never through their indices. So any range of groups can be
+// refined on another machine, on its own copy of the hierarchy rebuilt from the run store, which
+// numbers the nodes it makes its own way (refine_range). The driver then merges the ranges in
+// group order: it replays each group's subdivisions into the one hierarchy, skipping those an
+// earlier group made, which numbers the new nodes exactly as one machine refining every group
+// would; it maps each worker's numbering onto that, and writes the round's chunks (sorted parts,
+// so the order refinement kept them in does not matter) and manifest. Store, checksums and
+// solution are the single-machine bake's, bit for bit, whatever the ranges and the workers.
+//
+// A RemoteRefineFn has round `round`'s groups [0, groups) refined by workers (each range by
+// refine_range, into store.spill_range_dir) and returns when every range is complete (throws
+// otherwise). The ranges it picks are its own; together they must cover every group once.
+using RemoteRefineFn = std::function<void(int round, uint32_t groups)>;
+
+// A worker's share: round `round`'s refinement of groups [begin, end), from the run store's
+// state (round - 1 refined and solved; nothing for round 1), written to the store's spill
+// directory for the range (assembled under a temporary name, renamed when complete; a range
+// already complete is left as it is, and its log returned). `h` must be fresh.
+SpillLog refine_range(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, const SourceGroups& groups,
+                      const RunStore& store, int round, uint32_t begin, uint32_t end);
+
 // Streamed through the run store (in memory when the store has no root): `h` must be fresh
-// (or only split for its luminaires, before any links), `groups` cut from it (SourceGroups::cut), `store` made for that many groups.
+// (or only split for its luminaires, before any links), `groups` cut from it (SourceGroups::cut),
+// `store` made for that many groups. With `remote`, each refinement is distributed (the store
+// must be on disk).
 RoundsRun run_streamed(Hierarchy& h, const Visibility& vis, const RefineOptions& refine, int max_rounds,
                        const SourceGroups& groups, const StreamingOptions& solve, RunStore& store, bool resume,
-                       bool reuse_links, const RoundProgressFn& progress, const PrepareFn& prepare = {});
+                       bool reuse_links, const RoundProgressFn& progress, const PrepareFn& prepare = {},
+                       const RemoteRefineFn& remote = {});
 
 }  // namespace hirad

@@ -110,6 +110,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
             node.hi[k] = std::max(a.hi[k], b.hi[k]);
         }
     }
+    for (uint32_t i = 0; i < nodes.size(); ++i) nodes[i].key = i;
     root = 0;
 }
 
@@ -153,6 +154,7 @@ void Hierarchy::subdivide(uint32_t i) {
         child.area = child.shape.area;
         child.parent = i;
         child.level = level;
+        child.key = hash_pair(nodes[i].key, uint64_t(k) + 1, 0xC41Dull);
         bound_shape(child);
         nodes.push_back(child);
     }

@@ -5,7 +5,8 @@
 // longest axis) so that linking starts at the root and never enumerates pairs of faces. Every
 // face is the root of a quadtree of elements (quads split at edge midpoints, triangles 4-split),
 // grown on demand down to a minimum area. Nodes live in one array and refer to each other by
-// index, and the children of a node are contiguous.
+// index, and the children of a node are contiguous. An index depends on the order the nodes
+// were made in; a node's key (Node::key) does not.
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -28,6 +29,12 @@ struct Node {
     bool lit = false;        // elements: shape.direct computed for this element (luminaire.h)
     uint16_t level = 0;      // depth below the element root (elements only)
     uint32_t face_begin = 0, face_end = 0;  // clusters: their faces in Hierarchy::face_order
+    // Who the node is, whatever order the hierarchy grew in: its index for the nodes the
+    // constructor builds (clusters and element roots), and for an element made by subdivision
+    // a hash of its parent's key and its place among the children. Refinement seeds its link
+    // estimates with keys, so a group refined on another machine, whose new nodes are numbered
+    // differently, draws the same samples (pipeline/engine/distributed.h).
+    uint64_t key = 0;
     bool leaf() const { return child_count == 0; }
     double diagonal() const { return length(hi - lo); }
 };

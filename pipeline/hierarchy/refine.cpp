@@ -61,7 +61,10 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const int g = std::max(1, static_cast<int>(std::lround(std::sqrt(double(opt_.samples)))));
     const int n = g * g;
     const double lift = 1e-5 * vis_.scene_size();
-    Rng rng(hash_pair(std::min(r, s), std::max(r, s), opt_.seed ^ 0x11E7ull ^ (stream * 0x9E3779B97F4A7C15ull)));
+    // Seeded by the nodes' keys, not their indices: the same pair draws the same samples however
+    // the hierarchy was numbered (on whichever machine its group was refined).
+    const uint64_t kr = nr.key, ks = ns.key;
+    Rng rng(hash_pair(std::min(kr, ks), std::max(kr, ks), opt_.seed ^ 0x11E7ull ^ (stream * 0x9E3779B97F4A7C15ull)));
     std::vector<Vec3> from, to;
     std::vector<double> weight;
     from.reserve(n);

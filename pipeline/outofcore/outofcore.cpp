@@ -30,6 +30,7 @@ std::unique_ptr<LinkChunks> RoundWriter::finish(uint32_t nodes, uint32_t element
 
 void RoundWriter::put_part(uint32_t group) {
     sort_part(pending_);
+    if (on_part) on_part(pending_);
     if (writer_) write_part(*writer_, group, parts_++, pending_);
     else memory_[group].insert(memory_[group].end(), pending_.begin(), pending_.end());
     pending_.clear();

@@ -10,6 +10,7 @@
 // not a group's.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -29,6 +30,10 @@ public:
     void end_group(uint32_t group);
     // Commits the store (if any) and gives the round's links as chunks.
     std::unique_ptr<LinkChunks> finish(uint32_t nodes, uint32_t elements);
+    // Called with every part as it leaves, sorted (the store's order), in group and part order:
+    // what is summed over the links (the sources' outgoing coupling) is summed in this order, so
+    // it does not depend on the order refinement kept them in (nor on where it ran).
+    std::function<void(const std::vector<Link>& sorted_part)> on_part;
 
 private:
     void put_part(uint32_t group);

@@ -1,5 +1,7 @@
 #include "pipeline/outofcore/run_store.h"
 
+#include <algorithm>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <stdexcept>
@@ -25,7 +27,7 @@ uint64_t bits(double x) {
 
 // What a state file is: its kind and round, written into it, so a file renamed or copied from
 // elsewhere in the store is refused rather than taken for another step.
-enum class StateKind : uint64_t { Refined = 1, Solved = 2, Final = 3 };
+enum class StateKind : uint64_t { Refined = 1, Solved = 2, Final = 3, Spill = 4 };
 const char* const kBelongsTo = "belongs_to";
 
 const char* kind_name(uint64_t k) {
@@ -33,6 +35,7 @@ const char* kind_name(uint64_t k) {
         case uint64_t(StateKind::Refined): return "refined";
         case uint64_t(StateKind::Solved): return "solved";
         case uint64_t(StateKind::Final): return "final";
+        case uint64_t(StateKind::Spill): return "spill";
         default: return "unknown";
     }
 }
@@ -150,7 +153,7 @@ void RunStore::open(bool keep_earlier) {
     fs::remove(final_path());
     auto ours = [](const std::string& name) {
         return name.rfind("round-", 0) == 0 || name.rfind("refined-", 0) == 0 || name.rfind("solved-", 0) == 0 ||
-               name == "final" || name == "checkpoint";
+               name.rfind("spill-", 0) == 0 || name == "final" || name == "checkpoint";
     };
     std::vector<fs::path> doomed;
     for (const auto& entry : fs::directory_iterator(root_)) {
@@ -256,6 +259,106 @@ void RunStore::finish(int round, bool settled) const {
     label(fin, StateKind::Final, 0);
     fin.put("round", std::vector<uint64_t>{uint64_t(round), uint64_t(settled)});
     fin.write(final_path());
+}
+
+ResumePoint RunStore::round_start(Hierarchy& h, int round) const {
+    ResumePoint at;
+    if (!on_disk()) throw std::invalid_argument("distributed refinement needs a link store on disk");
+    if (round < 1) throw std::invalid_argument("refinement rounds start at 1");
+    if (round == 1) return at;
+    const int r = round - 1;
+    StateFile ref, sol;
+    if (!load_state(refined_path(r), run_fp_, StateKind::Refined, r, ref))
+        throw std::runtime_error(refined_path(r) + ": missing: round " + std::to_string(round) +
+                                 " cannot be refined before round " + std::to_string(r) + " is refined and solved");
+    if (!load_state(solved_path(r), run_fp_, StateKind::Solved, r, sol))
+        throw std::runtime_error(solved_path(r) + ": missing: round " + std::to_string(round) +
+                                 " cannot be refined before round " + std::to_string(r) + " is solved");
+    h.replay(ref.u32("log"));
+    at.round = r;
+    at.solution = load_solution(sol, h.nodes.size(), solved_path(r));
+    at.solved = true;
+    return at;
+}
+
+std::string RunStore::spill_dir(int round) const { return root_ + "/spill-" + std::to_string(round); }
+
+std::string RunStore::spill_range_dir(int round, uint32_t begin, uint32_t end) const {
+    char name[32];
+    std::snprintf(name, sizeof name, "/%08x-%08x", begin, end);
+    return spill_dir(round) + name;
+}
+
+void RunStore::write_spill_log(const std::string& dir, int round, const SpillLog& log) const {
+    StateFile f;
+    f.fingerprint = mix(run_fp_, uint64_t(round));
+    label(f, StateKind::Spill, round);
+    f.put("range", std::vector<uint32_t>{log.begin, log.end, log.nodes});
+    f.put("log", log.log);
+    f.put("group_log_end", log.group_log_end);
+    f.put("counts", std::vector<uint64_t>{log.stats.evaluated, log.stats.split, log.stats.rays, log.held});
+    f.put("group_seconds", log.group_seconds);
+    f.put("group_links", log.group_links);
+    f.write(dir + "/log");
+}
+
+SpillLog RunStore::read_spill_log(const std::string& dir, int round) const {
+    const std::string path = dir + "/log";
+    StateFile f;
+    if (!load_state(path, mix(run_fp_, uint64_t(round)), StateKind::Spill, round, f, true))
+        throw std::runtime_error(path + ": missing, or made from another scene or config (do the workers see the same "
+                                 "config, scene and link store as this machine?)");
+    SpillLog log;
+    const std::vector<uint32_t>& range = f.u32("range");
+    const std::vector<uint64_t>& counts = f.u64("counts");
+    if (range.size() != 3 || counts.size() != 4) throw std::runtime_error(path + ": malformed spill log");
+    log.begin = range[0];
+    log.end = range[1];
+    log.nodes = range[2];
+    log.log = f.u32("log");
+    log.group_log_end = f.u32("group_log_end");
+    log.stats.evaluated = counts[0];
+    log.stats.split = counts[1];
+    log.stats.rays = counts[2];
+    log.held = counts[3];
+    log.group_seconds = f.f64("group_seconds");
+    log.group_links = f.u64("group_links");
+    const size_t n = log.end > log.begin ? log.end - log.begin : 0;
+    bool ok = n > 0 && log.group_log_end.size() == n && log.group_seconds.size() == n && log.group_links.size() == n;
+    for (size_t k = 0; ok && k < n; ++k)
+        ok = log.group_log_end[k] <= log.log.size() && (k == 0 || log.group_log_end[k] >= log.group_log_end[k - 1]);
+    if (!ok || (n > 0 && log.group_log_end.back() != log.log.size()))
+        throw std::runtime_error(path + ": inconsistent spill log (group ranges and subdivision log do not agree)");
+    return log;
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> RunStore::spill_ranges(int round, uint32_t groups) const {
+    std::vector<std::pair<uint32_t, uint32_t>> ranges;
+    const std::string dir = spill_dir(round);
+    if (fs::is_directory(dir))
+        for (const auto& entry : fs::directory_iterator(dir)) {
+            const std::string name = entry.path().filename().string();
+            unsigned b = 0, e = 0;
+            char tail = 0;
+            if (name.size() != 17 || std::sscanf(name.c_str(), "%8x-%8x%c", &b, &e, &tail) != 2 ||
+                name != spill_range_dir(round, b, e).substr(dir.size() + 1))
+                continue;
+            ranges.emplace_back(b, e);
+        }
+    std::sort(ranges.begin(), ranges.end());
+    uint32_t next = 0;
+    for (const auto& [b, e] : ranges) {
+        if (b != next || e <= b)
+            throw std::runtime_error(dir + ": the workers' ranges of source groups do not tile [0, " +
+                                     std::to_string(groups) + "): " +
+                                     (b > next ? "groups [" + std::to_string(next) + ", " + std::to_string(b) + ") missing"
+                                               : "range [" + std::to_string(b) + ", " + std::to_string(e) + ") overlaps"));
+        next = e;
+    }
+    if (next != groups)
+        throw std::runtime_error(dir + ": groups [" + std::to_string(next) + ", " + std::to_string(groups) +
+                                 ") were not refined by any worker");
+    return ranges;
 }
 
 }  // namespace hirad

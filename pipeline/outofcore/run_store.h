@@ -10,6 +10,10 @@
 //   solved-<r>        after round r's solve: radiosity per node
 //   checkpoint        the running solve's state (streaming_solver.h)
 //   final             the round whose links and solution are final
+//   spill-<r>/        distributed refinement of round r (rounds.h, RemoteRefineFn): one
+//                     directory per range of source groups a worker refined,
+//                     <begin:08x>-<end:08x>/, holding its links as a link store in the worker's
+//                     own numbering of new nodes and `log` (SpillLog); removed once merged
 // all written atomically (StateFile::write) and tagged with a fingerprint:
 //   links fingerprint = geometry x refinement settings x number of source groups
 //                       (what the links depend on);
@@ -23,11 +27,13 @@
 #pragma once
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "pipeline/geometry/scene.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/hierarchy.h"
+#include "pipeline/hierarchy/refine.h"
 
 namespace hirad {
 
@@ -54,6 +60,19 @@ struct ResumePoint {
     HierarchicalSolution solution;
     bool settled = false;             // the stored final round had settled
     bool reused = false;              // the links are a finished run's final links
+};
+
+// What a worker of a distributed refinement made of its groups [begin, end), besides their links
+// (which use its own numbering for the nodes it made: `nodes` and above).
+struct SpillLog {
+    uint32_t begin = 0, end = 0;           // the source groups
+    uint32_t nodes = 0;                    // nodes of the hierarchy the worker started from
+    std::vector<uint32_t> log;             // the elements it subdivided, in its numbering, in order
+    std::vector<uint32_t> group_log_end;   // per group: one past its last entry in `log`
+    RefineStats stats;                     // its estimates, splits and rays
+    uint64_t held = 0;                     // the most links it held at once
+    std::vector<double> group_seconds;     // per group: wall time of its refinement
+    std::vector<uint64_t> group_links;     // per group: links kept
 };
 
 class RunStore {
@@ -93,6 +112,20 @@ public:
     void solved(int round, const HierarchicalSolution& solution) const;
     // The run is over: round r is final (its refinement becomes usable for other materials).
     void finish(int round, bool settled) const;
+
+    // Distributed refinement. The state a worker starts round r's refinement from: round
+    // r - 1's refinement replayed into `h` (fresh) and its solution; nothing for r = 1. Errors
+    // name the file when the state is missing or another run's.
+    ResumePoint round_start(Hierarchy& h, int round) const;
+    std::string spill_dir(int round) const;                                   // <root>/spill-<r>
+    std::string spill_range_dir(int round, uint32_t begin, uint32_t end) const;
+    // The spill log in a range's directory, tied to this run and round.
+    void write_spill_log(const std::string& range_dir, int round, const SpillLog& log) const;
+    SpillLog read_spill_log(const std::string& range_dir, int round) const;
+    // The ranges of round r's spill: they must tile [0, groups) (an error naming what is
+    // missing or overlapping otherwise). Directories of other names (a worker's temporaries)
+    // are ignored.
+    std::vector<std::pair<uint32_t, uint32_t>> spill_ranges(int round, uint32_t groups) const;
 
 private:
     std::string refined_path(int r) const;

@@ -25,6 +25,10 @@ too (stop 19): on an AMD EPYC (Zen 4, AVX-512) machine the bundled code of 64e5b
 Python alike, rendered a preview.exr whose quantised hash differs from the Intel machine's
 that wrote the file, while every USD, lightmap, volume and report value matched: pinhole
 rays that graze an edge land on either side with the CPU (a render, not a solution value).
+It was written again for the two hierarchical configs when refinement began to seed its link
+estimates by node keys instead of node indices (distributed link generation: a group refined
+on another machine numbers its new nodes differently but must draw the same samples); the
+estimates are other samples of the same integrals, so the values moved within sampling noise.
 Rewrite it only for a change of the physics, and say which in the commit.
 """
 

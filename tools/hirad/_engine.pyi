@@ -494,6 +494,44 @@ class Transport:
         (n, 3) (A_i - sum_j G_ij) B_i, W: power that leaves and reaches no patch (signed).
         """
 
+class SpillLog:
+    """What a worker of a distributed refinement made of its source groups."""
+
+    @property
+    def begin(self) -> int: ...
+
+    @property
+    def end(self) -> int: ...
+
+    @property
+    def nodes(self) -> int:
+        """Nodes of the hierarchy the worker started from."""
+
+    @property
+    def subdivisions(self) -> int:
+        """Elements it subdivided."""
+
+    @property
+    def link_estimates(self) -> int: ...
+
+    @property
+    def splits(self) -> int: ...
+
+    @property
+    def rays(self) -> int: ...
+
+    @property
+    def held(self) -> int:
+        """The most links it held at once."""
+
+    @property
+    def group_seconds(self) -> list[float]:
+        """Per group: wall time of its refinement, s."""
+
+    @property
+    def group_links(self) -> list[int]:
+        """Per group: links kept."""
+
 class StreamingStats:
     """The last streaming (out-of-core) solve."""
 
@@ -691,6 +729,12 @@ class HierarchicalResult:
         """The last streaming solve (out of core)."""
 
     @property
+    def merge_seconds(self) -> list[float]:
+        """
+        Distributed: per refinement done by workers, the driver's merge of their spills, s.
+        """
+
+    @property
     def link_receiver(self) -> NDArray[numpy.int32]: ...
 
     @property
@@ -818,9 +862,14 @@ class Engine:
         Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual). The patches stay as they were until use_leaves_as_patches().
         """
 
-    def solve_out_of_core(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., out_of_core: OutOfCoreOptions = ..., progress: object | None = None) -> HierarchicalResult:
+    def solve_out_of_core(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., out_of_core: OutOfCoreOptions = ..., progress: object | None = None, refine_groups: object | None = None) -> HierarchicalResult:
         """
-        Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell (HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches().
+        Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell (HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches(). refine_groups(round, groups): distributed link generation; called (with the GIL) for every refinement, it has workers run refine_groups on ranges covering [0, groups) and returns when all are complete; the result is the same bits as without.
+        """
+
+    def refine_groups(self, hierarchy: HierarchyOptions, out_of_core: OutOfCoreOptions, round: int, begin: int, end: int) -> SpillLog:
+        """
+        A worker's share of a distributed out-of-core bake: round `round`'s refinement of source groups [begin, end) from the link store's state, written to its spill directory (SpillLog). The scene, luminaires and options must be the driver's.
         """
 
     def use_leaves_as_patches(self) -> None:

@@ -42,7 +42,8 @@ class OptionError(BakeError):
 
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False,
-         overrides: tuple[str, ...] | list[str] = (), progress: str = "auto") -> Result:
+         overrides: tuple[str, ...] | list[str] = (), progress: str = "auto", scheduler: str | None = None,
+         link_threads: int = 1) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
     Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID-X/`) and moved into
@@ -59,7 +60,9 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     without computing any form factor; for any other bake they are an error. `overrides`
     (`KEY=VALUE` strings, `hirad bake --set`) are set on the config file's values before
     validation (hirad.config.load_config). `progress` is hirad.report.Reporter's mode (auto,
-    bar, plain, jsonl, none).
+    bar, plain, jsonl, none). `scheduler` (a Dask scheduler's address; out of core, from a config
+    file) spreads link generation over the cluster's workers, `link_threads` engine threads in
+    each task (hirad.batch.links): the same bits as a bake on this machine.
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
@@ -78,6 +81,16 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
                         f"hierarchical with solver.method: block_southwell); this config bakes method: {cfg.method} "
                         f"with solver.method: {cfg.solver.method}, so there is nothing to "
                         f"{'resume' if resume else 'reuse'}")
+    if scheduler is not None:
+        if not out_of_core:
+            raise OptionError(f"--scheduler: distributed link generation is for an out-of-core bake (method: "
+                              f"hierarchical with solver.method: block_southwell); this config bakes method: "
+                              f"{cfg.method} with solver.method: {cfg.solver.method}")
+        if source is None:
+            raise OptionError("--scheduler: the workers read the config from its file; give a path, not a Config")
+        if reuse_links:
+            raise OptionError("--scheduler with --reuse-links: reused links are not generated, so there is nothing "
+                              "to distribute")
     out_dir = Path(cfg.output)
     store = cfg.link_store() if out_of_core else None
     # The inputs an output or store must not hold. The scene's layers are looked up only when
@@ -92,6 +105,14 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     files.check_output(out_dir, inputs)
     if store is not None:
         files.check_link_store(store, out_dir, inputs)
+    remote = None
+    if scheduler is not None:  # before anything is made: an unreachable scheduler is a usage error
+        from .batch import links
+
+        try:
+            remote = links.DistributedLinks(links.connect(scheduler), source, tuple(overrides), threads=link_threads)
+        except links.SchedulerError as e:
+            raise OptionError(str(e)) from None
     _engine.set_threads(cfg.threads)
     staging = files.make_staging(out_dir, __version__)
     try:
@@ -99,7 +120,11 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
             if store is not None:
                 files.make_link_store(store, __version__)
             with Reporter(quiet, mode=progress) as rep:
-                result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides))
+                try:
+                    result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides), remote)
+                finally:
+                    if remote is not None:
+                        remote.close()
             del scene_layers
             files.finish_staging(staging, __version__)
             with interrupts.deferred():
@@ -112,15 +137,33 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     return result
 
 
+def read_inputs(cfg: Config):
+    """(scene, luminaire specs): the config's scene read, and its luminaires with the config's
+    `lights:` (photometry.luminaires). A distributed bake's workers read theirs the same way."""
+    scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
+                           uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=not cfg.lights,
+                           ies_mode=cfg.photometry.ies_mode)
+    return scene, with_config_lights(scene, cfg)
+
+
+def hierarchy_options(cfg: Config) -> "_engine.HierarchyOptions":
+    hc = cfg.hierarchy
+    return _engine.HierarchyOptions(epsilon=hc.epsilon, min_area=hc.min_area, samples=hc.samples, seed=cfg.seed,
+                                    max_rounds=hc.max_rounds)
+
+
+def out_of_core_options(cfg: Config, resume: bool = False, reuse_links: bool = False) -> "_engine.OutOfCoreOptions":
+    lc = cfg.links
+    return _engine.OutOfCoreOptions(store=str(cfg.link_store()), memory_budget=lc.memory_budget,
+                                    group_faces=lc.group_faces, checkpoint_seconds=lc.checkpoint_seconds,
+                                    resume=resume, reuse_links=reuse_links)
+
+
 def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, resume: bool = False,
-         reuse_links: bool = False, overrides: tuple[str, ...] = ()) -> Result:
+         reuse_links: bool = False, overrides: tuple[str, ...] = (), remote=None) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
-        scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
-                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=not cfg.lights,
-                               ies_mode=cfg.photometry.ies_mode)
-        # the scene's luminaires and the config's `lights:` (photometry.luminaires)
-        specs = with_config_lights(scene, cfg)
+        scene, specs = read_inputs(cfg)
     for w in scene.warnings:
         rep.warn(w)
     for w in cfg.ignored_settings():
@@ -150,7 +193,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
 
 
     if cfg.method == "hierarchical":
-        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links)
+        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote)
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
     else:
@@ -334,6 +377,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             "transport_bytes": solved.transport_bytes,
             "peak_refine_links": solved.peak_refine_links,
             "last_solve": streaming_dict(solved.streaming),
+            "distributed": None if remote is None else dict(remote.summary(),
+                                                            merge_seconds=list(solved.merge_seconds)),
         },
         "energy_balance": balance,
         "light_groups": None if not grouped else {
@@ -615,7 +660,8 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
     return solved, patches, b, transport.irradiance, transport.escaped, snapshot_cb
 
 
-def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False):
+def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False,
+                        remote=None):
     """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
     the leaf elements become the model's patches."""
     hc = cfg.hierarchy
@@ -624,19 +670,17 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
             _solve_progress(cfg, update)(iteration, residual)
             update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
 
-        hierarchy = _engine.HierarchyOptions(epsilon=hc.epsilon, min_area=hc.min_area, samples=hc.samples,
-                                             seed=cfg.seed, max_rounds=hc.max_rounds)
+        hierarchy = hierarchy_options(cfg)
         solve = _engine.SolveOptions(method=cfg.solver.method, tolerance=cfg.solver.tolerance,
                                      max_iterations=cfg.solver.max_iterations)
         if cfg.solver.method == "block_southwell":
-            lc = cfg.links
             store = cfg.link_store()
-            out_of_core = _engine.OutOfCoreOptions(store=str(store), memory_budget=lc.memory_budget,
-                                                   group_faces=lc.group_faces,
-                                                   checkpoint_seconds=lc.checkpoint_seconds, resume=resume,
-                                                   reuse_links=reuse_links)
+            out_of_core = out_of_core_options(cfg, resume, reuse_links)
+            if remote is not None:
+                remote.on_event = lambda e: update(None, f"round {e['round']}: links on the cluster, "
+                                                         f"{e['done']}/{e['ranges']} ranges of source groups")
             try:
-                solved = model.solve_out_of_core(hierarchy, solve, out_of_core, on_progress)
+                solved = model.solve_out_of_core(hierarchy, solve, out_of_core, on_progress, remote)
             except RuntimeError as e:
                 raise BakeError(f"link store {store}: {e}") from None
         else:

@@ -189,7 +189,14 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
          progress: str = typer.Option("auto", "--progress",
                                       help="Progress on stderr: auto (bars on a terminal, a plain line every few "
                                            "seconds otherwise), bar, plain, jsonl (JSON lines: stage, fraction, "
-                                           "elapsed, eta) or none")):
+                                           "elapsed, eta) or none"),
+         scheduler: Optional[str] = typer.Option(None, "--scheduler",
+                                                 help="Out of core: generate the links on this Dask cluster, "
+                                                      "tcp://HOST:PORT (workers must see the config, scene and "
+                                                      "link store at the same paths); the same bits as without"),
+         link_threads: int = typer.Option(1, "--link-threads", min=0,
+                                          help="With --scheduler: engine threads per link task (0 = all of a "
+                                               "worker's cores)")):
     """Solve a scene and write its outputs (USD layer, lightmaps, preview, report)."""
     import json
 
@@ -202,7 +209,7 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
     mode = "none" if quiet or (as_json and progress == "auto") else progress
     result = _run_guarded(lambda: run(config, quiet=mode == "none", threads=threads, snapshots=snapshots,
                                       resume=resume, reuse_links=reuse_links, overrides=tuple(sets),
-                                      progress=mode))
+                                      progress=mode, scheduler=scheduler, link_threads=link_threads))
     if as_json:
         print(json.dumps(result.report, indent=2))
     elif not quiet:
