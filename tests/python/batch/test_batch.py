@@ -34,7 +34,12 @@ VARIANTS = [
                                                  "edge_u": [0.35, 0.0, 0.0], "edge_v": [0.0, 0.0, 0.35],
                                                  "normal": [0.0, 1.0, 0.0]}}}},
     {"name": "seed7", "set": {"seed": 7, "formfactors.samples": 4}},
+] + [  # a matrix-like sweep to the 12 variants a study of the issue has: reflectance x seed
+    {"name": f"rho{int(rho * 100)}-s{seed}", "set": {"materials.default_reflectance": [rho] * 3, "seed": seed,
+                                                     "formfactors.samples": 4}}
+    for rho, seed in ((0.3, 2), (0.3, 3), (0.5, 2), (0.5, 3), (0.7, 2), (0.7, 3), (0.9, 2))
 ]
+N = len(VARIANTS)  # 12
 
 
 def write_study(root: Path, variants=VARIANTS, base=BASE, name="study.yaml", **extra) -> Path:
@@ -97,7 +102,7 @@ def test_every_job_done_and_indexed(study):
     proc = study["proc"]
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads(proc.stdout)
-    assert (res["run"], res["done"], res["failed"], res["skipped"]) == (5, 5, 0, 0)
+    assert (res["run"], res["done"], res["failed"], res["skipped"]) == (N, N, 0, 0)
     assert "dashboard http://" in proc.stderr and "LocalCluster (2 workers" in proc.stderr
     rows = index_rows(study["out"])
     assert sorted(rows) == sorted(v["name"] for v in VARIANTS)
@@ -117,7 +122,7 @@ def test_every_job_done_and_indexed(study):
     reps = {n: json.loads((Path(r["output"]) / "report.json").read_text()) for n, r in rows.items()}
     assert reps["jacobi"]["solver"]["method"] == "jacobi"
     assert reps["tight"]["solver"]["residual"] <= 1e-5 < reps["ref"]["solver"]["residual"]
-    assert len({r["key"] for r in rows.values()}) == 5
+    assert len({r["key"] for r in rows.values()}) == N
 
 
 def test_outputs_identical_to_baking_each_variant_alone(study, tmp_path):
@@ -139,9 +144,9 @@ def test_status_table_and_json(study):
     assert st.returncode == 0, st.stderr
     data = json.loads(st.stdout)
     assert {j["name"]: j["status"] for j in data["jobs"]} == {v["name"]: "done" for v in VARIANTS}
-    assert data["batches"][-1]["status"] == "done" and data["batches"][-1]["jobs_run"] == 5
+    assert data["batches"][-1]["status"] == "done" and data["batches"][-1]["jobs_run"] == N
     table = batch("status", study["path"])
-    assert table.returncode == 0 and "5 done" in table.stdout
+    assert table.returncode == 0 and f"{N} done" in table.stdout
     for v in VARIANTS:
         assert v["name"] in table.stdout
 
@@ -174,7 +179,7 @@ def test_rerun_runs_nothing_then_one_changed_variant_exactly(study):
     again = batch(study["path"], "--json")
     assert again.returncode == 0, again.stderr
     res = json.loads(again.stdout)
-    assert (res["run"], res["skipped"]) == (0, 5)
+    assert (res["run"], res["skipped"]) == (0, N)
     assert "LocalCluster" not in again.stderr  # no cluster for no work
     assert time.monotonic() - t < study["seconds"]
     # change one variant: only it runs
@@ -184,7 +189,7 @@ def test_rerun_runs_nothing_then_one_changed_variant_exactly(study):
     third = batch(study["path"], "--json")
     assert third.returncode == 0, third.stderr
     res = json.loads(third.stdout)
-    assert (res["run"], res["done"], res["skipped"]) == (1, 1, 4)
+    assert (res["run"], res["done"], res["skipped"]) == (1, 1, N - 1)
     rows = index_rows(out)
     after = {n: (Path(r["output"]) / "report.json").stat().st_mtime_ns for n, r in rows.items()}
     assert [n for n in before if before[n] != after[n]] == ["lm16"]
