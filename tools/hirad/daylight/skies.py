@@ -107,6 +107,7 @@ normal illuminance is E_vb = K_b DNI (lux), returned apart (the sun is a separat
 
 from __future__ import annotations
 
+import abc
 import math
 from dataclasses import dataclass
 
@@ -227,11 +228,12 @@ def _absolute_scale(sky, zenith_luminance, horizontal_illuminance_lux) -> float:
     return lz
 
 
-class _Sky:
+class _Sky(abc.ABC):
     scale: float = 1.0
 
-    def relative(self, theta, phi):  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abc.abstractmethod
+    def relative(self, theta, phi):
+        """Luminance relative to the zenith's at zenith angle theta, azimuth phi (radians)."""
 
     def luminance(self, theta, phi):
         """Absolute luminance (cd/m^2) at zenith angle theta, azimuth phi (radians); 0 below
