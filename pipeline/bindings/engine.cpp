@@ -21,7 +21,7 @@ namespace {
 
 SceneInput scene_input(In<double> points, In<int32_t> counts, In<int32_t> indices, In<int32_t> face_mesh,
                                     In<int32_t> face_source, In<double> reflectance, In<double> emission,
-                       std::optional<In<double>> corner_uv) {
+                       std::optional<In<double>> corner_uv, std::optional<In<double>> transmittance = std::nullopt) {
     require_shape(points, {-1, 3}, "points");
     require_shape(counts, {-1}, "face_vertex_counts");
     const long nf = long(counts.shape(0));
@@ -43,6 +43,10 @@ SceneInput scene_input(In<double> points, In<int32_t> counts, In<int32_t> indice
     if (corner_uv) {
         require_shape(*corner_uv, {long(indices.shape(0)), 2}, "corner_uv");
         in.corner_uv = corner_uv->data();
+    }
+    if (transmittance) {
+        require_shape(*transmittance, {nf}, "transmittance");
+        in.face_transmittance = transmittance->data();
     }
     return in;
 }
@@ -111,13 +115,22 @@ void bind_engine(nb::module_& m) {
                        "One scene through the pipeline: scene -> patches -> links -> solution (flat or hierarchical).")
         .def("__init__",
              [](Engine* self, In<double> p, In<int32_t> c, In<int32_t> i, In<int32_t> fm, In<int32_t> fs,
-                In<double> rho, In<double> emit, std::optional<In<double>> uv) {
-                 new (self) Engine(scene_input(p, c, i, fm, fs, rho, emit, uv), i.shape(0));
+                In<double> rho, In<double> emit, std::optional<In<double>> uv, std::optional<In<double>> tau,
+                std::optional<In<double>> angular) {
+                 new (self) Engine(scene_input(p, c, i, fm, fs, rho, emit, uv, tau), i.shape(0));
+                 if (angular) {
+                     require_shape(*angular, {-1}, "glass_angular");
+                     self->set_glass_angular(std::vector<double>(angular->data(), angular->data() + angular->shape(0)));
+                 }
              },
              "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "face_mesh"_a, "face_source"_a,
-             "reflectance"_a, "emission"_a, "corner_uv"_a.none() = nb::none(),
+             "reflectance"_a, "emission"_a, "corner_uv"_a.none() = nb::none(), "transmittance"_a.none() = nb::none(),
+             "glass_angular"_a.none() = nb::none(),
              "The scene as flat arrays in metres: points (P, 3), counts (F), indices (sum of counts), per face "
-             "mesh, authored face, reflectance (F, 3), emission (F, 3) W/m^2, optional corner_uv (sum of counts, 2).")
+             "mesh, authored face, reflectance (F, 3), emission (F, 3) W/m^2, optional corner_uv (sum of counts, 2); "
+             "glazing: optional transmittance (F) of direct light at normal incidence (0 opaque, reflectance + "
+             "transmittance <= 1) and glass_angular, the relative transmittance at evenly spaced cosines 0 .. 1 "
+             "(visibility.h).")
         .def("stats", &Engine::stats, "Counts of the scene and of what is built (Stats).")
         .def("set_luminaires", &Engine::set_luminaires, "luminaires"_a,
              "Luminaires (list of Luminaire) whose light reaches the surfaces as an exact first bounce (their "

@@ -36,7 +36,22 @@ void bind_luminaires(nb::module_& m) {
              "points (k, 3) m in world space, weights (k) summing to 1, frame (3, 3) whose rows are the local X, Y, "
              "Z axes in world space, candela (nc, ng) at C_i = 360 i / nc degrees and gamma_j = 180 j / (ng - 1) "
              "degrees, colour (1, 3): channel c emits candela x colour[c]. Invalid data: ValueError.")
+        .def_static("distant",
+                    [](const std::string& name, In<double> directions, In<double> weights, double illuminance,
+                       In<double> colour) {
+                        std::vector<Vec3> d = vec3_rows(directions, "directions");
+                        require_shape(weights, {long(d.size())}, "weights");
+                        std::vector<double> w(weights.data(), weights.data() + weights.shape(0));
+                        return distant_light(name, std::move(d), std::move(w), illuminance,
+                                             vec3_rows(colour, "colour", 1)[0]);
+                    },
+                    "name"_a, "directions"_a, "weights"_a, "illuminance"_a, "colour"_a,
+                    "A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light "
+                    "(normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a "
+                    "surface facing it, colour (1, 3). Invalid data: ValueError.")
         .def_ro("name", &Luminaire::name)
+        .def_ro("is_distant", &Luminaire::distant, "True for a distant light (points are directions).")
+        .def_ro("illuminance", &Luminaire::illuminance, "Distant: E_perp per unit colour, lux (or W/m^2).")
         .def_prop_ro("points", [](const Luminaire& l) { return rows3(l.points); }, kOwned, "(k, 3) m.")
         .def_prop_ro("weights", [](const Luminaire& l) { return to_numpy(l.weights, {l.weights.size()}); }, kOwned,
                      "(k) summing to 1.")

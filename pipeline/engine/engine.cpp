@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cstring>
 #include <atomic>
 #include <chrono>
 #include <stdexcept>
@@ -91,6 +92,17 @@ Engine::Engine(const SceneInput& in, size_t num_indices) {
     }
     if (num_indices != corners) throw std::invalid_argument("face_vertex_indices: length != sum of counts");
     scene_ = Scene::build(in);
+    glazing_.face_transmittance.resize(scene_.faces.size());
+    for (size_t f = 0; f < scene_.faces.size(); ++f) glazing_.face_transmittance[f] = scene_.faces[f].transmittance;
+    glazing_.validate();
+}
+
+void Engine::set_glass_angular(std::vector<double> relative) {
+    Glazing g = glazing_;
+    g.angular = std::move(relative);
+    g.validate();
+    glazing_ = std::move(g);
+    if (visibility_) visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
 }
 
 Engine::~Engine() = default;
@@ -125,7 +137,7 @@ void Engine::replace_patches(PatchSet patches) {
     visibility_.reset();  // it refers to the old patches
     display_ = DisplayMesh{};
     patches_ = std::move(patches);
-    visibility_ = std::make_unique<Visibility>(patches_.patches);
+    visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
 }
 
 void Engine::mesh(const MeshOptions& o) {
@@ -272,6 +284,23 @@ void Engine::split_for_luminaires(Hierarchy& h, const Visibility& vis, double ep
         }
         if (!split) return;
     }
+}
+
+double Engine::distant_power(const std::vector<Patch>& faces, const Visibility& vis) const {
+    // Distant lights have no flux of their own: what they deliver to the input faces (their
+    // luminance Y, W or lm) takes its place in epsilon x the emitted power. One point a face.
+    std::vector<Luminaire> distant;
+    for (const Luminaire& l : luminaires_)
+        if (l.distant) distant.push_back(l);
+    if (distant.empty()) return 0;
+    std::vector<const Patch*> shapes;
+    for (const Patch& f : faces) shapes.push_back(&f);
+    std::vector<RGB> mean;
+    std::vector<double> spread;
+    element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
+    double power = 0;
+    for (size_t k = 0; k < faces.size(); ++k) power += luminance(mean[k]) * faces[k].area;
+    return power;
 }
 
 std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::vector<Vec3>& n,
@@ -492,10 +521,11 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     links_.reset();
     solved_.reset();
     auto state = std::make_unique<Solved>(scene_);
-    state->visibility = std::make_unique<Visibility>(state->hierarchy.faces);
+    state->visibility = std::make_unique<Visibility>(state->hierarchy.faces, &glazing_);
     emitted = 0;
     for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
     emitted += luminance(luminaire_flux());
+    emitted += distant_power(state->hierarchy.faces, *state->visibility);
     split_for_luminaires(state->hierarchy, *state->visibility, o.epsilon * emitted, o.min_area);
     return state;
 }
@@ -548,9 +578,17 @@ SpillLog Engine::refine_groups(const HierarchyOptions& o, const OutOfCoreOptions
 }
 
 RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c, size_t groups) const {
+    // The light: the luminaires, and the glass's angular transmittance where there is glass.
+    uint64_t light = luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_);
+    if (glazing_.any())
+        for (double r : glazing_.angular) {
+            uint64_t b;
+            std::memcpy(&b, &r, sizeof b);
+            light = hash_pair(light, b, 19);
+        }
     return RunStore(c.store,
                     StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
-                                          luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_)),
+                                          light),
                     groups);
 }
 

@@ -263,7 +263,14 @@ public:
     // a hierarchical solve uses them from its start. Each is validated (std::invalid_argument).
     void set_luminaires(std::vector<Luminaire> luminaires);
     const std::vector<Luminaire>& luminaires() const { return luminaires_; }
-    RGB luminaire_flux() const;  // their total flux (lm or W)
+    RGB luminaire_flux() const;  // their total flux (lm or W); distant lights count 0
+
+    // Glazing (visibility.h): the faces' transmittance comes with the scene
+    // (SceneInput::face_transmittance); this sets glass's relative angular transmittance
+    // r(cos theta) at evenly spaced cosines 0 .. 1 (empty: 1 at every angle). Call it before
+    // meshing or solving.
+    void set_glass_angular(std::vector<double> relative);
+    const Glazing& glazing() const { return glazing_; }
 
     // Light groups replace any earlier ones (empty: none). Meshes must be input mesh indices;
     // luminaires are validated (std::invalid_argument). They do not change the total solve.
@@ -357,11 +364,14 @@ private:
     void light_new_elements(Hierarchy& h, const Visibility& visibility, std::vector<uint32_t>* fresh,
                             std::vector<double>* spread) const;
     void split_for_luminaires(Hierarchy& h, const Visibility& visibility, double epsilon_watts, double min_area) const;
+    // What the distant lights deliver to `faces` (luminance Y x area), W or lm.
+    double distant_power(const std::vector<Patch>& faces, const Visibility& vis) const;
     // Luminaire irradiance at points x with unit normals n (zero without luminaires).
     std::vector<RGB> luminaire_light(const std::vector<Vec3>& x, const std::vector<Vec3>& n, const Visibility& vis) const;
 
     Scene scene_;
     std::vector<Luminaire> luminaires_;
+    Glazing glazing_;
     std::vector<LightGroup> groups_;
     std::vector<std::vector<uint8_t>> group_mesh_;  // per group: per input mesh, 1 when in it
     PatchSet patches_;

@@ -39,6 +39,14 @@ void Luminaire::validate() const {
         sum += weights[k];
     }
     if (std::fabs(sum - 1) > 1e-9) refuse(*this, "weights sum to " + std::to_string(sum) + ", not 1");
+    if (!isfinite(colour) || colour.x < 0 || colour.y < 0 || colour.z < 0) refuse(*this, "colour is negative or not finite");
+    if (distant) {
+        for (size_t k = 0; k < points.size(); ++k)
+            if (std::fabs(length(points[k]) - 1) > 1e-9)
+                refuse(*this, "direction " + std::to_string(k) + " is not a unit vector");
+        if (!(illuminance >= 0) || !std::isfinite(illuminance)) refuse(*this, "illuminance is negative or not finite");
+        return;
+    }
     for (int a = 0; a < 3; ++a)
         if (!isfinite(axis[a]) || std::fabs(length(axis[a]) - 1) > 1e-9) refuse(*this, "frame axis " + std::to_string(a) + " is not a unit vector");
     if (std::fabs(dot(axis[0], axis[1])) > 1e-9 || std::fabs(dot(axis[1], axis[2])) > 1e-9 ||
@@ -75,6 +83,7 @@ double Luminaire::intensity(const Vec3& d) const {
 }
 
 double Luminaire::table_flux() const {
+    if (distant) return 0;
     const double h = kPi / (ng - 1);
     const double dc = 2 * kPi / nc;
     double total = 0;
@@ -103,7 +112,29 @@ uint64_t Luminaire::fingerprint() const {
     f = hash_pair(f, (uint64_t(nc) << 32) | uint64_t(ng), 14);
     for (double v : candela) f = hash_pair(f, bits(v), 15);
     for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(colour[a]), 16);
+    if (distant) f = hash_pair(f, bits(illuminance), 18);
     return f;
+}
+
+Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vector<double> weights,
+                        double illuminance, RGB colour) {
+    Luminaire l;
+    l.name = std::move(name);
+    l.distant = true;
+    for (Vec3& d : directions) {
+        const double len = length(d);
+        if (len > 0 && std::isfinite(len)) d = d / len;
+    }
+    l.points = std::move(directions);
+    l.weights = std::move(weights);
+    l.illuminance = illuminance;
+    l.colour = colour;
+    l.axis[0] = {1, 0, 0};
+    l.axis[1] = {0, 1, 0};
+    l.axis[2] = {0, 0, 1};
+    l.candela = {0, 0};
+    l.validate();
+    return l;
 }
 
 uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires) {
@@ -122,13 +153,31 @@ struct Arrivals {
     std::vector<Vec3> from, to, dir;
     std::vector<double> wi, r2, cosr;
     std::vector<uint32_t> owner;
-    std::vector<uint8_t> seen;
+    std::vector<float> seen;  // transmittance of the shadow ray (0 blocked, 1 open, between: glass)
 
     void collect(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
                  const Vec3* n, const Vec3& start) {
         from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear();
         for (uint32_t li = 0; li < luminaires.size(); ++li) {
             const Luminaire& l = luminaires[li];
+            if (l.distant) {
+                if (!(l.illuminance > 0)) continue;
+                const double far = visibility ? visibility->reach(start) : 1.0;
+                for (size_t k = 0; k < l.points.size(); ++k) {
+                    if (!(l.weights[k] > 0)) continue;
+                    const Vec3& d = l.points[k];  // unit, towards the light
+                    const double c = n ? dot(*n, d) : 1.0;
+                    if (!(c > 0)) continue;
+                    from.push_back(start);
+                    to.push_back(start + d * far);
+                    dir.push_back(d);
+                    wi.push_back(l.weights[k] * l.illuminance);
+                    r2.push_back(1.0);
+                    cosr.push_back(c);
+                    owner.push_back(li);
+                }
+                continue;
+            }
             for (size_t k = 0; k < l.points.size(); ++k) {
                 if (!(l.weights[k] > 0)) continue;
                 const Vec3 d = l.points[k] - x;  // receiver -> light
@@ -148,15 +197,16 @@ struct Arrivals {
                 owner.push_back(li);
             }
         }
-        seen.assign(from.size(), 1);
-        if (visibility && !from.empty()) visibility->segments_visible(from.data(), to.data(), from.size(), seen.data());
+        seen.assign(from.size(), 1.0f);
+        if (visibility && !from.empty())
+            visibility->segments_transmittance(from.data(), to.data(), from.size(), seen.data());
     }
 };
 
 RGB irradiance_of(const std::vector<Luminaire>& luminaires, const Arrivals& a) {
     RGB sum{};
     for (size_t s = 0; s < a.from.size(); ++s)
-        if (a.seen[s]) sum += luminaires[a.owner[s]].colour * (a.wi[s] * a.cosr[s] / a.r2[s]);
+        if (a.seen[s] > 0) sum += luminaires[a.owner[s]].colour * (a.seen[s] * a.wi[s] * a.cosr[s] / a.r2[s]);
     return sum;
 }
 
@@ -192,8 +242,8 @@ void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibilit
         for (size_t q = r.begin(); q < r.end(); ++q) {
             a.collect(luminaires, visibility, x[q], nullptr, x[q]);
             for (size_t s = 0; s < a.from.size(); ++s) {
-                if (!a.seen[s]) continue;
-                const RGB v = luminaires[a.owner[s]].colour * (a.wi[s] / a.r2[s]);
+                if (!(a.seen[s] > 0)) continue;
+                const RGB v = luminaires[a.owner[s]].colour * (a.seen[s] * a.wi[s] / a.r2[s]);
                 s0[q] += v;
                 for (int c = 0; c < 3; ++c) s1[q][c] += v * a.dir[s][c];
             }

@@ -24,6 +24,18 @@
 // one (the near field of a long cylinder or a large panel). After that bounce, everything is
 // diffuse: a surface that receives H re-emits rho H like self-emission.
 //
+// Distant lights (distant = true): the sun, and the patches of a sky dome. They are too far for
+// their points to matter: `points` are unit world directions d_k towards the light (from the
+// scene to the sky), `weights` split the light over them, and `illuminance` E_perp is what a
+// surface facing the light squarely receives, per unit colour (lux or W/m^2):
+//   H(x, n) = E_perp sum_k w_k max(0, n . d_k) T(x, d_k)
+// with T the transmittance of a ray from x towards d_k out of the scene (0 when blocked, the
+// glazing's factors through windows, visibility.h). A sun of angular diameter a is a few
+// directions over its disk; a sky patch of luminance L and solid angle Omega is E_perp = L Omega
+// over directions inside the patch (hirad.daylight.sources). They have no flux of their own
+// (the light on the scene depends on the scene): flux() is 0 and the engine counts what they
+// deliver to the surfaces. Frame and candela table are unused.
+//
 // Units: metres; intensity in cd (photometric scenes) or W/sr (radiometric), per RGB
 // channel = candela x colour; flux in lm or W; irradiance in lux or W/m^2.
 #pragma once
@@ -46,13 +58,16 @@ struct Luminaire {
     int nc = 1, ng = 2;           // table size
     std::vector<double> candela;  // nc x ng, row-major: candela[i * ng + j] = I(C_i, gamma_j)
     RGB colour{1, 1, 1};          // channel multiplier
+    bool distant = false;         // a distant light: points are directions (see above)
+    double illuminance = 0;       // distant: E_perp per unit colour, lux or W/m^2
 
     // Checks the data (sizes, finiteness, weights, frame); throws std::invalid_argument
     // naming the luminaire and the problem.
     void validate() const;
     // I (per unit colour) toward a world direction (any length > 0).
     double intensity(const Vec3& world_direction) const;
-    // The exact flux of the table per unit colour (lm or W); times colour for RGB.
+    // The exact flux of the table per unit colour (lm or W); times colour for RGB. 0 for a
+    // distant light.
     double table_flux() const;
     RGB flux() const { return colour * table_flux(); }
     // A 64-bit hash of everything that determines the light (for the run store).
@@ -84,6 +99,11 @@ struct Patch;
 void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility& visibility,
                                   const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
                                   std::vector<double>& spread);
+
+// A distant light (validated): `directions` towards the light (normalised here), weights summing
+// to 1, E_perp per unit colour.
+Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vector<double> weights,
+                        double illuminance, RGB colour);
 
 uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires);
 

@@ -132,6 +132,12 @@ void check_materials(const SceneInput& in) {
             const double r = in.face_reflectance[3 * f + c], e = in.face_emission[3 * f + c];
             ok = ok && std::isfinite(r) && r >= 0 && r <= 1 && std::isfinite(e) && e >= 0;
         }
+        if (in.face_transmittance) {
+            const double t = in.face_transmittance[f];
+            const double rmax = std::max({in.face_reflectance[3 * f], in.face_reflectance[3 * f + 1],
+                                          in.face_reflectance[3 * f + 2]});
+            ok = ok && t >= 0 && t <= 1 && rmax + t <= 1 + 1e-12;  // what glass reflects and lets through
+        }
         if (!ok && bad++ == 0) first = f;
     }
     if (bad == 0) return;
@@ -142,7 +148,8 @@ void check_materials(const SceneInput& in) {
     };
     std::ostringstream msg;
     msg << "scene: " << bad << " of " << in.num_faces
-        << " faces have a reflectance outside [0, 1] or an emission that is negative or not finite; the first is face "
+        << " faces have a reflectance outside [0, 1], an emission that is negative or not finite, or a transmittance "
+           "outside [0, 1] or above 1 - reflectance; the first is face "
         << first << " (mesh " << in.face_mesh[first] << ", authored face "
         << (in.face_source ? in.face_source[first] : int32_t(first)) << "): reflectance "
         << rgb(in.face_reflectance + 3 * first) << ", emission " << rgb(in.face_emission + 3 * first);
@@ -204,6 +211,7 @@ Scene Scene::build(const SceneInput& in) {
         base.source_face = in.face_source ? static_cast<uint32_t>(in.face_source[f]) : static_cast<uint32_t>(f);
         base.reflectance = {in.face_reflectance[3 * f], in.face_reflectance[3 * f + 1], in.face_reflectance[3 * f + 2]};
         base.emission = {in.face_emission[3 * f], in.face_emission[3 * f + 1], in.face_emission[3 * f + 2]};
+        base.transmittance = in.face_transmittance ? in.face_transmittance[f] : 0.0;
 
         bool keep_quad = false;
         if (n == 4) {

@@ -19,6 +19,7 @@ struct Face {
     uint32_t source_face = 0; // index of the face within that mesh's authored faces
     RGB reflectance;          // diffuse albedo per channel, in [0, 1)
     RGB emission;             // emitted exitance in W/m^2 (pi x emitted radiance)
+    double transmittance = 0; // glazing: normal transmittance of direct light (visibility.h), 0 opaque
     Vec3 normal() const;
     double area() const;
 };
@@ -45,6 +46,7 @@ struct SceneInput {
     const double* face_reflectance = nullptr;  // (num_faces, 3)
     const double* face_emission = nullptr;     // (num_faces, 3) exitance W/m^2
     const double* corner_uv = nullptr;         // (sum of counts, 2) or null
+    const double* face_transmittance = nullptr; // (num_faces) glazing's normal transmittance, or null
 };
 
 struct Scene {

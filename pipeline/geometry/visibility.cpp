@@ -7,6 +7,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 namespace hirad {
 
@@ -37,6 +38,44 @@ Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
     double denom = 1 / (va + vb + vc);
     v = vb * denom; w = vc * denom;
     return a + ab * v + ac * w;
+}
+
+// The context of an occlusion query: Embree's, then what the glass filter needs. Every query of
+// this class passes one; `factor` is null where glass is opaque (links).
+struct GlassContext {
+    RTCIntersectContext base;
+    float* factor;                   // per ray id: the product of the glass crossed so far
+    const float* prim_transmittance; // per primitive
+    const float* angular;            // r(cos theta) at n evenly spaced cosines
+    int angular_n;
+    const std::vector<Patch>* patches;
+};
+
+float relative_from(const float* table, int n, double c) {
+    if (n < 2) return 1.0f;
+    c = std::clamp(c, 0.0, 1.0) * (n - 1);
+    const int k = std::min(int(c), n - 2);
+    const double f = c - k;
+    return static_cast<float>(table[k] * (1 - f) + table[k + 1] * f);
+}
+
+// Glass lets a direct ray through with its factor tau0 r(cos theta); opaque surfaces stop it.
+// A rejected hit (valid = 0) makes Embree go on along the ray.
+void glass_filter(const RTCFilterFunctionNArguments* args) {
+    const auto* ctx = reinterpret_cast<const GlassContext*>(args->context);
+    if (!ctx->factor) return;
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (args->valid[i] != -1) continue;
+        const unsigned prim = RTCHitN_primID(args->hit, args->N, i);
+        const float tau = ctx->prim_transmittance[prim];
+        if (!(tau > 0)) continue;
+        const Vec3 d{RTCRayN_dir_x(args->ray, args->N, i), RTCRayN_dir_y(args->ray, args->N, i),
+                     RTCRayN_dir_z(args->ray, args->N, i)};
+        const double len = length(d);
+        const double c = len > 0 ? std::fabs(dot(d, (*ctx->patches)[prim].normal)) / len : 1.0;
+        ctx->factor[RTCRayN_id(args->ray, args->N, i)] *= tau * relative_from(ctx->angular, ctx->angular_n, c);
+        args->valid[i] = 0;
+    }
 }
 
 struct PointQueryState {
@@ -80,7 +119,31 @@ bool point_query(RTCPointQueryFunctionArguments* args) {
 
 }  // namespace
 
-Visibility::Visibility(const std::vector<Patch>& patches) : patches_(patches) {
+bool Glazing::any() const {
+    for (double t : face_transmittance)
+        if (t > 0) return true;
+    return false;
+}
+
+double Glazing::relative(double cos_theta) const {
+    if (angular.size() < 2) return 1.0;
+    const double c = std::clamp(cos_theta, 0.0, 1.0) * double(angular.size() - 1);
+    const size_t k = std::min(size_t(c), angular.size() - 2);
+    const double f = c - double(k);
+    return angular[k] * (1 - f) + angular[k + 1] * f;
+}
+
+void Glazing::validate() const {
+    for (size_t f = 0; f < face_transmittance.size(); ++f)
+        if (!(face_transmittance[f] >= 0 && face_transmittance[f] <= 1))
+            throw std::invalid_argument("glazing: the transmittance of face " + std::to_string(f) +
+                                        " is outside [0, 1] or not finite");
+    if (angular.size() == 1) throw std::invalid_argument("glazing: the angular table needs at least 2 values");
+    for (double r : angular)
+        if (!(r >= 0 && r <= 1)) throw std::invalid_argument("glazing: an angular transmittance is outside [0, 1]");
+}
+
+Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing) : patches_(patches) {
     // The same kernels on every machine that has them: Embree would pick AVX-512 where the CPU
     // has it, and its wider traversal reports hits that differ from the AVX2 kernels' in the
     // last bits of t, u and v, so a render (and anything read at a hit) would change bits
@@ -110,7 +173,21 @@ Visibility::Visibility(const std::vector<Patch>& patches) : patches_(patches) {
             indices[4 * i + k] = static_cast<uint32_t>(4 * i + k);
         }
     }
-    if (n > 0) scene_size_ = std::max(length(hi - lo), 1e-6);
+    if (n > 0) {
+        scene_size_ = std::max(length(hi - lo), 1e-6);
+        lo_ = lo;
+        hi_ = hi;
+    }
+    if (glazing && glazing->any()) {
+        prim_transmittance_.resize(n);
+        for (size_t i = 0; i < n; ++i) {
+            const uint32_t f = patches[i].face;
+            prim_transmittance_[i] =
+                f < glazing->face_transmittance.size() ? static_cast<float>(glazing->face_transmittance[f]) : 0.0f;
+        }
+        angular_.assign(glazing->angular.begin(), glazing->angular.end());
+        rtcSetGeometryOccludedFilterFunction(geom, glass_filter);
+    }
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene_, geom);
     rtcReleaseGeometry(geom);
@@ -123,10 +200,17 @@ Visibility::~Visibility() {
     if (device_) rtcReleaseDevice(device_);
 }
 
-void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count, uint8_t* visible,
-                                  double end_gap) const {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
+template <typename Out>
+void Visibility::occlusion(const Vec3* from, const Vec3* to, size_t count, Out* out, bool through_glass,
+                           double end_gap) const {
+    alignas(64) float factor[16];
+    GlassContext context;
+    rtcInitIntersectContext(&context.base);
+    context.factor = through_glass && has_glass() ? factor : nullptr;
+    context.prim_transmittance = prim_transmittance_.data();
+    context.angular = angular_.data();
+    context.angular_n = int(angular_.size());
+    context.patches = &patches_;
     alignas(64) RTCRay16 rays;
     alignas(64) int valid[16];
     for (size_t base = 0; base < count; base += 16) {
@@ -135,6 +219,7 @@ void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count
             // Unused lanes still carry a well-formed ray: Embree's packet kernels may read them.
             const size_t src = base + std::min(k, m - 1);
             valid[k] = k < m ? -1 : 0;
+            factor[k] = 1.0f;
             const Vec3& o = from[src];
             Vec3 d = to[src] - o;
             if (!isfinite(o) || !isfinite(d)) throw std::runtime_error("visibility: a ray with a non-finite end point");
@@ -151,15 +236,41 @@ void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count
             rays.id[k] = static_cast<unsigned>(k);
             rays.flags[k] = 0;
         }
-        rtcOccluded16(valid, scene_, &context, &rays);
-        for (size_t k = 0; k < m; ++k) visible[base + k] = rays.tfar[k] >= 0 ? 1 : 0;
+        rtcOccluded16(valid, scene_, &context.base, &rays);
+        for (size_t k = 0; k < m; ++k) {
+            const bool open = rays.tfar[k] >= 0;
+            if constexpr (std::is_same_v<Out, float>)
+                out[base + k] = open ? factor[k] : 0.0f;
+            else
+                out[base + k] = open ? 1 : 0;
+        }
     }
     rays_ += count;
 }
 
+void Visibility::segments_visible(const Vec3* from, const Vec3* to, size_t count, uint8_t* visible,
+                                  double end_gap) const {
+    occlusion(from, to, count, visible, false, end_gap);
+}
+
+void Visibility::segments_transmittance(const Vec3* from, const Vec3* to, size_t count, float* transmittance,
+                                        double end_gap) const {
+    occlusion(from, to, count, transmittance, true, end_gap);
+}
+
+double Visibility::reach(const Vec3& origin) const {
+    double far = 0;
+    for (int c = 0; c < 8; ++c) {
+        const Vec3 corner{(c & 1) ? hi_.x : lo_.x, (c & 2) ? hi_.y : lo_.y, (c & 4) ? hi_.z : lo_.z};
+        far = std::max(far, length(corner - origin));
+    }
+    return 1.01 * far + 1e-3 * scene_size_ + 1e-6;
+}
+
 RayHit Visibility::intersect(const Vec3& origin, const Vec3& direction, double tnear, double tfar) const {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
+    GlassContext glass{};
+    rtcInitIntersectContext(&glass.base);
+    RTCIntersectContext& context = glass.base;
     RTCRayHit rh;
     rh.ray.org_x = static_cast<float>(origin.x);
     rh.ray.org_y = static_cast<float>(origin.y);

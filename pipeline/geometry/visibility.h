@@ -1,4 +1,17 @@
 // Visibility and ray queries against the patch geometry, through Embree 3.
+//
+// Glazing. A face with a normal transmittance tau0 > 0 (glass: UsdPreviewSurface opacity < 1
+// or hirad:transmittance) lets light through along a ray with the factor
+//   T(theta) = tau0 * r(cos theta),
+// theta the angle between the ray and the glass's normal (either side), r the glass's relative
+// angular transmittance (hirad.daylight.glazing: the Tregenza-Sharples polynomial of clear
+// glass) tabulated at cos theta = k / (n - 1) and linear between. Only the direct rays of
+// luminaires and of distant lights (sun, sky) pass glass (segments_transmittance): the light
+// arrives through the window in its own direction. Links between surfaces do not
+// (segments_visible treats glass as opaque): the interreflected light that reaches a window is
+// received by the glass, which reflects its reflectance and lets the rest leave the room.
+// Several panes multiply. An Embree occlusion filter does it: it rejects a hit on glass after
+// multiplying the ray's factor, so the traversal goes on to the next surface.
 #pragma once
 #include <atomic>
 #include <cstdint>
@@ -17,9 +30,21 @@ struct RayHit {
     double u = 0, v = 0; // Embree's quad coordinates: bilinear within the patch
 };
 
+// The glazing of a scene: per engine face (Patch::face) its normal transmittance (0: opaque), and
+// the relative angular transmittance r(cos theta) at n >= 2 evenly spaced cosines 0 .. 1.
+struct Glazing {
+    std::vector<double> face_transmittance;
+    std::vector<double> angular;   // empty: r = 1 at every angle
+    bool any() const;
+    double relative(double cos_theta) const;  // r, linear in the table
+    // Throws std::invalid_argument for values outside [0, 1], a table shorter than 2 or not finite.
+    void validate() const;
+};
+
 class Visibility {
 public:
-    explicit Visibility(const std::vector<Patch>& patches);
+    // `glazing` (may be null, or have no glass) is copied for the patches' faces.
+    explicit Visibility(const std::vector<Patch>& patches, const Glazing* glazing = nullptr);
     ~Visibility();
     Visibility(const Visibility&) = delete;
     Visibility& operator=(const Visibility&) = delete;
@@ -29,6 +54,15 @@ public:
     // already; the last `end_gap` fraction of each segment is not tested.
     void segments_visible(const Vec3* from, const Vec3* to, size_t count, uint8_t* visible,
                           double end_gap = 1e-4) const;
+
+    // The transmittance of each open segment: 0 when an opaque surface blocks it, else the
+    // product of the factors T(theta) of the glass it crosses (1 with no glass on the way).
+    void segments_transmittance(const Vec3* from, const Vec3* to, size_t count, float* transmittance,
+                                double end_gap = 1e-4) const;
+    // A distance from `origin` beyond which nothing of the scene lies (past its bounding box):
+    // a segment that long in any direction is a ray to infinity (distant lights).
+    double reach(const Vec3& origin) const;
+    bool has_glass() const { return !prim_transmittance_.empty(); }
 
     RayHit intersect(const Vec3& origin, const Vec3& direction, double tnear = 0,
                      double tfar = 1e30) const;
@@ -46,6 +80,12 @@ private:
     RTCScene scene_ = nullptr;
     const std::vector<Patch>& patches_;
     double scene_size_ = 1;
+    Vec3 lo_{0, 0, 0}, hi_{0, 0, 0};
+    std::vector<float> prim_transmittance_;  // per patch (empty: no glass)
+    std::vector<float> angular_;             // r(cos theta) table
+    template <typename Out>
+    void occlusion(const Vec3* from, const Vec3* to, size_t count, Out* out, bool through_glass,
+                   double end_gap) const;
     mutable std::atomic<uint64_t> rays_{0};
 };
 

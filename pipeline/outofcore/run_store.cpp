@@ -115,6 +115,7 @@ StoreFingerprints StoreFingerprints::of(const Scene& scene, double epsilon, doub
         for (int k = 0; k < f.nv; ++k)
             for (int a = 0; a < 3; ++a) geo = hash_pair(geo, bits(f.p[k][a]), 2);
         for (int a = 0; a < 3; ++a) mat = hash_pair(hash_pair(mat, bits(f.reflectance[a]), 3), bits(f.emission[a]), 4);
+        if (f.transmittance > 0) mat = hash_pair(mat, bits(f.transmittance), 8);  // glazing (opaque: as before)
     }
     uint64_t settings = 0x5E7ull;
     for (uint64_t v : {bits(epsilon), bits(min_area), uint64_t(samples), seed, uint64_t(max_rounds), uint64_t(group_faces)})

@@ -31,16 +31,20 @@ def _per_face(value, n: int) -> np.ndarray:
 
 
 def make_model(polys, reflectance=0.5, emission=0.0, max_area: float | None = None,
-               max_edge: float | None = None):
+               max_edge: float | None = None, transmittance=None, glass_angular=None):
     """An engine of the polygons (one mesh); meshed when max_area/max_edge are given
-    (either one alone: the other is unlimited)."""
+    (either one alone: the other is unlimited). `transmittance`: per polygon (or a scalar) the
+    glazing's normal transmittance; `glass_angular`: its relative angular table."""
     polys = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in polys]
     n = len(polys)
     points = np.ascontiguousarray(np.concatenate(polys))
     counts = np.array([len(p) for p in polys], dtype=np.int32)
     indices = np.arange(points.shape[0], dtype=np.int32)
     m = _engine.Engine(points, counts, indices, np.zeros(n, np.int32), np.arange(n, dtype=np.int32),
-                       _per_face(reflectance, n), _per_face(emission, n))
+                       _per_face(reflectance, n), _per_face(emission, n),
+                       transmittance=None if transmittance is None else
+                       np.ascontiguousarray(np.broadcast_to(np.asarray(transmittance, float), (n,))),
+                       glass_angular=None if glass_angular is None else np.asarray(glass_angular, float))
     if max_area is not None or max_edge is not None:
         m.mesh(_engine.MeshOptions(max_patch_area=max_area or BIG, max_edge_length=max_edge or BIG))
     return m
