@@ -328,6 +328,12 @@ public:
     // links, its luminaires, its emission).
     PointValues gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                        const GatherOptions& options, double max_distance = 1e30, int group = -1);
+    // Direct light from far directions at points (daylight: annual sun hours, sky patches):
+    // out[p * D + d] = max(0, n_p . d_d) T(x_p, d_d), T the transmittance of the ray from x_p
+    // (lifted off its surface) towards unit direction d_d out of the scene (visibility.h: 0
+    // blocked, glass factors through windows), over the current patches. Deterministic.
+    std::vector<float> direct_transmittance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                            const std::vector<Vec3>& directions) const;
     // Final gather from a flat solution `radiosity` (per patch): O(patches) a point.
     PointValues gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                             const std::vector<RGB>& radiosity, int rays, uint64_t seed) const;

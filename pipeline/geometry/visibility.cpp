@@ -42,9 +42,13 @@ Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
 
 // The context of an occlusion query: Embree's, then what the glass filter needs. Every query of
 // this class passes one; `factor` is null where glass is opaque (links).
+constexpr int kPanes = 8;  // distinct panes remembered per ray
+
 struct GlassContext {
     RTCIntersectContext base;
     float* factor;                   // per ray id: the product of the glass crossed so far
+    float (*crossed)[kPanes];        // per ray id: the distances of the panes counted
+    int* panes;                      // per ray id: how many
     const float* prim_transmittance; // per primitive
     const float* angular;            // r(cos theta) at n evenly spaced cosines
     int angular_n;
@@ -69,12 +73,22 @@ void glass_filter(const RTCFilterFunctionNArguments* args) {
         const unsigned prim = RTCHitN_primID(args->hit, args->N, i);
         const float tau = ctx->prim_transmittance[prim];
         if (!(tau > 0)) continue;
+        args->valid[i] = 0;
+        // A ray through an edge or corner shared by several patches of one pane meets each of
+        // them at the same distance (Embree's watertight test reports them all, in any order):
+        // one pane counts once.
+        const unsigned id = RTCRayN_id(args->ray, args->N, i);
+        const float t = RTCRayN_tfar(args->ray, args->N, i);
+        bool again = false;
+        for (int k = 0; k < ctx->panes[id]; ++k)
+            if (std::fabs(ctx->crossed[id][k] - t) <= 1e-6f * std::max(1.0f, std::fabs(t))) again = true;
+        if (again) continue;
+        if (ctx->panes[id] < kPanes) ctx->crossed[id][ctx->panes[id]++] = t;
         const Vec3 d{RTCRayN_dir_x(args->ray, args->N, i), RTCRayN_dir_y(args->ray, args->N, i),
                      RTCRayN_dir_z(args->ray, args->N, i)};
         const double len = length(d);
         const double c = len > 0 ? std::fabs(dot(d, (*ctx->patches)[prim].normal)) / len : 1.0;
-        ctx->factor[RTCRayN_id(args->ray, args->N, i)] *= tau * relative_from(ctx->angular, ctx->angular_n, c);
-        args->valid[i] = 0;
+        ctx->factor[id] *= tau * relative_from(ctx->angular, ctx->angular_n, c);
     }
 }
 
@@ -204,7 +218,11 @@ template <typename Out>
 void Visibility::occlusion(const Vec3* from, const Vec3* to, size_t count, Out* out, bool through_glass,
                            double end_gap) const {
     alignas(64) float factor[16];
+    float crossed[16][kPanes];
+    int panes[16];
     GlassContext context;
+    context.crossed = crossed;
+    context.panes = panes;
     rtcInitIntersectContext(&context.base);
     context.factor = through_glass && has_glass() ? factor : nullptr;
     context.prim_transmittance = prim_transmittance_.data();
@@ -220,6 +238,7 @@ void Visibility::occlusion(const Vec3* from, const Vec3* to, size_t count, Out* 
             const size_t src = base + std::min(k, m - 1);
             valid[k] = k < m ? -1 : 0;
             factor[k] = 1.0f;
+            panes[k] = 0;
             const Vec3& o = from[src];
             Vec3 d = to[src] - o;
             if (!isfinite(o) || !isfinite(d)) throw std::runtime_error("visibility: a ray with a non-finite end point");

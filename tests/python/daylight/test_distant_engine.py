@@ -1,0 +1,226 @@
+"""Distant lights and glazing in the engine (issue 16): the sun and sky patches as luminaires
+whose points are directions, and glass that lets direct light through with tau0 r(cos theta).
+
+Closed forms used:
+* a surface facing n under a distant light of perpendicular illuminance E from unit direction
+  d receives E max(0, n . d) (Lambert's cosine law), and reflects rho times that;
+* glass of normal transmittance tau0 and relative angular transmittance r passes
+  tau0 r(|cos theta|) of a ray, theta from the glass's normal; panes in series multiply;
+* a uniform sky of luminance L seen through a horizontal opening of area A sends
+  Phi = A L tau0 integral over the hemisphere of r(cos theta) cos theta d omega
+    = 2 pi A L tau0 integral_0^1 r(mu) mu d mu
+  into the room below it (each direction's flux is L d omega times the opening's projected
+  area A cos theta); with r linear in mu, r = mu, the integral is 1/3;
+* a closed room: all light that enters (the direct light on its faces) is absorbed by its
+  faces, glass included (what glass does not reflect, it absorbs or lets out):
+  sum (1 - rho) (D + H) A = sum D A.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+_engine = pytest.importorskip("hirad._engine")
+
+from conftest import make_model, quad  # noqa: E402
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def sun(direction, e=1000.0, name="sun"):
+    d = np.asarray(direction, float).reshape(1, 3)
+    return _engine.Luminaire.distant(name, d, np.array([1.0]), e, np.ones((1, 3)))
+
+
+def sheet(z, size=10.0):
+    """A horizontal pane (facing down) at height z, much wider than the test floor."""
+    h = size / 2
+    return quad([-h, -h, z], [0, size, 0], [size, 0, 0])
+
+
+FLOOR = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
+
+
+def floor_direct(model):
+    pa = model.patch_arrays()
+    return pa.direct[pa.face == 0]
+
+
+@pytest.mark.parametrize("zenith", [0.0, 30.0, 75.0])
+def test_distant_light_on_an_open_floor_follows_the_cosine_law(zenith):
+    t = math.radians(zenith)
+    m = make_model([FLOOR], 0.5, max_area=0.05)
+    m.set_luminaires([sun([0, math.sin(t), math.cos(t)])])
+    d = floor_direct(m)
+    assert np.allclose(d, 1000 * math.cos(t), rtol=1e-12)
+
+
+def test_light_from_below_the_horizon_of_a_face_does_not_reach_it():
+    m = make_model([FLOOR], 0.5, max_area=0.05)
+    m.set_luminaires([sun([0, 1, -0.2])])
+    assert np.all(floor_direct(m) == 0)
+
+
+def test_hierarchical_radiosity_of_a_sunlit_floor_is_rho_e_cos():
+    t = math.radians(40)
+    m = make_model([FLOOR], 0.6)
+    m.set_luminaires([sun([math.sin(t), 0, math.cos(t)], 800.0)])
+    r = m.solve_hierarchical(_engine.HierarchyOptions(), _engine.SolveOptions(method="jacobi"))
+    assert np.allclose(r.radiosity, 0.6 * 800 * math.cos(t), rtol=1e-12)
+
+
+def test_an_opaque_roof_casts_a_full_shadow():
+    m = make_model([FLOOR, sheet(1.0)], 0.5, max_area=0.05)
+    m.set_luminaires([sun([0, 0.3, 1])])
+    assert np.all(floor_direct(m) == 0)
+
+
+@pytest.mark.parametrize("zenith", [0.0, 35.0, 60.0])
+def test_glass_passes_tau0_times_its_angular_transmittance(zenith):
+    t = math.radians(zenith)
+    d = [0, math.sin(t), math.cos(t)]
+    # flat angular response
+    m = make_model([FLOOR, sheet(1.0)], [[0.5] * 3, [0.08] * 3], max_area=0.05, transmittance=[0, 0.85])
+    m.set_luminaires([sun(d)])
+    assert np.allclose(floor_direct(m), 1000 * math.cos(t) * 0.85, rtol=1e-6)
+    # r(mu) = mu^2 tabulated at 201 cosines (linear between: error below 1/(8 200^2))
+    mu = np.linspace(0, 1, 201)
+    m = make_model([FLOOR, sheet(1.0)], [[0.5] * 3, [0.08] * 3], max_area=0.05, transmittance=[0, 0.85],
+                   glass_angular=mu ** 2)
+    m.set_luminaires([sun(d)])
+    assert np.allclose(floor_direct(m), 1000 * math.cos(t) * 0.85 * math.cos(t) ** 2, rtol=1e-5, atol=1e-6)
+
+
+def test_panes_in_series_multiply_and_a_pane_counts_once_at_shared_edges():
+    # The panes are meshed into 0.01 m^2 patches; rays from the floor's grid points straight up
+    # cross them exactly at patch corners and edges, where several patches of one pane meet.
+    panes = [FLOOR, sheet(1.0), sheet(1.7)]
+    m = make_model(panes, [[0.5] * 3, [0.1] * 3, [0.1] * 3], max_area=0.01, transmittance=[0, 0.8, 0.5])
+    pts = np.array([[0.5, 0.5, 0.0], [0.3, 0.3, 0.0], [0.25, 0.7, 0.0]])
+    dirs = np.array([[0, 0, 1.0], [0, 1, 1.0], [1, 0, -1.0]])
+    t = m.direct_transmittance(pts, np.tile(UP, (3, 1)), dirs)
+    assert np.allclose(t[:, 0], 0.4, rtol=1e-6)
+    assert np.allclose(t[:, 1], 0.4 / math.sqrt(2), rtol=1e-6)
+    assert np.all(t[:, 2] == 0)
+
+
+def test_glass_is_opaque_to_links_between_surfaces():
+    """Interreflected light does not pass glass (it is received by it): a lit floor under a pane
+    sends nothing to a ceiling above the pane."""
+    ceiling = quad([0, 0, 2.0], [0, 1, 0], [1, 0, 0])
+    m = make_model([FLOOR, sheet(1.0), ceiling], [[0.5] * 3, [0.0] * 3, [0.5] * 3], transmittance=[0, 0.9, 0],
+                   emission=[[100.0] * 3, [0.0] * 3, [0.0] * 3])
+    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=1e-4, min_area=0.01), _engine.SolveOptions(method="jacobi"))
+    m.use_leaves_as_patches()
+    pa = m.patch_arrays()
+    assert np.all(np.asarray(r.irradiance)[pa.face == 2] == 0)
+
+
+def _box(w, d, h):
+    """A closed box [0, w] x [0, d] x [0, h], faces facing inwards: floor, ceiling, 4 walls."""
+    return [
+        quad([0, 0, 0], [w, 0, 0], [0, d, 0]),        # floor, up
+        quad([0, 0, h], [0, d, 0], [w, 0, 0]),        # ceiling, down
+        quad([0, 0, 0], [0, 0, h], [w, 0, 0]),        # y = 0 wall, +y
+        quad([0, d, 0], [w, 0, 0], [0, 0, h]),        # y = d wall, -y
+        quad([0, 0, 0], [0, d, 0], [0, 0, h]),        # x = 0 wall, +x
+        quad([w, 0, 0], [0, 0, h], [0, d, 0]),        # x = w wall, -x
+    ]
+
+
+def _roof_with_opening(w, d, h, o):
+    """The ceiling of _box as a frame around a central o x o glazed opening (last polygon)."""
+    x0, x1 = (w - o) / 2, (w + o) / 2
+    y0, y1 = (d - o) / 2, (d + o) / 2
+    ring = [
+        quad([0, 0, h], [0, y0, 0], [w, 0, 0]),
+        quad([0, y1, h], [0, d - y1, 0], [w, 0, 0]),
+        quad([0, y0, h], [0, o, 0], [x0, 0, 0]),
+        quad([x1, y0, h], [0, o, 0], [w - x1, 0, 0]),
+    ]
+    glass = quad([x0, y0, h], [0, o, 0], [o, 0, 0])
+    return ring, glass
+
+
+def _uniform_sky(luminance, n_mu=24, n_phi=48):
+    """A uniform sky as equal-solid-angle directions (midpoints in mu = cos theta and phi)."""
+    mu = (np.arange(n_mu) + 0.5) / n_mu
+    phi = (np.arange(n_phi) + 0.5) / n_phi * 2 * math.pi
+    M, P = np.meshgrid(mu, phi, indexing="ij")
+    s = np.sqrt(1 - M ** 2)
+    dirs = np.stack([s * np.cos(P), s * np.sin(P), M], axis=-1).reshape(-1, 3)
+    w = np.full(len(dirs), 1.0 / len(dirs))
+    return _engine.Luminaire.distant("sky", dirs, w, luminance * 2 * math.pi, np.ones((1, 3))), dirs
+
+
+def test_glazed_opening_transmits_the_integral_of_tau_over_the_sky():
+    w, d, h, o = 2.0, 2.0, 1.5, 0.6
+    L, tau0 = 1000.0, 0.8
+    ring, glass = _roof_with_opening(w, d, h, o)
+    walls = _box(w, d, h)
+    polys = [walls[0]] + walls[2:] + ring + [glass]
+    mu = np.linspace(0, 1, 101)
+    rho = [[0.5] * 3] * (len(polys) - 1) + [[0.1] * 3]
+    tau = [0.0] * (len(polys) - 1) + [tau0]
+    m = make_model(polys, rho, max_area=0.01, transmittance=tau, glass_angular=mu)
+    sky, dirs = _uniform_sky(L)
+    m.set_luminaires([sky])
+    pa = m.patch_arrays()
+    inside = pa.face != len(polys) - 1
+    received = float((pa.direct[inside, 1] * pa.area[inside]).sum())
+    # The same quadrature of the sky, exact over the opening: sum_k L dOmega A mu_k tau0 r(mu_k)
+    mu_k = dirs[:, 2]
+    quadrature = float((L * 2 * math.pi / len(dirs)) * o * o * (mu_k * tau0 * mu_k).sum())
+    closed_form = 2 * math.pi * o * o * L * tau0 / 3
+    assert quadrature == pytest.approx(closed_form, rel=1e-3)
+    # The floor and walls see the opening's light with 9 points per 0.01 m^2 patch.
+    assert received == pytest.approx(quadrature, rel=0.01)
+
+
+def test_energy_balance_closes_with_a_glazed_opening():
+    w, d, h, o = 2.0, 2.0, 1.5, 0.6
+    ring, glass = _roof_with_opening(w, d, h, o)
+    walls = _box(w, d, h)
+    polys = [walls[0]] + walls[2:] + ring + [glass]
+    rho = np.array([[0.6] * 3] * (len(polys) - 1) + [[0.08] * 3])
+    tau = [0.0] * (len(polys) - 1) + [0.85]
+    m = make_model(polys, rho, transmittance=tau)
+    t = math.radians(30)
+    m.set_luminaires([sun([0.2 * math.sin(t), math.sin(t), math.cos(t)], 50000.0)])
+    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=1e-3, min_area=0.02, samples=16),
+                             _engine.SolveOptions(method="jacobi", tolerance=1e-7))
+    m.use_leaves_as_patches()
+    pa = m.patch_arrays()
+    D = pa.direct[:, 1]
+    H = np.asarray(r.irradiance)[:, 1]
+    entering = float((D * pa.area).sum())
+    absorbed = float(((1 - pa.reflectance[:, 1]) * (D + H) * pa.area).sum())
+    assert entering > 0
+    # what the couplings' quadrature allows (tests/python/test_proof.py: 0.4 %)
+    assert absorbed == pytest.approx(entering, rel=0.004)
+
+
+def test_bad_distant_lights_are_refused_by_name():
+    with pytest.raises(ValueError, match="luminaire 'sky'.*weights sum"):
+        _engine.Luminaire.distant("sky", np.array([[0, 0, 1.0], [0, 1, 1.0]]), np.array([0.5, 0.4]), 1.0,
+                                  np.ones((1, 3)))
+    with pytest.raises(ValueError, match="illuminance"):
+        _engine.Luminaire.distant("sun", np.array([[0, 0, 1.0]]), np.array([1.0]), -5.0, np.ones((1, 3)))
+    with pytest.raises(ValueError, match="direction 0"):
+        _engine.Luminaire.distant("sun", np.array([[0, 0, 0.0]]), np.array([1.0]), 5.0, np.ones((1, 3)))
+
+
+def test_glazing_values_are_checked():
+    with pytest.raises(ValueError, match="transmittance"):
+        make_model([FLOOR], 0.5, transmittance=[1.2])
+    with pytest.raises(ValueError, match="transmittance"):
+        make_model([FLOOR], 0.5, transmittance=[0.6])  # 0.5 + 0.6 > 1
+    with pytest.raises(ValueError, match="angular"):
+        make_model([FLOOR], 0.1, transmittance=[0.8], glass_angular=[0.5])
