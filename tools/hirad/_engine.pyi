@@ -55,8 +55,22 @@ class Luminaire:
         points (k, 3) m in world space, weights (k) summing to 1, frame (3, 3) whose rows are the local X, Y, Z axes in world space, candela (nc, ng) at C_i = 360 i / nc degrees and gamma_j = 180 j / (ng - 1) degrees, colour (1, 3): channel c emits candela x colour[c]. Invalid data: ValueError.
         """
 
+    @staticmethod
+    def distant(name: str, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], illuminance: float, colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> Luminaire:
+        """
+        A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light (normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a surface facing it, colour (1, 3). Invalid data: ValueError.
+        """
+
     @property
     def name(self) -> str: ...
+
+    @property
+    def is_distant(self) -> bool:
+        """True for a distant light (points are directions)."""
+
+    @property
+    def illuminance(self) -> float:
+        """Distant: E_perp per unit colour, lux (or W/m^2)."""
 
     @property
     def points(self) -> NDArray[numpy.float64]:
@@ -792,9 +806,9 @@ class Engine:
     One scene through the pipeline: scene -> patches -> links -> solution (flat or hierarchical).
     """
 
-    def __init__(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], face_vertex_counts: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_vertex_indices: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_mesh: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_source: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], reflectance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], emission: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], corner_uv: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
+    def __init__(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], face_vertex_counts: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_vertex_indices: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_mesh: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], face_source: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], reflectance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], emission: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], corner_uv: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, transmittance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, glass_angular: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
         """
-        The scene as flat arrays in metres: points (P, 3), counts (F), indices (sum of counts), per face mesh, authored face, reflectance (F, 3), emission (F, 3) W/m^2, optional corner_uv (sum of counts, 2).
+        The scene as flat arrays in metres: points (P, 3), counts (F), indices (sum of counts), per face mesh, authored face, reflectance (F, 3), emission (F, 3) W/m^2, optional corner_uv (sum of counts, 2); glazing: optional transmittance (F) of direct light at normal incidence (0 opaque, reflectance + transmittance <= 1) and glass_angular, the relative transmittance at evenly spaced cosines 0 .. 1 (visibility.h).
         """
 
     def stats(self) -> Stats:
@@ -893,6 +907,11 @@ class Engine:
     def gather(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], options: GatherOptions = ..., max_distance: float = 1e+30, group: int = -1) -> PointValues:
         """
         Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: that light group's solution alone.
+        """
+
+    def direct_transmittance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float32]:
+        """
+        (P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit direction out of the scene (0 blocked; glass factors), over the current patches.
         """
 
     def gather_flat(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], radiosity: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int = 4, seed: int = 1) -> PointValues:

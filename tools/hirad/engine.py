@@ -3,7 +3,8 @@ plain data the outputs and the report take.
 
 `build_engine(scene)` makes a ``hirad._engine.Engine`` from :class:`hirad.usd.SceneArrays` (or
 anything with the same arrays: points, face_vertex_counts, face_vertex_indices, face_mesh,
-face_source, face_reflectance, face_emission, corner_uv); the bake, the reference, the
+face_source, face_reflectance, face_emission, corner_uv, and optionally face_transmittance for
+glazing); the bake, the reference, the
 estimate and the tests all use it. The engine's API (option structs, result structs, every
 signature) is in ``hirad/_engine.pyi``, generated from the bindings.
 """
@@ -35,9 +36,18 @@ def build_engine(scene, *, face_source=None, with_uv: bool = True) -> "_engine.E
 
     source = scene.face_source if face_source is None else face_source
     uv = getattr(scene, "corner_uv", None) if with_uv else None
+    # Glazing (hirad.daylight.glazing): faces that let direct light through, with clear glass's
+    # relative angular transmittance.
+    tau = getattr(scene, "face_transmittance", None)
+    glazed = tau is not None and bool(np.any(np.asarray(tau) > 0))
+    angular = None
+    if glazed:
+        from .daylight.glazing import angular_table
+        angular = f64(angular_table())
     return _engine.Engine(f64(scene.points), i32(scene.face_vertex_counts), i32(scene.face_vertex_indices),
                           i32(scene.face_mesh), i32(source), f64(scene.face_reflectance), f64(scene.face_emission),
-                          None if uv is None else f64(uv))
+                          None if uv is None else f64(uv), transmittance=f64(tau) if glazed else None,
+                          glass_angular=angular)
 
 
 def patch_dict(arrays: "_engine.PatchArrays") -> dict:
