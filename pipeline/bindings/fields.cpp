@@ -123,18 +123,29 @@ void bind_fields(nb::module_& m) {
                          "volume_probes and ray_cast query it.")
         .def("__init__",
              [](RayScene* self, In<double> corners, In<int32_t> nv, std::optional<In<double>> rad,
-                std::optional<In<double>> irr) {
+                std::optional<In<double>> irr, std::optional<In<double>> tau, std::optional<In<double>> angular) {
                  require_shape(nv, {-1}, "nv");
                  const long n = long(nv.shape(0));
                  require_shape(corners, {n, 4, 3}, "corners");
                  if (rad) require_shape(*rad, {n, 4, 3}, "corner_radiance");
                  if (irr) require_shape(*irr, {n, 4, 3}, "corner_irradiance");
+                 Glazing glazing;
+                 if (tau) {
+                     require_shape(*tau, {n}, "transmittance");
+                     glazing.face_transmittance.assign(tau->data(), tau->data() + n);
+                 }
+                 if (angular) {
+                     require_shape(*angular, {-1}, "glass_angular");
+                     glazing.angular.assign(angular->data(), angular->data() + angular->shape(0));
+                 }
                  new (self) RayScene(corners.data(), nv.data(), size_t(n), rad ? rad->data() : nullptr,
-                                     irr ? irr->data() : nullptr);
+                                     irr ? irr->data() : nullptr, tau ? &glazing : nullptr);
              },
              "corners"_a, "nv"_a, "corner_radiance"_a.none() = nb::none(), "corner_irradiance"_a.none() = nb::none(),
+             "transmittance"_a.none() = nb::none(), "glass_angular"_a.none() = nb::none(),
              "Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner "
-             "(n, 4, 3), optional (zero without).")
+             "(n, 4, 3), optional (zero without); glazing: transmittance (n) per patch and glass_angular "
+             "(visibility.h), so that the luminaires' and distant lights' direct light passes windows.")
         .def("__len__", &RayScene::size)
         .def("set_luminaires", &RayScene::set_luminaires, "luminaires"_a,
              "Luminaires (list of Luminaire) that illuminance (in `direct`) and volume_probes add, exactly at "

@@ -60,7 +60,9 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("nv", arr(&PatchArrays::nv), kOwned, "(n) 3 or 4 corners.")
         .def_prop_ro("mesh", arr(&PatchArrays::mesh), kOwned, "(n) input mesh index.")
         .def_prop_ro("face", arr(&PatchArrays::face), kOwned, "(n) engine face (after triangulation).")
-        .def_prop_ro("source_face", arr(&PatchArrays::source_face), kOwned, "(n) authored face within its mesh.");
+        .def_prop_ro("source_face", arr(&PatchArrays::source_face), kOwned, "(n) authored face within its mesh.")
+        .def_prop_ro("transmittance", arr(&PatchArrays::transmittance), kOwned,
+                     "(n) glazing: the normal transmittance of direct light (0: opaque).");
 
     nb::class_<FlatSolveResult>(m, "FlatSolveResult", "A flat solve.")
         .def_prop_ro("radiosity", rgb(&FlatSolveResult::radiosity), kOwned, "(n, 3) B per patch, W/m^2.")

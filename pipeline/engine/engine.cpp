@@ -329,6 +329,7 @@ PatchArrays Engine::patch_arrays() const {
     a.mesh.resize(n);
     a.face.resize(n);
     a.source_face.resize(n);
+    a.transmittance.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Patch& p = P[i];
         for (int k = 0; k < 4; ++k) {
@@ -348,6 +349,7 @@ PatchArrays Engine::patch_arrays() const {
         a.mesh[i] = static_cast<int32_t>(p.mesh);
         a.face[i] = static_cast<int32_t>(p.face);
         a.source_face[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
+        a.transmittance[i] = scene_.faces[p.face].transmittance;
     }
     return a;
 }

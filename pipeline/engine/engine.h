@@ -150,6 +150,7 @@ struct PatchArrays {
     std::vector<int32_t> mesh;        // (n) input mesh
     std::vector<int32_t> face;        // (n) engine face (after triangulation)
     std::vector<int32_t> source_face; // (n) the authored face within its mesh
+    std::vector<double> transmittance; // (n) glazing's normal transmittance (0: opaque)
 };
 
 // A flat solve.

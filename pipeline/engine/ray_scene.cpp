@@ -21,7 +21,7 @@ CornerValues corner_values(const double* a, size_t n) {
 }  // namespace
 
 RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
-                   const double* corner_irradiance)
+                   const double* corner_irradiance, const Glazing* glazing)
     : patches_(n) {
     for (size_t i = 0; i < n; ++i) {
         Patch& p = patches_[i];
@@ -34,11 +34,13 @@ RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const dou
             p.p[k] = {c[0], c[1], c[2]};
         }
         finish_patch(p, PatchCentroid::AreaWeighted);  // rendering and probes read no centroid
+        p.face = static_cast<uint32_t>(i);             // glazing is given per patch
     }
     has_values_ = corner_radiance && corner_irradiance;
     radiance_ = corner_radiance ? corner_values(corner_radiance, n) : CornerValues(n);
     irradiance_ = corner_irradiance ? corner_values(corner_irradiance, n) : CornerValues(n);
-    visibility_ = std::make_unique<Visibility>(patches_);
+    if (glazing) glazing->validate();
+    visibility_ = std::make_unique<Visibility>(patches_, glazing);
 }
 
 std::vector<float> RayScene::render(const Camera& camera, int samples) const {

@@ -61,8 +61,10 @@ public:
     // Patches from corner arrays: `corners` (n, 4, 3), `nv` (n) of 3 or 4 (triangles ignore
     // their fourth corner). Radiance and irradiance (n, 4, 3) per corner may be null (then
     // render and probe values are zero).
+    // `glazing` (optional): per patch (face_transmittance indexed by patch) and the angular
+    // table, so that luminaires and distant lights shine through windows (visibility.h).
     RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
-             const double* corner_irradiance);
+             const double* corner_irradiance, const Glazing* glazing = nullptr);
     RayScene(const RayScene&) = delete;
     RayScene& operator=(const RayScene&) = delete;
 

@@ -469,6 +469,10 @@ class PatchArrays:
     def source_face(self) -> NDArray[numpy.int32]:
         """(n) authored face within its mesh."""
 
+    @property
+    def transmittance(self) -> NDArray[numpy.float64]:
+        """(n) glazing: the normal transmittance of direct light (0: opaque)."""
+
 class FlatSolveResult:
     """A flat solve."""
 
@@ -1074,9 +1078,9 @@ class SurfaceField:
     A solved surface as one Embree scene, built once: render, probe, lift_samples, volume_probes and ray_cast query it.
     """
 
-    def __init__(self, corners: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], nv: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], corner_radiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, corner_irradiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
+    def __init__(self, corners: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], nv: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], corner_radiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, corner_irradiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, transmittance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, glass_angular: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
         """
-        Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner (n, 4, 3), optional (zero without).
+        Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner (n, 4, 3), optional (zero without); glazing: transmittance (n) per patch and glass_angular (visibility.h), so that the luminaires' and distant lights' direct light passes windows.
         """
 
     def __len__(self) -> int: ...

@@ -240,7 +240,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                     cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
                     patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
                     emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
-                    luminaires=luminaires)
+                    luminaires=luminaires,
+                    transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)

@@ -49,14 +49,22 @@ class SurfaceSolution:
     # the luminaires (hirad._engine.Luminaire) whose exact direct light illuminance and the
     # volume probes add; stored beside the layer as luminaires.npz (save_luminaires)
     luminaires: list = field(default_factory=list)
+    # glazing: per patch the normal transmittance of direct light (None: all opaque), so that
+    # the luminaires' and the sun's and sky's direct light reaches grid points through windows
+    transmittance: np.ndarray | None = None
     _field: object = None
     source: str | None = None  # the solution layer this was read from, for messages
 
     @property
     def field(self) -> "_engine.SurfaceField":
         if self._field is None:
+            glass = {}
+            if self.transmittance is not None and np.any(self.transmittance > 0):
+                from .daylight.glazing import angular_table
+                glass = {"transmittance": np.ascontiguousarray(self.transmittance, dtype=np.float64),
+                         "glass_angular": np.ascontiguousarray(angular_table(), dtype=np.float64)}
             self._field = _engine.SurfaceField(self.corners, self.nv.astype(np.int32),
-                                               self.corner_radiance, self.corner_irradiance)
+                                               self.corner_radiance, self.corner_irradiance, **glass)
             if self.luminaires:
                 self._field.set_luminaires(list(self.luminaires))
         return self._field
