@@ -147,6 +147,39 @@ void bind_fields(nb::module_& m) {
              "(n, 4, 3), optional (zero without); glazing: transmittance (n) per patch and glass_angular "
              "(visibility.h), so that the luminaires' and distant lights' direct light passes windows.")
         .def("__len__", &RayScene::size)
+        .def("hemisphere_hits",
+             [](const RayScene& s, In<double> p, In<double> n, int rays, uint64_t seed) {
+                 auto pts = vec3_rows(p, "points");
+                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
+                 HemisphereHits h;
+                 {
+                     nb::gil_scoped_release release;
+                     h = s.hemisphere_hits(pts, nrm, rays, seed);
+                 }
+                 const size_t m = size_t(h.rays);
+                 return nb::make_tuple(to_numpy(std::move(h.patch), {pts.size(), m}),
+                                       to_numpy(std::move(h.u), {pts.size(), m}),
+                                       to_numpy(std::move(h.v), {pts.size(), m}));
+             },
+             "points"_a, "normals"_a, "rays"_a, "seed"_a = 1,
+             "The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (patch, u, "
+             "v), each (sensors, k*k); patch -1 where a ray met nothing or the back of a surface. The indirect "
+             "illuminance of corner radiance L is pi / (k*k) x the sum of L interpolated at the hits.")
+        .def("direct_transmittance",
+             [](const RayScene& s, In<double> p, In<double> n, In<double> d) {
+                 auto pts = vec3_rows(p, "points");
+                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
+                 auto dirs = vec3_rows(d, "directions");
+                 std::vector<float> out;
+                 {
+                     nb::gil_scoped_release release;
+                     out = s.direct_transmittance(pts, nrm, dirs);
+                 }
+                 return to_numpy(std::move(out), {pts.size(), dirs.size()});
+             },
+             "points"_a, "normals"_a, "directions"_a,
+             "(sensors, D) float32: max(0, n . d) x the transmittance of the ray from each sensor towards each "
+             "direction out of the scene (0 blocked; glass factors), as illuminance's luminaires see it.")
         .def("set_luminaires", &RayScene::set_luminaires, "luminaires"_a,
              "Luminaires (list of Luminaire) that illuminance (in `direct`) and volume_probes add, exactly at "
              "their points; render does not show them.")

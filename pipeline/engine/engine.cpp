@@ -792,37 +792,9 @@ std::vector<float> Engine::direct_transmittance(const std::vector<Vec3>& points,
                                                 const std::vector<Vec3>& directions) const {
     require_mesh();
     require_points(points, normals);
-    std::vector<Vec3> dirs = directions;
-    for (Vec3& d : dirs) {
-        const double len = length(d);
-        if (!(len > 0) || !std::isfinite(len)) throw std::invalid_argument("direct_transmittance: a direction is zero or not finite");
-        d = d / len;
-    }
-    const size_t P = points.size(), D = dirs.size();
-    std::vector<float> out(P * D, 0.0f);
-    const Visibility& vis = *visibility_;
-    const double lift = 1e-5 * vis.scene_size();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, P, 4), [&](const tbb::blocked_range<size_t>& r) {
-        std::vector<Vec3> from, to;
-        std::vector<size_t> slot;
-        std::vector<float> t;
-        for (size_t p = r.begin(); p < r.end(); ++p) {
-            const Vec3 n = normalize(normals[p]);
-            const Vec3 start = points[p] + n * lift;
-            const double far = vis.reach(start);
-            from.clear(); to.clear(); slot.clear();
-            for (size_t d = 0; d < D; ++d) {
-                if (!(dot(n, dirs[d]) > 0)) continue;
-                from.push_back(start);
-                to.push_back(start + dirs[d] * far);
-                slot.push_back(d);
-            }
-            t.assign(from.size(), 0.0f);
-            if (!from.empty()) vis.segments_transmittance(from.data(), to.data(), from.size(), t.data());
-            for (size_t k = 0; k < slot.size(); ++k)
-                out[p * D + slot[k]] = static_cast<float>(dot(n, dirs[slot[k]]) * t[k]);
-        }
-    });
+    std::vector<float> out(points.size() * directions.size());
+    distant_transmittance(*visibility_, points.data(), normals.data(), points.size(), unit_directions(directions),
+                          1e-5 * visibility_->scene_size(), out.data());
     return out;
 }
 

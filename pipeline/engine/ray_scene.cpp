@@ -120,6 +120,20 @@ Illuminance RayScene::illuminance(const std::vector<Vec3>& points, const std::ve
     return e;
 }
 
+HemisphereHits RayScene::hemisphere_hits(const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
+                                         uint64_t seed) const {
+    return hirad::hemisphere_hits(patches_, *visibility_, points, normals, rays, seed);
+}
+
+std::vector<float> RayScene::direct_transmittance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                                  const std::vector<Vec3>& directions) const {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    std::vector<float> out(points.size() * directions.size());
+    distant_transmittance(*visibility_, points.data(), normals.data(), points.size(), unit_directions(directions),
+                          1e-7 * visibility_->scene_size(), out.data());
+    return out;
+}
+
 RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<Vec3>& d) const {
     if (o.size() != d.size()) throw std::invalid_argument("origins and directions differ in length");
     const size_t n = o.size();

@@ -86,6 +86,12 @@ public:
     // the luminaires' light is part of `direct`.
     Illuminance illuminance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                             const std::vector<RGB>& emitted, const IlluminanceOptions& options) const;
+    // The rays of illuminance's indirect part, traced once (illuminance.h).
+    HemisphereHits hemisphere_hits(const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
+                                   uint64_t seed) const;
+    // Far directions at sensors (luminaire.h, distant_transmittance), the lift of illuminance.
+    std::vector<float> direct_transmittance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
+                                            const std::vector<Vec3>& directions) const;
     RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
     // ray_cast of one ray through each pixel centre of the camera (row 0 at the top).
     RayCastResult camera_rays(const Camera& camera) const;

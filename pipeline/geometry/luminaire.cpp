@@ -251,6 +251,44 @@ void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibilit
     });
 }
 
+std::vector<Vec3> unit_directions(const std::vector<Vec3>& directions) {
+    std::vector<Vec3> dirs = directions;
+    for (size_t k = 0; k < dirs.size(); ++k) {
+        const double len = length(dirs[k]);
+        if (!(len > 0) || !std::isfinite(len))
+            throw std::invalid_argument("direction " + std::to_string(k) + " is zero or not finite");
+        dirs[k] = dirs[k] / len;
+    }
+    return dirs;
+}
+
+void distant_transmittance(const Visibility& vis, const Vec3* x, const Vec3* n, size_t count,
+                           const std::vector<Vec3>& dirs, double lift, float* out) {
+    const size_t D = dirs.size();
+    std::fill(out, out + count * D, 0.0f);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 4), [&](const tbb::blocked_range<size_t>& r) {
+        std::vector<Vec3> from, to;
+        std::vector<size_t> slot;
+        std::vector<float> t;
+        for (size_t p = r.begin(); p < r.end(); ++p) {
+            const Vec3 np = normalize(n[p]);
+            const Vec3 start = x[p] + np * lift;
+            const double far = vis.reach(start);
+            from.clear(); to.clear(); slot.clear();
+            for (size_t d = 0; d < D; ++d) {
+                if (!(dot(np, dirs[d]) > 0)) continue;
+                from.push_back(start);
+                to.push_back(start + dirs[d] * far);
+                slot.push_back(d);
+            }
+            t.assign(from.size(), 0.0f);
+            if (!from.empty()) vis.segments_transmittance(from.data(), to.data(), from.size(), t.data());
+            for (size_t k = 0; k < slot.size(); ++k)
+                out[p * D + slot[k]] = static_cast<float>(dot(np, dirs[slot[k]]) * t[k]);
+        }
+    });
+}
+
 void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility& visibility,
                                   const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
                                   std::vector<double>& spread) {

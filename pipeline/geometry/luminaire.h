@@ -100,6 +100,15 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
                                   const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
                                   std::vector<double>& spread);
 
+// Far directions seen from points (daylight coefficients, sun hours): out[p * D + d] =
+// max(0, n_p . d_d) T(x_p lifted by `lift` along n_p, d_d), T the transmittance of the ray out
+// of the scene (0 blocked, glass factors). Directions must be unit. Parallel over points.
+void distant_transmittance(const Visibility& visibility, const Vec3* x, const Vec3* n, size_t count,
+                           const std::vector<Vec3>& directions, double lift, float* out);
+
+// Directions normalised; a zero or non-finite one is an std::invalid_argument.
+std::vector<Vec3> unit_directions(const std::vector<Vec3>& directions);
+
 // A distant light (validated): `directions` towards the light (normalised here), weights summing
 // to 1, E_perp per unit colour.
 Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vector<double> weights,

@@ -28,7 +28,55 @@ Patch piece(const Patch& parent, std::array<Vec3, 4> p, int nv) {
     return q;
 }
 
+// The indirect part's rays at sensor q: k x k cosine-distributed stratified directions (Malley:
+// uniform on the disk, lifted), seeded by q; `hit(patch, u, v)` for each ray that meets the
+// front of a surface (misses and backs of one-sided surfaces give nothing).
+template <typename Hit>
+void hemisphere_rays(const std::vector<Patch>& patches, const Visibility& visibility, const Vec3& x, const Vec3& nx,
+                     size_t q, int k, uint64_t seed, double lift, Hit&& hit) {
+    Vec3 t1, t2;
+    tangent_frame(nx, t1, t2);
+    Rng rng(hash_pair(q, 0x11C0ull, seed));
+    for (int i = 0; i < k; ++i)
+        for (int j = 0; j < k; ++j) {
+            const double r = std::sqrt((i + rng.uniform()) / k), phi = 2 * kPi * (j + rng.uniform()) / k;
+            const double a = r * std::cos(phi), b = r * std::sin(phi), c = std::sqrt(std::max(0.0, 1 - r * r));
+            const Vec3 d = normalize(t1 * a + t2 * b + nx * c);
+            const RayHit h = visibility.intersect(x, d, lift);
+            if (h.patch < 0) continue;
+            if (dot(patches[h.patch].normal, d) >= 0) continue;  // the back of a one-sided surface
+            hit(h);
+        }
+}
+
+int rays_side(int rays) { return rays > 0 ? std::max(1, int(std::ceil(std::sqrt(double(rays))))) : 0; }
+
 }  // namespace
+
+HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibility& visibility,
+                               const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
+                               uint64_t seed) {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    if (rays < 1) throw std::invalid_argument("rays must be at least 1");
+    const int k = rays_side(rays);
+    const size_t m = size_t(k) * k, n = points.size();
+    HemisphereHits out;
+    out.rays = int(m);
+    out.patch.assign(n * m, -1);
+    out.u.assign(n * m, 0.0);
+    out.v.assign(n * m, 0.0);
+    const double lift = 1e-7 * visibility.scene_size();
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+        size_t slot = q * m;
+        hemisphere_rays(patches, visibility, points[q], normalize(normals[q]), q, k, seed, lift, [&](const RayHit& h) {
+            out.patch[slot] = h.patch;
+            out.u[slot] = h.u;
+            out.v[slot] = h.v;
+            ++slot;
+        });
+    });
+    return out;
+}
 
 std::vector<Patch> patch_pieces(const Patch& patch, int g) {
     g = std::max(1, g);
@@ -97,7 +145,7 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
     Illuminance out;
     out.direct.assign(n, RGB{});
     out.indirect.assign(n, RGB{});
-    const int k = o.rays > 0 ? std::max(1, int(std::ceil(std::sqrt(double(o.rays))))) : 0;
+    const int k = rays_side(o.rays);
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
         const Vec3 x = points[q], nx = normalize(normals[q]);
         // direct: exact contour integrals, one shadow ray per piece that is seen at all
@@ -129,24 +177,14 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
             out.direct[q] = e;
         }
         if (k == 0) return;
-        // indirect: cosine-distributed stratified rays (Malley: uniform on the disk, lifted)
-        Vec3 t1, t2;
-        tangent_frame(nx, t1, t2);
-        Rng rng(hash_pair(q, 0x11C0ull, o.seed));
+        // indirect: cosine-distributed stratified rays
         RGB sum{};
-        for (int i = 0; i < k; ++i)
-            for (int j = 0; j < k; ++j) {
-                const double r = std::sqrt((i + rng.uniform()) / k), phi = 2 * kPi * (j + rng.uniform()) / k;
-                const double a = r * std::cos(phi), b = r * std::sin(phi), c = std::sqrt(std::max(0.0, 1 - r * r));
-                const Vec3 d = normalize(t1 * a + t2 * b + nx * c);
-                const RayHit hit = visibility.intersect(x, d, lift);
-                if (hit.patch < 0) continue;
-                const Patch& p = patches[hit.patch];
-                if (dot(p.normal, d) >= 0) continue;  // the back of a one-sided surface
-                RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) - emitted[hit.patch];
-                l = {std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
-                sum += l;
-            }
+        hemisphere_rays(patches, visibility, x, nx, q, k, o.seed, lift, [&](const RayHit& hit) {
+            const Patch& p = patches[hit.patch];
+            RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) - emitted[hit.patch];
+            l = {std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
+            sum += l;
+        });
         out.indirect[q] = sum * (kPi / (double(k) * k));
     });
     return out;

@@ -38,6 +38,17 @@ struct IlluminanceOptions {
     uint64_t seed = 1;
 };
 
+// The indirect part's rays without their values: per sensor, `rays` slots (k x k, k = ceil of
+// sqrt of the rays asked), each the front-facing hit (patch, Embree's u, v) of one ray or -1;
+// the hits come first. The indirect illuminance of any corner radiance L (zero emission) is
+// pi / rays x the sum of L interpolated at the hits: linear in L, so the rays of a grid are
+// traced once for many solutions (daylight coefficients, hirad.daylight.coefficients).
+struct HemisphereHits {
+    int rays = 0;
+    std::vector<int32_t> patch;   // (sensors, rays)
+    std::vector<double> u, v;     // (sensors, rays)
+};
+
 struct Illuminance {
     std::vector<RGB> direct;    // from the emitter patches, exact where unoccluded, W/m^2
     std::vector<RGB> indirect;  // from every other surface's exitant radiance, W/m^2
@@ -50,6 +61,11 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
                            const std::vector<std::array<RGB, 4>>& corner_radiance, const std::vector<RGB>& emitted,
                            const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const IlluminanceOptions& options);
+
+// The indirect part's rays of illuminance_at (the same rays for the same seed), traced once.
+HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibility& visibility,
+                               const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
+                               uint64_t seed);
 
 // The g x g pieces of a patch as polygons (quads: bilinear sub-quads, planar when the patch
 // is; triangles: the g^2 triangles of its barycentric grid, repeated corner 2 as corner 3).

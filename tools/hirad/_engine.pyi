@@ -1085,6 +1085,16 @@ class SurfaceField:
 
     def __len__(self) -> int: ...
 
+    def hemisphere_hits(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int, seed: int = 1) -> tuple:
+        """
+        The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (patch, u, v), each (sensors, k*k); patch -1 where a ray met nothing or the back of a surface. The indirect illuminance of corner radiance L is pi / (k*k) x the sum of L interpolated at the hits.
+        """
+
+    def direct_transmittance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float32]:
+        """
+        (sensors, D) float32: max(0, n . d) x the transmittance of the ray from each sensor towards each direction out of the scene (0 blocked; glass factors), as illuminance's luminaires see it.
+        """
+
     def set_luminaires(self, luminaires: Sequence[Luminaire]) -> None:
         """
         Luminaires (list of Luminaire) that illuminance (in `direct`) and volume_probes add, exactly at their points; render does not show them.
