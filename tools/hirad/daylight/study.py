@@ -1,0 +1,164 @@
+"""The daylight results of a bake: daylight factor grids and annual climate-based metrics.
+
+Daylight factor (a sky without sun, usually the CIE overcast sky):
+
+    DF(x) = 100 E(x) / E_h,out
+
+E(x) the illuminance at a grid point (direct sky light through the openings plus the
+interreflected light), E_h,out the same sky's illuminance on an unobstructed horizontal plane
+outside, computed from the very sky lights the bake used (so the discretisation of the dome into
+patches cancels out of the ratio).
+
+Annual (daylight.annual): the sky is cut into patches; each patch of unit luminance and the
+ground are light groups solved on the bake's final links, giving the daylight coefficients of
+every grid point (hirad.daylight.coefficients). The weather file's hourly Perez skies (with the
+sun's light put into the patch that holds it, as Radiance's gendaymtx does) make the sky matrix
+(hirad.daylight.annual.sky_matrix); the hourly illuminance is their product. ASE needs the direct
+sun alone, and exactly: for every daytime hour the sun's direct normal illuminance times the
+transmittance of the ray towards the sun (visibility through the openings and their glazing).
+Metrics: DA300, sDA300/50 %, ASE1000/250 h (IES LM-83), UDI 100-3000 lx, EN 17037 provision
+(hirad.daylight.annual). A changed weather file or sun orientation needs only the last products:
+the coefficients are kept in daylight/coefficients.npz.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import files
+from . import annual as _annual
+from .coefficients import HitStencil, direct_coefficients
+
+_Y = np.array([0.2126, 0.7152, 0.0722])
+
+
+def horizontal_illuminance(lights, up_vector) -> float:
+    """Y of the unoccluded illuminance the lights give a horizontal plane facing up."""
+    up = np.asarray(up_vector, dtype=np.float64).reshape(1, 3)
+    return float(sum(float(l.irradiance(up)[0] @ _Y) for l in lights))
+
+
+def up_vector(up_axis: str) -> np.ndarray:
+    return np.array([0.0, 1.0, 0.0]) if str(up_axis).upper() == "Y" else np.array([0.0, 0.0, 1.0])
+
+
+def grid_table(path: Path, grid, values: dict) -> None:
+    """A CSV of the grid's points with one column per named value."""
+    lines = ["x,y,z," + ",".join(values)]
+    cols = list(values.values())
+    for k, p in enumerate(grid.points):
+        lines.append(",".join(f"{c:.6g}" for c in p) + "," + ",".join(f"{float(c[k]):.6g}" for c in cols))
+    files.write_text(path, "\n".join(lines) + "\n")
+
+
+def _plane_xy(grid) -> np.ndarray:
+    """Grid points in the grid's own plane (its layout axes when it has them), for pictures."""
+    p = np.asarray(grid.points, dtype=np.float64)
+    n = np.asarray(grid.normals, dtype=np.float64).mean(axis=0)
+    n = n / (np.linalg.norm(n) or 1.0)
+    a = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
+    u = np.cross(n, a)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    return np.stack([p @ u, p @ v], axis=1)
+
+
+def daylight_factor(results, lights, up_axis: str, out_dir: Path) -> dict:
+    """Daylight factor of every evaluated grid (results: hirad.studies GridResult, lux): per grid a
+    CSV, a picture and statistics; returns what report.json says."""
+    from ..studies.stats import grid_stats
+
+    eh = horizontal_illuminance(lights, up_vector(up_axis))
+    if not eh > 0:
+        raise ValueError("daylight factor: the sky gives no horizontal illuminance outside")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = {"outside_horizontal_illuminance_lux": eh, "formula": "DF = 100 E / E_h,out", "grids": {}}
+    for r in results:
+        df = 100.0 * np.asarray(r.values, dtype=np.float64) / eh
+        stats = grid_stats(df, r.grid.weights).as_dict()
+        w = np.asarray(r.grid.weights, dtype=np.float64)
+        stats["area_fraction_df_2"] = float(w[df >= 2.0].sum() / w.sum()) if w.sum() > 0 else None
+        grid_table(out_dir / f"{r.name}.csv", r.grid, {"lux": r.values, "df_percent": df})
+        _annual.heatmap_png(out_dir / f"{r.name}.png", df, _plane_xy(r.grid), title=f"Daylight factor: {r.name}",
+                            units="DF %")
+        info["grids"][r.name] = stats
+    return info
+
+
+def grid_coefficients(field, faces, nv, grid, vertex_luminance: np.ndarray, lights, rays: int, seed: int) -> np.ndarray:
+    """(grid points, groups) daylight coefficients of one grid, lux per unit luminance: every
+    sensor's direct and indirect coefficients (hirad.daylight.coefficients), combined into the
+    grid's points by its sensor weights."""
+    sp, sn = grid.sensor_points, grid.sensor_normals
+    stencil = HitStencil(field, faces, nv, sp, sn, rays, seed)
+    sensors = direct_coefficients(field, sp, sn, lights) + stencil.apply(vertex_luminance)
+    return np.stack([grid.combine(sensors[:, g]) for g in range(sensors.shape[1])], axis=1)
+
+
+def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: int, ground_reflectance: float,
+                   up_axis: str, north, field, out_dir: Path) -> dict:
+    """The annual metrics of every grid from its daylight coefficients `dc[name]` (points x
+    (patches + ground)); writes per grid a CSV and heat maps into out_dir and returns the
+    report's part. `field` traces the exact direct sun for ASE."""
+    import time
+
+    from .weather import read_weather
+
+    t0 = time.perf_counter()
+    weather = read_weather(weather_path)
+    up = "Y" if str(up_axis).upper() == "Y" else "Z"
+    sky = _annual.sky_matrix(weather, site, patches=patches_mf, ground_reflectance=ground_reflectance,
+                             include_sun=True, up=up, north=north)
+    t_sky = time.perf_counter() - t0
+    sun = sky.sun
+    day = np.flatnonzero(sky.daytime)
+    sun_dirs = sky.sun_directions()[day]
+    edn = np.asarray(sky.direct_normal_illuminance, dtype=np.float64)[day]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = {"weather": str(weather_path), "hours": int(len(sky.values)), "daytime_hours": int(len(day)),
+            "sky_patches": int(sky.patches.count), "grids": {}, "seconds": {"sky_matrix": t_sky}}
+    t_products = t_direct = 0.0
+    for name, coeffs in dc.items():
+        grid = grids[name]
+        t1 = time.perf_counter()
+        E = _annual.annual_illuminance(coeffs, sky)
+        t_products += time.perf_counter() - t1
+        # direct sun alone, exact: E_dn x cos x transmittance per daytime hour (ASE)
+        t1 = time.perf_counter()
+        direct = np.zeros_like(E)
+        if len(day):
+            t = field.direct_transmittance(np.ascontiguousarray(grid.sensor_points),
+                                           np.ascontiguousarray(grid.sensor_normals),
+                                           np.ascontiguousarray(sun_dirs)).astype(np.float64)
+            sensors = t * edn[None, :]
+            points = np.stack([grid.combine(sensors[:, h]) for h in range(len(day))], axis=1)
+            direct[day] = points.T
+        t_direct += time.perf_counter() - t1
+        m = _annual.annual_metrics(E, sky.times, E_direct=direct,
+                                   diffuse_illuminance=sky.diffuse_horizontal_illuminance, weights=grid.weights)
+        xy = _plane_xy(grid)
+        da = m["da300"]
+        _annual.heatmap_png(out_dir / f"{name}_da300.png", 100 * da, xy, title=f"Daylight autonomy DA300: {name}",
+                            units="% of occupied hours")
+        _annual.heatmap_png(out_dir / f"{name}_udi.png", 100 * m["udi"].useful, xy,
+                            title=f"UDI 100-3000 lx: {name}", units="% of occupied hours")
+        _annual.heatmap_png(out_dir / f"{name}_sunlit_hours.png", m["sunlit_hours_1000"], xy,
+                            title=f"Direct sun > 1000 lx: {name}", units="occupied hours")
+        grid_table(out_dir / f"{name}.csv", grid, {"da300": da, "udi_below_100": m["udi"].below,
+                                                   "udi_100_3000": m["udi"].useful, "udi_above_3000": m["udi"].above,
+                                                   "sunlit_hours_1000": m["sunlit_hours_1000"]})
+        en = m.get("en17037")
+        info["grids"][name] = {
+            "points": int(len(grid.points)),
+            "occupied_hours": m["occupied_hours"],
+            "sDA300/50%": float(m["sda300_50"]),
+            "ASE1000/250h": float(m["ase1000_250"]),
+            "mean_DA300": float(np.average(da, weights=grid.weights)),
+            "mean_UDI_100_3000": float(np.average(m["udi"].useful, weights=grid.weights)),
+            "EN17037_level": m.get("en17037_level"),
+            "EN17037_minimum_met": None if en is None else bool(en.met),
+        }
+    info["seconds"].update(hourly_products=t_products, direct_sun=t_direct)
+    return info
