@@ -683,6 +683,299 @@ class OutputsConfig(BaseModel):
     )
 
 
+# --------------------------------------------------------------------------
+# Daylight (hirad.daylight.sources reads this section)
+# --------------------------------------------------------------------------
+
+SKY_MODELS = ("usd", "cie_overcast", "cie_general", "perez", "uniform")
+# sky models whose luminance follows the sun: they need daylight.site and daylight.time
+_SUN_SKIES = ("cie_general", "perez")
+DEFAULT_SKY_ILLUMINANCE = 10000.0  # lux: the CIE overcast design sky of daylight-factor studies
+PATCHES_PATTERN = re.compile(r"^(tregenza|reinhart([1-9][0-9]?))$")
+MAX_REINHART = 16
+
+
+class DaylightSiteConfig(BaseModel):
+    """Where the building is: for the sun's position (NREL SPA through pvlib) of sky models that
+    follow the sun (cie_general, perez) and of a config sun."""
+
+    model_config = _MODEL_CONFIG
+
+    latitude: Optional[Annotated[float, Strict(), Field(ge=-90.0, le=90.0)]] = Field(
+        default=None, json_schema_extra={"unit": "degrees"},
+        description="Latitude in degrees, north positive, -90 to 90.",
+    )
+    longitude: Optional[Annotated[float, Strict(), Field(ge=-180.0, le=180.0)]] = Field(
+        default=None, json_schema_extra={"unit": "degrees"},
+        description="Longitude in degrees, east positive, -180 to 180.",
+    )
+    elevation: Annotated[float, Strict(), Field(ge=-500.0, le=9000.0)] = Field(
+        default=0.0, json_schema_extra={"unit": "m"},
+        description="Elevation above sea level in metres, -500 to 9000.",
+    )
+    timezone: Union[StrictFloat, StrictStr] = Field(
+        default=0.0, json_schema_extra={"unit": "hours or zone name"},
+        description=(
+            "The time zone of daylight.time: a UTC offset in hours (-12 to 14; -7 = UTC-7) or an IANA"
+            " zone name (Europe/Berlin: daylight saving time follows the date)."
+        ),
+    )
+
+    @field_validator("timezone")
+    @classmethod
+    def _known_zone(cls, value):
+        from hirad.daylight.sun import Site
+
+        Site(0.0, 0.0, 0.0, value)  # raises ValueError naming the problem
+        return value
+
+    def located(self) -> bool:
+        return self.latitude is not None and self.longitude is not None
+
+
+class DaylightSkyConfig(BaseModel):
+    """The sky: the scene's own DomeLight and DistantLight prims, or a sky model."""
+
+    model_config = _MODEL_CONFIG
+
+    model: Literal["usd", "cie_overcast", "cie_general", "perez", "uniform"] = Field(
+        default="usd",
+        description=(
+            "'usd': the scene's DomeLight (uniform or latlong texture) and DistantLight prims (suns),"
+            " by the UsdLux rules; 'cie_overcast': the traditional CIE overcast sky L = Lz (1 + 2 cos"
+            " theta) / 3; 'cie_general': CIE general sky `type` 1-15 (ISO 15469), with the sun of"
+            " daylight.site and daylight.time; 'perez': the Perez all-weather sky from `dni` and `dhi`"
+            " with the sun of site and time (Perez 1990 luminous efficacy); 'uniform': a sky of one"
+            " luminance. A sky model replaces the scene's DomeLight and DistantLight prims (named in a"
+            " warning). Model values are photometric (cd/m^2, lux)."
+        ),
+    )
+    type: Optional[Annotated[int, Strict(), Field(ge=1, le=15)]] = Field(
+        default=None, description="The CIE general sky's type, 1-15 (model cie_general only; 12: CIE clear sky)."
+    )
+    zenith_luminance: Optional[NonNegative] = Field(
+        default=None, json_schema_extra={"unit": "cd/m^2"},
+        description=(
+            "The zenith luminance Lz of a cie_overcast or cie_general sky, the luminance of a uniform"
+            " sky. Not with `horizontal_illuminance`; neither: horizontal illuminance 10000 lux."
+        ),
+    )
+    horizontal_illuminance: Optional[NonNegative] = Field(
+        default=None, json_schema_extra={"unit": "lux"},
+        description=(
+            "The sky's illuminance on an unobstructed horizontal plane (without the sun), for"
+            " cie_overcast, cie_general and uniform skies. Not with `zenith_luminance`."
+        ),
+    )
+    dni: Optional[NonNegative] = Field(
+        default=None, json_schema_extra={"unit": "W/m^2"},
+        description="Direct normal irradiance (model perez only).",
+    )
+    dhi: Optional[Annotated[float, Strict(), Field(gt=0.0)]] = Field(
+        default=None, json_schema_extra={"unit": "W/m^2"},
+        description="Diffuse horizontal irradiance, > 0 (model perez only).",
+    )
+    dew_point: Optional[Annotated[float, Strict(), Field(ge=-100.0, le=60.0)]] = Field(
+        default=None, json_schema_extra={"unit": "deg C"},
+        description="Dew point for the Perez efficacy's precipitable water (model perez only; null: 2 cm of water).",
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "DaylightSkyConfig":
+        m = self.model
+        if self.zenith_luminance is not None and self.horizontal_illuminance is not None:
+            raise ValueError("give zenith_luminance or horizontal_illuminance, not both")
+        if m == "cie_general" and self.type is None:
+            raise ValueError("model cie_general needs `type` (1-15)")
+        if m != "cie_general" and self.type is not None:
+            raise ValueError(f"`type` is for model cie_general, not {m}")
+        if m == "perez":
+            missing = [k for k in ("dni", "dhi") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"model perez needs {' and '.join(missing)} (W/m^2)")
+            if self.zenith_luminance is not None or self.horizontal_illuminance is not None:
+                raise ValueError("model perez is absolute from dni and dhi: no zenith_luminance or "
+                                 "horizontal_illuminance")
+        else:
+            given = [k for k in ("dni", "dhi", "dew_point") if getattr(self, k) is not None]
+            if given:
+                raise ValueError(f"{', '.join(given)}: only for model perez, not {m}")
+        if m == "usd" and (self.zenith_luminance is not None or self.horizontal_illuminance is not None):
+            raise ValueError("model usd takes the scene's lights as authored: no zenith_luminance or "
+                             "horizontal_illuminance")
+        return self
+
+
+class DaylightSunConfig(BaseModel):
+    """The sun: on or off, and how it is sampled."""
+
+    model_config = _MODEL_CONFIG
+
+    enabled: Optional[StrictBool] = Field(
+        default=None,
+        description=(
+            "Sun on or off. null: as the sky says: model usd the scene's DistantLights, perez the sun of"
+            " dni when it is above the horizon, cie_general a sun when `direct_normal_illuminance` is"
+            " given, cie_overcast and uniform none. false: no sun (a daylight-factor study)."
+        ),
+    )
+    direct_normal_illuminance: Optional[NonNegative] = Field(
+        default=None, json_schema_extra={"unit": "lux"},
+        description=(
+            "The sun's illuminance on a plane facing it, for a sun with cie_general, cie_overcast or"
+            " uniform skies (perez derives it from dni; usd from the DistantLight)."
+        ),
+    )
+    angular_diameter: Optional[Annotated[float, Strict(), Field(ge=0.0, le=10.0)]] = Field(
+        default=None, json_schema_extra={"unit": "degrees"},
+        description=(
+            "The sun disk's angular diameter (null: 0.53, the sun's; 0: parallel light). Not for model"
+            " usd, where each DistantLight's inputs:angle gives it."
+        ),
+    )
+    samples: Annotated[int, Strict(), Field(ge=1, le=1024)] = Field(
+        default=16, json_schema_extra={"unit": "directions"},
+        description="Directions spread over the sun's disk (stratified, equal solid angle each); 1 with angle 0.",
+    )
+
+
+class DaylightConfig(BaseModel):
+    """Daylight (hirad.daylight.sources): sun and sky as distant lights, seen through the scene's
+    openings. World frame: the stage's up axis (upAxis Y or Z) is the zenith; `north` a direction
+    perpendicular to it (default -Z for Y-up, +Y for Z-up, east = north x up = +X for both);
+    azimuths run from north towards east (pvlib/SPA)."""
+
+    model_config = _MODEL_CONFIG
+
+    site: DaylightSiteConfig = Field(default_factory=DaylightSiteConfig,
+                                     description="The site (for the sun's position).")
+    time: Optional[StrictStr] = Field(
+        default=None,
+        description=(
+            "The point in time: local date and time in ISO form (2024-06-21T12:00:00; a YAML timestamp"
+            " too), in site.timezone unless it carries an offset."
+        ),
+    )
+    sky: DaylightSkyConfig = Field(default_factory=DaylightSkyConfig, description="The sky model.")
+    sun: DaylightSunConfig = Field(default_factory=DaylightSunConfig, description="The sun.")
+    ground_reflectance: Annotated[float, Strict(), Field(ge=0.0, le=1.0)] = Field(
+        default=0.2,
+        description=(
+            "Reflectance rho_g of the ground: below the horizon a uniform hemisphere of luminance"
+            " rho_g E_h / pi, E_h the sky's and sun's horizontal illuminance (sky models; model usd when"
+            " usd_ground is reflectance)."
+        ),
+    )
+    usd_ground: Literal["dome", "reflectance"] = Field(
+        default="dome",
+        description=(
+            "Below the horizon with model usd: 'dome' (UsdLux: a dome emits from every direction, its"
+            " texture's lower half or its uniform luminance) or 'reflectance' (ground_reflectance)."
+        ),
+    )
+    patches: StrictStr = Field(
+        default="tregenza",
+        description=(
+            "The sky's discretisation: 'tregenza' (145 patches) or 'reinhartN' (Reinhart MF:N, 144 N^2"
+            " + 1 patches; reinhart1 = tregenza), N 1-16; the ground mirrors it."
+        ),
+    )
+    subdivisions: Annotated[int, Strict(), Field(ge=1, le=8)] = Field(
+        default=2, json_schema_extra={"unit": "per patch side"},
+        description=(
+            "Sub-directions per patch: n x n cells of equal solid angle (3 n^2 for the zenith cap; n = 1:"
+            " the patch centre)."
+        ),
+    )
+    north: Optional[Vector3] = Field(
+        default=None,
+        description="World direction of north, made perpendicular to the up axis (null: -Z for Y-up, +Y for Z-up).",
+    )
+
+    @field_validator("time", mode="before")
+    @classmethod
+    def _time_text(cls, value):
+        import datetime as _dt
+
+        if isinstance(value, _dt.datetime):
+            return value.isoformat()
+        if isinstance(value, _dt.date):
+            raise ValueError(f"{value.isoformat()} is a date without a time of day; give both "
+                             "(2024-06-21T12:00:00)")
+        return value
+
+    @field_validator("time")
+    @classmethod
+    def _time_iso(cls, value):
+        import datetime as _dt
+
+        if value is not None:
+            try:
+                _dt.datetime.fromisoformat(value)
+            except ValueError:
+                raise ValueError(f"{value!r} is not an ISO date and time (2024-06-21T12:00:00)") from None
+        return value
+
+    @field_validator("sky")
+    @classmethod
+    def _sky_sun_position(cls, value: DaylightSkyConfig, info: ValidationInfo):
+        if value.model in _SUN_SKIES:
+            site = info.data.get("site")
+            missing = []
+            if site is not None and not site.located():
+                missing.append("daylight.site.latitude and longitude")
+            if "time" in info.data and info.data.get("time") is None:
+                missing.append("daylight.time")
+            if missing:
+                raise ValueError(f"model {value.model} follows the sun: it needs {' and '.join(missing)}")
+        return value
+
+    @field_validator("sun")
+    @classmethod
+    def _sun_source(cls, value: DaylightSunConfig, info: ValidationInfo):
+        sky = info.data.get("sky")
+        if sky is None:
+            return value
+        m = sky.model
+        if value.direct_normal_illuminance is not None and m in ("usd", "perez"):
+            raise ValueError(f"direct_normal_illuminance: model {m} gives the sun's illuminance "
+                             f"({'the DistantLight' if m == 'usd' else 'K_b x dni'})")
+        if value.angular_diameter is not None and m == "usd":
+            raise ValueError("angular_diameter: with model usd each DistantLight's inputs:angle gives it")
+        if value.enabled and m in ("cie_overcast", "cie_general", "uniform"):
+            if value.direct_normal_illuminance is None:
+                raise ValueError(f"a sun with model {m} needs direct_normal_illuminance (lux)")
+            site = info.data.get("site")
+            if (site is not None and not site.located()) or info.data.get("time") is None:
+                raise ValueError("a sun needs daylight.site (latitude, longitude) and daylight.time for its position")
+        if value.enabled is None and value.direct_normal_illuminance is not None and m in ("cie_overcast", "uniform"):
+            site = info.data.get("site")
+            if (site is not None and not site.located()) or info.data.get("time") is None:
+                raise ValueError("a sun needs daylight.site (latitude, longitude) and daylight.time for its position")
+        return value
+
+    @field_validator("patches")
+    @classmethod
+    def _patches_name(cls, value: str) -> str:
+        m = PATCHES_PATTERN.match(value)
+        if m is None or (m.group(2) is not None and not 1 <= int(m.group(2)) <= MAX_REINHART):
+            raise ValueError(f"{value!r}: use 'tregenza' or 'reinhartN' with N 1-{MAX_REINHART} (reinhart2: 577 "
+                             "patches)")
+        return value
+
+    @field_validator("north")
+    @classmethod
+    def _north_not_zero(cls, value):
+        if value is not None and not any(value):
+            raise ValueError("north must be a non-zero direction")
+        return value
+
+    def reinhart_mf(self) -> int:
+        """The Reinhart subdivision MF of `patches` (tregenza: 1)."""
+        m = PATCHES_PATTERN.match(self.patches)
+        return 1 if m is None or m.group(2) is None else int(m.group(2))
+
+
 class Config(BaseModel):
     """A complete hirad configuration.
 
@@ -783,6 +1076,14 @@ class Config(BaseModel):
             " light (`each: true`), each with a `dimmer` and an optional `color`; emitters in no group"
             " form the group `rest`. Each group is solved alone on the shared links and stored, so"
             " `hirad relight` changes dimmers and colours without solving."
+        ),
+    )
+    daylight: DaylightConfig = Field(
+        default_factory=DaylightConfig,
+        description=(
+            "Sun and sky (hirad.daylight.sources): the scene's DomeLight and DistantLight (sky.model"
+            " usd, the default) or a CIE, Perez or uniform sky with a sun from site and time, sampled"
+            " as sky patches and a ground of ground_reflectance."
         ),
     )
     units: Literal["photometric", "radiometric"] = Field(

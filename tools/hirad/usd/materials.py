@@ -103,6 +103,52 @@ class _MaterialResolver:
         self._mat_cache[key] = result
         return result
 
+    def material_transmittance(self, material: UsdShade.Material | None) -> float | None:
+        """Glazing: the normal transmittance of direct light through a material's surface, or None
+        (opaque). `hirad:transmittance` (a float on the material prim, 0..1) wins; else a
+        UsdPreviewSurface whose constant `opacity` is below 1 transmits 1 - opacity. An opacity
+        under a positive `opacityThreshold` is a cut-out, not glass: it is named in a warning and
+        the surface stays opaque; so is an opacity connected to a texture."""
+        if material is None or not material.GetPrim().IsValid():
+            return None
+        key = str(material.GetPath())
+        cache = self.__dict__.setdefault("_tau_cache", {})
+        if key in cache:
+            return cache[key]
+        tau = None
+        attr = material.GetPrim().GetAttribute("hirad:transmittance")
+        if attr and attr.HasAuthoredValue():
+            value = attr.Get(self.time)
+            try:
+                tau = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{attr.GetPath()}: hirad:transmittance must be a number in [0, 1], got {value!r}")
+            if not (0.0 <= tau <= 1.0):
+                raise ValueError(f"{attr.GetPath()}: hirad:transmittance must be in [0, 1], got {tau}")
+        else:
+            shader = self._surface_shader(material)
+            if shader is not None and shader.GetShaderId() in _PREVIEW_SURFACE_IDS:
+                inp = shader.GetInput("opacity")
+                if inp:
+                    connected = any(UsdShade.Output.IsOutput(a) for a in inp.GetValueProducingAttributes())
+                    got = self._input_value(shader, "opacity")
+                    if connected:
+                        self.warnings.append(f"{key}: opacity connected to a texture is not honoured; the surface "
+                                             "is opaque (set hirad:transmittance on the material for glass)")
+                    elif got is not None and float(got[0]) < 1.0:
+                        opacity, oattr = float(got[0]), got[1]
+                        if not (0.0 <= opacity <= 1.0):
+                            raise ValueError(f"{oattr.GetPath()}: opacity must be in [0, 1], got {opacity}")
+                        thr = self._input_value(shader, "opacityThreshold")
+                        if thr is not None and float(thr[0]) > 0:
+                            self.warnings.append(f"{key}: opacity {opacity:g} under opacityThreshold "
+                                                 f"{float(thr[0]):g} is a cut-out, which hirad does not honour; "
+                                                 "the surface is opaque")
+                        else:
+                            tau = 1.0 - opacity
+        cache[key] = tau
+        return tau
+
     # --- internals -------------------------------------------------------------------------
     @staticmethod
     def _surface_shader(material: UsdShade.Material) -> UsdShade.Shader | None:

@@ -74,6 +74,43 @@ class CameraInfo:
 
 
 @dataclass
+class DistantLightInfo:
+    """A UsdLux DistantLight read as daylight (a sun): ``direction`` is the unit world vector
+    toward the light (its world +Z: the light travels along its -Z), ``angle`` its angular
+    diameter in degrees (inputs:angle clipped to [0, 360)), ``illuminance`` the RGB illuminance
+    (lux in photometric scenes) it gives a surface facing it, by the UsdLux rules (see
+    :meth:`_Builder._distant_light`), ``luminance`` the RGB luminance of its disk (None for a
+    parallel light, angle 0)."""
+
+    path: str
+    direction: np.ndarray
+    angle: float
+    illuminance: np.ndarray
+    luminance: np.ndarray | None
+    normalize: bool
+    kind: str = "DistantLight"
+
+
+@dataclass
+class DomeLightInfo:
+    """A UsdLux DomeLight (or DomeLight_1) read as daylight: the dome emits inward from every
+    direction. ``radiance`` is intensity x 2^exposure x colour (RGB; the luminance of a uniform
+    dome, the multiplier of the texels of a textured one); ``texture`` the resolved path of
+    inputs:texture:file (None: uniform); ``texture_format`` latlong or automatic; ``pole_axis``
+    "Y" or "Z" (DomeLight: always Y; DomeLight_1: poleAxis, "scene" resolved to the stage's up
+    axis); ``rotation`` (3, 3) rows = the dome's local X, Y, Z axes in world space (the rotation
+    of its transform; translation and scale do not orient a dome)."""
+
+    path: str
+    radiance: np.ndarray
+    texture: str | None
+    texture_format: str
+    pole_axis: str
+    rotation: np.ndarray
+    kind: str = "DomeLight"
+
+
+@dataclass
 class SceneArrays:
     points: np.ndarray  # (V,3) float64 metres
     face_vertex_counts: np.ndarray  # (F,) int32
@@ -92,6 +129,9 @@ class SceneArrays:
     # lights that are not Lambertian surfaces (hirad.photometry.luminaires.LuminaireSpec):
     # SphereLight, CylinderLight, RectLight/DiskLight with ShapingAPI; not in the geometry
     luminaires: list = field(default_factory=list)
+    # daylight (read_scene(daylight=True)): DistantLightInfo and DomeLightInfo, in stage order;
+    # hirad.daylight.sources turns them into distant lights
+    daylight: list = field(default_factory=list)
 
     @property
     def num_faces(self) -> int:
@@ -137,7 +177,8 @@ def _finite_area(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) ->
 
 
 class _Builder:
-    def __init__(self, default_reflectance, uv_primvars, time, warnings, ies_mode="absolute"):
+    def __init__(self, default_reflectance, uv_primvars, time, warnings, ies_mode="absolute", daylight=False,
+                 up_axis="Y"):
         self.default_reflectance = _checked_reflectance(_vec3(default_reflectance), "materials.default_reflectance",
                                                         warnings)
         self.uv_primvars = tuple(uv_primvars)
@@ -159,6 +200,9 @@ class _Builder:
             raise SceneError(f"IES mode must be one of {', '.join(_lum.IES_MODES)}, got {ies_mode!r}")
         self.ies_mode = ies_mode
         self.luminaires: list = []
+        self.daylight = bool(daylight)
+        self.up_axis = up_axis
+        self.daylight_lights: list = []
         self._ies_cache: dict = {}
         self._table_cache: dict = {}
 
@@ -401,6 +445,10 @@ class _Builder:
         path = str(prim.GetPath())
         kind = prim.GetTypeName() or "light"
         t = self.time
+        if self.daylight and prim.IsA(UsdLux.DistantLight):
+            return self._distant_light(prim, path, kind, world)
+        if self.daylight and (prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1)):
+            return self._dome_light(prim, path, kind, world)
         read = (UsdLux.RectLight, UsdLux.DiskLight, UsdLux.SphereLight, UsdLux.CylinderLight)
         if not any(prim.IsA(k) for k in read):
             shaping = [f"{a.GetName()} = {_short(a.Get(t))}" for a in prim.GetAuthoredAttributes()
@@ -458,6 +506,127 @@ class _Builder:
         info = MeshInfo(path=path, name=name, hide_path=path, is_light=True, has_uv=False)
         self._append(info, world_pts, counts, idx, np.arange(nf), refl, emis, None)
 
+    # --- daylight ------------------------------------------------------------------------------
+    def _distant_light(self, prim: Usd.Prim, path: str, kind: str, world: np.ndarray):
+        """A DistantLight as a sun (DistantLightInfo), by the UsdLux rules (usdLux schema,
+        LightAPI inputs:normalize and DistantLight inputs:angle):
+
+        * the light travels along its -Z: the direction toward it is the world image of +Z;
+        * its disk has angular radius theta_max = clamp(radians(angle) / 2, 0, pi) and a uniform
+          luminance L = intensity x 2^exposure x colour / sizeFactor, where sizeFactor = 1 without
+          ``normalize`` or for angle 0, pi sin^2(theta_max) for 0 < theta_max <= pi/2 and
+          (2 - sin^2(theta_max)) pi beyond;
+        * a surface facing the light receives E = L x pi sin^2(theta_max) (the cosine-weighted
+          solid angle of the disk; pi beyond a hemisphere, where only the front half reaches
+          it), so with ``normalize`` and theta_max <= pi/2, E = intensity x 2^exposure x colour:
+          the intensity is the perpendicular illuminance in lux, whatever the angle;
+        * angle 0 is a parallel light whose intensity x 2^exposure x colour is that illuminance
+          (normalize or not)."""
+        t = self.time
+        lt = UsdLux.DistantLight(prim)
+        angle = _number(lt.GetAngleAttr(), t, path, 0.53)
+        if not math.isfinite(angle):
+            raise _PrimError(f"{path}.inputs:angle: {angle:g} is not a finite angle")
+        if not 0.0 <= angle < 360.0:
+            clipped = min(max(angle, 0.0), math.nextafter(360.0, 0.0))
+            self.warnings.append(f"{path}: DistantLight inputs:angle = {angle:g} degrees is outside [0, 360); "
+                                 f"clipped to {clipped:g} as UsdLux says")
+            angle = clipped
+        self._warn_unhonoured(prim, path, kind, {"inputs:angle"})
+        radiance = self._light_radiance(prim, path)
+        normalize = bool(UsdLux.LightAPI(prim).GetNormalizeAttr().Get(t))
+        direction = np.asarray(world[2, :3], dtype=np.float64)
+        norm = float(np.linalg.norm(direction))
+        if not (math.isfinite(norm) and norm > 0):
+            raise _PrimError(f"{path}: the transform collapses the light's Z axis: it has no direction")
+        direction = direction / norm
+        theta = min(max(math.radians(angle) / 2.0, 0.0), math.pi)
+        if theta == 0.0:
+            illuminance, luminance = radiance.copy(), None
+        else:
+            s2 = math.sin(theta) ** 2
+            size = 1.0
+            if normalize:
+                size = math.pi * s2 if theta <= math.pi / 2 else (2.0 - s2) * math.pi
+            luminance = radiance / size
+            illuminance = luminance * (math.pi * s2 if theta <= math.pi / 2 else math.pi)
+        self.daylight_lights.append(DistantLightInfo(path=path, direction=direction, angle=float(angle),
+                                                     illuminance=illuminance, luminance=luminance,
+                                                     normalize=normalize, kind=kind))
+
+    def _dome_light(self, prim: Usd.Prim, path: str, kind: str, world: np.ndarray):
+        """A DomeLight or DomeLight_1 (DomeLightInfo): uniform, or a latlong texture (checked to
+        exist here; read by hirad.daylight.sources). ``normalize`` does not apply to domes
+        (UsdLux: sizeFactor 1)."""
+        t = self.time
+        honoured = {"inputs:texture:file", "inputs:texture:format", "poleAxis"}
+        self._warn_unhonoured(prim, path, kind, honoured)
+        radiance = self._light_radiance(prim, path)
+        texture = None
+        tex_attr = prim.GetAttribute("inputs:texture:file")
+        if tex_attr and tex_attr.HasAuthoredValue() and tex_attr.Get(t) is not None:
+            texture = self._asset_path(tex_attr, path, "sky texture")
+        fmt_attr = prim.GetAttribute("inputs:texture:format")
+        fmt = fmt_attr.Get(t) if fmt_attr else None
+        fmt = "automatic" if fmt is None else str(fmt)
+        if texture is not None and fmt not in ("latlong", "automatic"):
+            raise _PrimError(f"{path}.inputs:texture:format: {fmt!r}: hirad reads latlong dome textures only "
+                             "(latlong, or automatic on a 2:1 latlong image); convert the texture")
+        pole = "Y"
+        if prim.IsA(UsdLux.DomeLight_1):
+            a = prim.GetAttribute("poleAxis")
+            token = str(a.Get(t)) if a and a.Get(t) is not None else "scene"
+            if token not in ("scene", "Y", "Z"):
+                raise _PrimError(f"{path}.poleAxis: {token!r}: must be scene, Y or Z")
+            pole = self.up_axis if token == "scene" else token
+        else:
+            a = prim.GetAttribute("poleAxis")
+            if a and a.HasAuthoredValue() and str(a.Get(t)) not in ("Y", "scene"):
+                self.warnings.append(f"{path}: {kind}: poleAxis = {a.Get(t)} is a DomeLight_1 attribute; a "
+                                     "DomeLight's pole is always +Y (UsdLux): not honoured (ignored)")
+        self.daylight_lights.append(DomeLightInfo(path=path, radiance=radiance, texture=texture, texture_format=fmt,
+                                                  pole_axis=pole, rotation=self._rotation(path, kind, world),
+                                                  kind=kind))
+
+    def _rotation(self, path: str, kind: str, world: np.ndarray) -> np.ndarray:
+        """The orthogonal part of the transform's 3 x 3 (polar decomposition; a mirror stays a
+        mirror), rows = local axes in world space; a shear or non-uniform scale is named."""
+        m = np.asarray(world[:3, :3], dtype=np.float64)
+        if not np.isfinite(m).all():
+            raise _PrimError(f"{path}: the transform is not finite")
+        u, sv, vt = np.linalg.svd(m)
+        if not sv[-1] > 1e-12 * max(sv[0], 1e-300):
+            raise _PrimError(f"{path}: the transform is singular: the {kind} has no orientation")
+        if sv[0] - sv[-1] > 1e-6 * sv[0]:
+            self.warnings.append(f"{path}: {kind} under a non-uniform scale or shear: oriented by the transform's "
+                                 "rotation alone")
+        return u @ vt
+
+    def _asset_path(self, attr: Usd.Attribute, path: str, what: str) -> str | None:
+        """An asset attribute's file, resolved (USD's resolver, else relative to the layer that
+        authors it); a missing file is an error naming the prim, the attribute and the file."""
+        value = attr.Get(self.time)
+        where = f"{path}.{attr.GetName()}"
+        authored = getattr(value, "path", None)
+        if authored is None:
+            raise _PrimError(f"{where}: is {_value_type(value)} {_short(value)}, expected an asset path (@file@)")
+        if not authored:
+            return None
+        resolved = getattr(value, "resolvedPath", "") or ""
+        layer_dir = ""
+        if not resolved:
+            try:
+                spec = attr.GetPropertyStack(self.time)[0]
+                layer_path = spec.layer.realPath or spec.layer.identifier
+                layer_dir = os.path.dirname(os.path.abspath(layer_path)) if layer_path else ""
+            except Exception:  # pragma: no cover - anonymous layers
+                layer_dir = ""
+            resolved = authored if os.path.isabs(authored) else os.path.join(layer_dir or os.getcwd(), authored)
+        if not os.path.isfile(resolved):
+            rel = f", relative to {layer_dir}" if layer_dir else ""
+            raise _PrimError(f"{where}: {what} not found: {resolved} (authored @{authored}@{rel})")
+        return os.path.normpath(resolved)
+
     # --- luminaires ----------------------------------------------------------------------------
     def _shaping(self, prim: Usd.Prim, path: str) -> "_lum.Shaping":
         """The authored UsdLuxShapingAPI values (read by name, applied schema or not), checked."""
@@ -499,27 +668,7 @@ class _Builder:
     def _ies_path(self, attr: Usd.Attribute, path: str) -> str | None:
         """The IES file of inputs:shaping:ies:file, resolved (USD's resolver, else relative to
         the layer that authors it); a missing file is an error naming the prim and the file."""
-        value = attr.Get(self.time)
-        where = f"{path}.{attr.GetName()}"
-        authored = getattr(value, "path", None)
-        if authored is None:
-            raise _PrimError(f"{where}: is {_value_type(value)} {_short(value)}, expected an asset path (@file.ies@)")
-        if not authored:
-            return None
-        resolved = getattr(value, "resolvedPath", "") or ""
-        layer_dir = ""
-        if not resolved:
-            try:
-                spec = attr.GetPropertyStack(self.time)[0]
-                layer_path = spec.layer.realPath or spec.layer.identifier
-                layer_dir = os.path.dirname(os.path.abspath(layer_path)) if layer_path else ""
-            except Exception:  # pragma: no cover - anonymous layers
-                layer_dir = ""
-            resolved = authored if os.path.isabs(authored) else os.path.join(layer_dir or os.getcwd(), authored)
-        if not os.path.isfile(resolved):
-            rel = f", relative to {layer_dir}" if layer_dir else ""
-            raise _PrimError(f"{where}: IES file not found: {resolved} (authored @{authored}@{rel})")
-        return os.path.normpath(resolved)
+        return self._asset_path(attr, path, "IES file")
 
     def _photometry(self, ies_file: str, path: str):
         from hirad.photometry import IesError, IesWarning, read_ies
@@ -724,6 +873,7 @@ class _Builder:
             warnings=self.warnings,
             source_path=source,
             luminaires=self.luminaires,
+            daylight=self.daylight_lights,
         )
 
 
@@ -848,6 +998,7 @@ def read_scene(
     light_segments: int = 32,
     require_emission: bool = False,
     ies_mode: str = "absolute",
+    daylight: bool = False,
 ) -> SceneArrays:
     """Flatten a USD stage into :class:`SceneArrays` (see module docstring for conventions).
 
@@ -861,7 +1012,8 @@ def read_scene(
     * warnings (``SceneArrays.warnings``): a reflectance above 0.999, clamped to 0.999; a
       displayColor whose size does not fit its interpolation; USD composition errors (a
       missing sublayer or reference, a reference cycle); light types hirad does not read
-      (DomeLight, DistantLight, PortalLight, ...) and authored light attributes it does not
+      (PortalLight, GeometryLight, ...; DomeLight and DistantLight without `daylight`) and
+      authored light attributes it does not
       honour (shadows, light linking, textures, ``inputs:diffuse`` or ``inputs:specular`` other
       than 1, shaping on a MeshLightAPI or a light type hirad does not read).
 
@@ -877,6 +1029,15 @@ def read_scene(
     With `require_emission` (a bake), a scene in which nothing emits light (no emitting face and
     no luminaire with a positive flux) is an error; reading a dark scene is fine otherwise
     (``hirad info``, tests).
+
+    With `daylight` (a reader whose caller lights the scene with hirad.daylight.sources), a
+    DistantLight (a sun) and a DomeLight or DomeLight_1 (a sky) are read into
+    ``SceneArrays.daylight`` (DistantLightInfo, DomeLightInfo: direction, angle and illuminance by
+    the UsdLux normalize rules; uniform or latlong-textured dome with its orientation and
+    poleAxis), count as emission for `require_emission`, and their attributes hirad does not
+    honour are named in a warning; a dome texture that is missing or not latlong is an error
+    naming the prim and the file. Without it (the default) they are named as light types the
+    bake does not read, as before.
     """
     stage = _open_stage(path)
     time = _stage_time(stage)
@@ -893,7 +1054,8 @@ def read_scene(
     warnings: list[str] = _composition_warnings(stage, path)
     cameras: list[CameraInfo] = []
     try:
-        b = _Builder(default_reflectance, uv_primvars, time, warnings, ies_mode=ies_mode)
+        b = _Builder(default_reflectance, uv_primvars, time, warnings, ies_mode=ies_mode, daylight=daylight,
+                     up_axis=up_axis)
         it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
         for prim in it:
             if _skip_imageable(prim, time):
@@ -922,11 +1084,13 @@ def read_scene(
     if not any(m for m in b.meshes if not m.is_light) and b.meshes:
         warnings.append(f"{path}: the stage contains only lights, no surfaces")
     scene = b.build(cameras, mpu, up_axis, str(path))
-    lit = any(np.any(lum.flux > 0) for lum in scene.luminaires)
+    lit = any(np.any(lum.flux > 0) for lum in scene.luminaires) or any(
+        np.any((d.illuminance if isinstance(d, DistantLightInfo) else d.radiance) > 0) for d in scene.daylight)
     if require_emission and not np.any(scene.face_emission > 0) and not lit:
         found = "; ".join(b.unread_lights) if b.unread_lights else "no light of any kind"
+        kinds = "RectLight, DiskLight, SphereLight, CylinderLight" + (", DistantLight, DomeLight" if daylight else "")
         raise SceneError(f"{path}: nothing emits light: no emissive material, MeshLightAPI or supported UsdLux "
-                         f"light (RectLight, DiskLight, SphereLight, CylinderLight) with a positive intensity "
+                         f"light ({kinds}) with a positive intensity "
                          f"(found: {found})")
     return scene
 
