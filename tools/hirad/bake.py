@@ -140,10 +140,54 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
 def read_inputs(cfg: Config):
     """(scene, luminaire specs): the config's scene read, and its luminaires with the config's
     `lights:` (photometry.luminaires). A distributed bake's workers read theirs the same way."""
+    sky_model = cfg.daylight.sky.model != "usd"  # the config's sky lights the scene
     scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
-                           uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=not cfg.lights,
-                           ies_mode=cfg.photometry.ies_mode)
+                           uv_primvars=tuple(cfg.materials.uv_primvars),
+                           require_emission=not cfg.lights and not sky_model,
+                           ies_mode=cfg.photometry.ies_mode, daylight=True)
     return scene, with_config_lights(scene, cfg)
+
+
+def daylight_inputs(cfg: Config, scene, source: Path | None = None):
+    """(distant lights, daylight-coefficient groups): the sun and sky of the scene's DomeLight and
+    DistantLight prims or of the config's sky model (hirad.daylight.sources), and with
+    daylight.annual one unit-luminance light per sky patch and the ground. Errors name the
+    daylight key (and its line when the config came from a file)."""
+    from .config import ConfigError
+    from .config.errors import DICT_SOURCE
+    from .config.loader import config_line
+    from .daylight.sources import DaylightError, daylight_luminaires, daylight_patch_groups
+
+    dl = cfg.daylight
+
+    def located(key: tuple, message: str):
+        line = config_line(source, key) if source is not None else 0
+        return ConfigError(str(source) if source is not None else DICT_SOURCE, line, ".".join(key), message)
+
+    try:
+        lights = daylight_luminaires(scene, cfg) if (scene.daylight or dl.sky.model != "usd") else []
+        groups = daylight_patch_groups(scene, cfg) if dl.annual is not None else []
+    except DaylightError as e:
+        raise located(("daylight",), str(e)) from None
+    if dl.annual is not None:
+        if cfg.method != "hierarchical":
+            raise located(("daylight", "annual"), "annual daylight coefficients need method: hierarchical")
+        if cfg.light_groups:
+            raise located(("daylight", "annual"), "daylight.annual and light_groups cannot be baked together (the "
+                                                  "sky patches are the bake's light groups)")
+        if not cfg.grids:
+            raise located(("daylight", "annual"), "annual metrics are computed on grids: give at least one grid")
+    if dl.daylight_factor:
+        if any(l.kind == "sun" for l in lights):
+            raise located(("daylight", "daylight_factor"), "a daylight factor needs a sky without a sun (set "
+                                                           "daylight.sun.enabled: false)")
+        if not lights:
+            raise located(("daylight", "daylight_factor"), "no sky: the scene has no DomeLight and "
+                                                           "daylight.sky.model is usd")
+        if not cfg.grids:
+            raise located(("daylight", "daylight_factor"), "a daylight factor is computed on grids: give at least "
+                                                           "one grid")
+    return lights, groups
 
 
 def hierarchy_options(cfg: Config) -> "_engine.HierarchyOptions":
@@ -164,6 +208,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene, specs = read_inputs(cfg)
+        day_lights, day_groups = daylight_inputs(cfg, scene, source)  # its warnings join the scene's
     for w in scene.warnings:
         rep.warn(w)
     for w in cfg.ignored_settings():
@@ -173,9 +218,11 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     with rep.stage("build scene"):
         model = build_engine(scene)
         stats = model.stats()
-    luminaires = [s.to_engine() for s in specs]
+    luminaires = [s.to_engine() for s in specs] + [d.to_engine() for d in day_lights]
     if luminaires:
         model.set_luminaires(luminaires)
+    if day_groups:  # daylight coefficients: each sky patch and the ground solved alone on the links
+        model.set_light_groups([[] for _ in day_groups], [[g.to_engine()] for g in day_groups])
     light_groups = None
     if cfg.light_groups:  # hirad.relight: each group solved alone on the shared links
         from . import relight
@@ -219,9 +266,14 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if not solved.converged:
         rep.warn(f"solver stopped after {solved.iterations} iterations at residual "
                  f"{solved.residual:.3e}, above the tolerance {cfg.solver.tolerance:g}")
-    balance = energy_balance(patches, b, h, escaped,
-                             luminaire_flux=(np.asarray(model.luminaire_flux)[0] if not grouped else
-                                             np.sum([s.flux for s in specs], axis=0)) if luminaires else None)
+    if day_lights:
+        # Daylight has no flux of its own: what enters is the direct light the surfaces receive
+        # (sun and sky through the openings, and the luminaires' received part).
+        balance = energy_balance(patches, b, h, escaped, received_as_emitted=True)
+    else:
+        balance = energy_balance(patches, b, h, escaped,
+                                 luminaire_flux=(np.asarray(model.luminaire_flux)[0] if not grouped else
+                                                 np.sum([s.flux for s in specs], axis=0)) if luminaires else None)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
@@ -304,6 +356,16 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                 warn=rep.warn, luminaires=_luminaire_schedule(specs, patches),
                 luminance=_luminance_image(cfg, result, scene, rep.warn))
         outputs["grids"] = "grids/"
+        if cfg.daylight.daylight_factor:
+            from .daylight import study as daylight_study
+
+            with rep.stage("daylight factor"):
+                grid_report["daylight_factor"] = daylight_study.daylight_factor(
+                    results, day_lights, scene.up_axis, staging / "grids" / "daylight_factor")
+        if day_groups:
+            with rep.stage("annual daylight"):
+                grid_report["annual"] = _annual_daylight(cfg, scene, model, solved, result, display, grids, day_groups,
+                                                         staging / "grids" / "annual")
         if grids_info is not None:
             grids_info.update(units=cfg.units, maintenance_factor=cfg.maintenance_factor, seed=cfg.seed,
                               rays=cfg.grid_rays, title=f"Lighting study: {Path(cfg.scene).name}",
@@ -499,6 +561,34 @@ def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: 
         "files": names,
         "grids": {r.name: r.stats.as_dict() for r in results},
     }
+
+
+def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, groups, out_dir: Path) -> dict:
+    """Daylight coefficients of every grid from the sky-patch groups' solutions, then the weather
+    file's year by matrix products and the annual metrics (hirad.daylight.study)."""
+    from .daylight import study as daylight_study
+    from .daylight.sun import Site
+
+    t0 = time.perf_counter()
+    y = np.array([0.2126, 0.7152, 0.0722])
+    vertex = np.stack([(model.vertex_values(np.asarray(g.radiosity)) / np.pi) @ y for g in solved.groups], axis=1)
+    faces = np.ascontiguousarray(display["faces"])
+    nv = np.ascontiguousarray(display["face_nv"])
+    dc = {g.name: daylight_study.grid_coefficients(result.field, faces, nv, g, vertex, groups, cfg.grid_rays,
+                                                   cfg.seed) for g in grids}
+    t_dc = time.perf_counter() - t0
+    daylight_study.save_coefficients(out_dir / "coefficients.npz", dc, groups)
+    dl = cfg.daylight
+    site = None
+    if dl.site.latitude is not None and dl.site.longitude is not None:
+        site = Site(dl.site.latitude, dl.site.longitude, dl.site.elevation, dl.site.timezone)
+    north = None if dl.north is None else tuple(dl.north)
+    info = daylight_study.annual_results(dc, {g.name: g for g in grids}, str(dl.annual.weather), site,
+                                         dl.reinhart_mf(), dl.ground_reflectance, scene.up_axis, north, result.field,
+                                         out_dir, occupied=(dl.annual.occupied_from, dl.annual.occupied_to))
+    info["seconds"]["coefficients"] = t_dc
+    info["group_solve_seconds"] = float(sum(getattr(g, "seconds", 0.0) for g in solved.groups))
+    return info
 
 
 def _luminaire_schedule(specs, patches: dict) -> list[dict]:

@@ -168,18 +168,30 @@ def _is_terminal(stream) -> bool:
         return False
 
 
-def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray, luminaire_flux=None) -> dict:
+def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray, luminaire_flux=None,
+                   received_as_emitted: bool = False) -> dict:
     """Emitted power against absorbed plus escaped (through openings), per channel, in W (lm
     when photometric). `h` is the whole irradiance (from the surfaces and the luminaires).
     With luminaires, their exact flux is emitted too, and what of it reaches no surface (the
     flux less the direct light the patches receive, sum of direct x area) escapes: in a closed
-    room that part is the discretisation's error of the direct light alone."""
+    room that part is the discretisation's error of the direct light alone.
+    `received_as_emitted` (daylight: sun and sky have no flux of their own): the direct light the
+    patches receive (sum of direct x area) counts as what entered; what leaves through windows is
+    part of `escaped` (the links that reach no surface) and of what glass absorbs (its 1 - rho)."""
     area = patches["area"][:, None]
     emitted = (patches["emission"] * area).sum(axis=0)
     absorbed = ((1 - patches["reflectance"]) * h * area).sum(axis=0)
     lost = np.asarray(escaped).sum(axis=0)
     out = {}
-    if luminaire_flux is not None:
+    if received_as_emitted:
+        received = (patches["direct"] * area).sum(axis=0)
+        emitted = emitted + received
+        out = {"direct_received_W": received.tolist()}
+        tau = patches.get("transmittance")
+        if tau is not None and np.any(tau > 0):
+            glass = tau > 0
+            out["glazing_absorbed_or_transmitted_W"] = (((1 - patches["reflectance"]) * h * area)[glass]).sum(axis=0).tolist()
+    elif luminaire_flux is not None:
         flux = np.asarray(luminaire_flux, dtype=np.float64).reshape(3)
         received = (patches["direct"] * area).sum(axis=0)
         emitted = emitted + flux
@@ -204,8 +216,10 @@ def scene_fingerprint(scene) -> str:
     import hashlib
 
     h = hashlib.sha256()
+    tau = getattr(scene, "face_transmittance", None)
+    glazing = (tau,) if tau is not None and np.any(np.asarray(tau) > 0) else ()  # opaque scenes: as before
     for a in (scene.points, scene.face_vertex_counts, scene.face_vertex_indices, scene.face_reflectance,
-              scene.face_emission):
+              scene.face_emission, *glazing):
         arr = np.ascontiguousarray(a)
         h.update(str(arr.dtype).encode() + str(arr.shape).encode())
         h.update(arr.tobytes())

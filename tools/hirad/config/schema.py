@@ -839,6 +839,37 @@ class DaylightSunConfig(BaseModel):
     )
 
 
+class DaylightAnnualConfig(BaseModel):
+    """Annual climate-based metrics from daylight coefficients (hirad.daylight.study)."""
+
+    model_config = _MODEL_CONFIG
+
+    weather: Path = Field(
+        description=(
+            "The weather file: EPW (EnergyPlus) or TMY3 CSV, hourly (relative to the config file's"
+            " directory). Its site is the file's unless daylight.site gives one."
+        ),
+    )
+    occupied_from: Annotated[float, Strict(), Field(ge=0.0, le=24.0)] = Field(
+        default=8.0, json_schema_extra={"unit": "hour"}, description="Occupied hours start (IES LM-83: 8).")
+    occupied_to: Annotated[float, Strict(), Field(ge=0.0, le=24.0)] = Field(
+        default=18.0, json_schema_extra={"unit": "hour"}, description="Occupied hours end (IES LM-83: 18).")
+
+    @field_validator("weather", mode="after")
+    @classmethod
+    def _weather_exists(cls, value: Path, info: ValidationInfo) -> Path:
+        path = _absolute(value, info)
+        if not path.is_file():
+            raise ValueError(f"weather file not found: {path}")
+        return path
+
+    @model_validator(mode="after")
+    def _hours(self) -> "DaylightAnnualConfig":
+        if not self.occupied_from < self.occupied_to:
+            raise ValueError(f"occupied_from ({self.occupied_from:g}) must be before occupied_to ({self.occupied_to:g})")
+        return self
+
+
 class DaylightConfig(BaseModel):
     """Daylight (hirad.daylight.sources): sun and sky as distant lights, seen through the scene's
     openings. World frame: the stage's up axis (upAxis Y or Z) is the zenith; `north` a direction
@@ -890,6 +921,22 @@ class DaylightConfig(BaseModel):
     north: Optional[Vector3] = Field(
         default=None,
         description="World direction of north, made perpendicular to the up axis (null: -Z for Y-up, +Y for Z-up).",
+    )
+    daylight_factor: StrictBool = Field(
+        default=False,
+        description=(
+            "Also give every grid as daylight factor DF = 100 E / E_h,out (E_h,out: the sky's illuminance on"
+            " an unobstructed horizontal plane), in grids/daylight_factor/; needs a sky without a sun"
+            " (the CIE overcast sky, sun.enabled false)."
+        ),
+    )
+    annual: Optional[DaylightAnnualConfig] = Field(
+        default=None,
+        description=(
+            "Annual metrics (DA300, sDA300/50%, ASE1000/250h, UDI, EN 17037) from daylight coefficients:"
+            " every sky patch and the ground solved as a light group on the bake's links, the weather"
+            " file's hourly skies by matrix products; in grids/annual/."
+        ),
     )
 
     @field_validator("time", mode="before")

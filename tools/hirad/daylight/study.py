@@ -97,8 +97,20 @@ def grid_coefficients(field, faces, nv, grid, vertex_luminance: np.ndarray, ligh
     return np.stack([grid.combine(sensors[:, g]) for g in range(sensors.shape[1])], axis=1)
 
 
+def save_coefficients(path: Path, dc: dict, lights) -> None:
+    """The daylight coefficients (lux per cd/m^2) of every grid, with the patch directions, so a
+    new weather file or orientation needs only the products: npz with dc_<grid> (points x (patches
+    + ground)) and the lights' names."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, names=np.array([l.name for l in lights]), **{f"dc_{k}": v for k, v in dc.items()})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    files.write_bytes(path, buf.getvalue())
+
+
 def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: int, ground_reflectance: float,
-                   up_axis: str, north, field, out_dir: Path) -> dict:
+                   up_axis: str, north, field, out_dir: Path, occupied=(8.0, 18.0)) -> dict:
     """The annual metrics of every grid from its daylight coefficients `dc[name]` (points x
     (patches + ground)); writes per grid a CSV and heat maps into out_dir and returns the
     report's part. `field` traces the exact direct sun for ASE."""
@@ -137,7 +149,8 @@ def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: i
             direct[day] = points.T
         t_direct += time.perf_counter() - t1
         m = _annual.annual_metrics(E, sky.times, E_direct=direct,
-                                   diffuse_illuminance=sky.diffuse_horizontal_illuminance, weights=grid.weights)
+                                   diffuse_illuminance=sky.diffuse_horizontal_illuminance, weights=grid.weights,
+                                   start_hour=occupied[0], end_hour=occupied[1])
         xy = _plane_xy(grid)
         da = m["da300"]
         _annual.heatmap_png(out_dir / f"{name}_da300.png", 100 * da, xy, title=f"Daylight autonomy DA300: {name}",

@@ -132,6 +132,9 @@ class SceneArrays:
     # daylight (read_scene(daylight=True)): DistantLightInfo and DomeLightInfo, in stage order;
     # hirad.daylight.sources turns them into distant lights
     daylight: list = field(default_factory=list)
+    # glazing: per face the normal transmittance of direct light (0 opaque; hirad:transmittance or
+    # UsdPreviewSurface opacity < 1), its reflectance at most 1 - transmittance
+    face_transmittance: np.ndarray | None = None
 
     @property
     def num_faces(self) -> int:
@@ -193,6 +196,7 @@ class _Builder:
         self.face_source: list[np.ndarray] = []
         self.reflectance: list[np.ndarray] = []
         self.emission: list[np.ndarray] = []
+        self.transmittance: list[np.ndarray] = []
         self.uvs: list[np.ndarray | None] = []
         self.n_points = 0
         self.unread_lights: list[str] = []  # lights that emit nothing in the bake, with why
@@ -207,7 +211,7 @@ class _Builder:
         self._table_cache: dict = {}
 
     # --- geometry ------------------------------------------------------------------------------
-    def _append(self, info, pts, counts, idx, source, refl, emis, uv):
+    def _append(self, info, pts, counts, idx, source, refl, emis, uv, tau=None):
         finite = pts[np.isfinite(pts).all(axis=1)] if len(pts) else pts
         reach = float(np.abs(finite).max()) if len(finite) else 0.0
         if reach > MAX_COORDINATE_M:
@@ -223,8 +227,12 @@ class _Builder:
         self.counts.append(counts.astype(np.int32))
         self.indices.append((idx + self.n_points).astype(np.int32))
         self.face_source.append(source.astype(np.int32))
+        tau = np.zeros(len(counts)) if tau is None else np.asarray(tau, dtype=np.float64)
+        # glazing reflects at most what it does not let through
+        refl = np.minimum(refl, (1.0 - tau)[:, None]) if len(tau) else refl
         self.reflectance.append(np.clip(refl, 0.0, _MAX_REFLECTANCE))
         self.emission.append(emis)
+        self.transmittance.append(tau)
         self.uvs.append(uv)
         self.n_points += len(pts)
         return k
@@ -316,8 +324,8 @@ class _Builder:
         # per-face material (over all authored faces, then select kept ones)
         n_faces = len(counts)
         valid_idx = np.where(bad_index, 0, indices) if len(indices) else indices
-        refl, emis = self._face_materials(prim, path, n_faces, counts, valid_idx, total, n_pts)
-        refl, emis = refl[kept_faces], emis[kept_faces]
+        refl, emis, tau = self._face_materials(prim, path, n_faces, counts, valid_idx, total, n_pts)
+        refl, emis, tau = refl[kept_faces], emis[kept_faces], tau[kept_faces]
 
         is_light = False
         if prim.HasAPI(UsdLux.MeshLightAPI):
@@ -339,13 +347,15 @@ class _Builder:
 
         name = self.names.make(path)
         info = MeshInfo(path=path, name=name, hide_path=hide_path, is_light=is_light, has_uv=uv is not None)
-        self._append(info, world_pts, kept_counts, new_indices, kept_faces, refl, emis, uv)
+        self._append(info, world_pts, kept_counts, new_indices, kept_faces, refl, emis, uv, tau)
 
     def _face_materials(self, prim, path, n_faces, counts, indices, total, n_points):
-        """Per-face reflectance and exitance: the bound material's (per GeomSubset), else the
-        displayColor, else the default; displayColor is read (and checked) only where it is used."""
+        """Per-face reflectance, exitance and glazing transmittance: the bound material's (per
+        GeomSubset), else the displayColor, else the default (opaque); displayColor is read (and
+        checked) only where it is used."""
         refl = np.repeat(self.default_reflectance[None, :], n_faces, axis=0)
         emis = np.zeros((n_faces, 3))
+        tau = np.zeros(n_faces)
         read: list = []
 
         def display_color():
@@ -363,6 +373,9 @@ class _Builder:
             refl = display_color().copy()
         if emissive is not None:
             emis[:] = math.pi * emissive
+        t = self.materials.material_transmittance(mat)
+        if t is not None:
+            tau[:] = t
         try:
             subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
         except Exception:  # pragma: no cover
@@ -384,7 +397,9 @@ class _Builder:
             else:
                 refl[faces] = self.default_reflectance
             emis[faces] = math.pi * s_emissive if s_emissive is not None else 0.0
-        return refl, emis
+            s_tau = self.materials.material_transmittance(sub_mat)
+            tau[faces] = 0.0 if s_tau is None else s_tau
+        return refl, emis, tau
 
     # --- lights ------------------------------------------------------------------------------
     def _light_radiance(self, prim: Usd.Prim, path: str) -> np.ndarray:
@@ -865,6 +880,7 @@ class _Builder:
             face_source=np.concatenate(self.face_source).astype(np.int32),
             face_reflectance=np.concatenate(self.reflectance).astype(np.float64),
             face_emission=np.concatenate(self.emission).astype(np.float64),
+            face_transmittance=np.concatenate(self.transmittance).astype(np.float64),
             corner_uv=corner_uv,
             meshes=self.meshes,
             cameras=cameras,
