@@ -156,7 +156,8 @@ def daylight_inputs(cfg: Config, scene, source: Path | None = None):
     from .config import ConfigError
     from .config.errors import DICT_SOURCE
     from .config.loader import config_line
-    from .daylight.sources import DaylightError, daylight_luminaires, daylight_patch_groups
+    from .daylight.patches import reinhart_patches
+    from .daylight.sources import DaylightError, daylight_luminaires, daylight_patch_groups, sun_bin_lights
 
     dl = cfg.daylight
 
@@ -166,7 +167,11 @@ def daylight_inputs(cfg: Config, scene, source: Path | None = None):
 
     try:
         lights = daylight_luminaires(scene, cfg) if (scene.daylight or dl.sky.model != "usd") else []
-        groups = daylight_patch_groups(scene, cfg) if dl.annual is not None else []
+        groups = []
+        if dl.annual is not None:  # sky patches and ground of unit luminance, then 1-lux suns at the patch centres
+            north = None if dl.north is None else tuple(dl.north)
+            groups = daylight_patch_groups(scene, cfg) + sun_bin_lights(reinhart_patches(dl.reinhart_mf()),
+                                                                        scene.up_axis, north)
     except DaylightError as e:
         raise located(("daylight",), str(e)) from None
     if dl.annual is not None:
@@ -564,8 +569,8 @@ def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: 
 
 
 def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, groups, out_dir: Path) -> dict:
-    """Daylight coefficients of every grid from the sky-patch groups' solutions, then the weather
-    file's year by matrix products and the annual metrics (hirad.daylight.study)."""
+    """Daylight coefficients of every grid from the sky-patch and sun-bin groups' solutions, then
+    the weather file's year by matrix products and the annual metrics (hirad.daylight.study)."""
     from .daylight import study as daylight_study
     from .daylight.sun import Site
 
@@ -574,20 +579,29 @@ def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, 
     vertex = np.stack([(model.vertex_values(np.asarray(g.radiosity)) / np.pi) @ y for g in solved.groups], axis=1)
     faces = np.ascontiguousarray(display["faces"])
     nv = np.ascontiguousarray(display["face_nv"])
-    dc = {g.name: daylight_study.grid_coefficients(result.field, faces, nv, g, vertex, groups, cfg.grid_rays,
-                                                   cfg.seed) for g in grids}
+    n_sky = sum(1 for g in groups if g.kind != "sun")  # sky patches and the ground, then the sun bins
+    dc_sky, sun_indirect = {}, {}
+    for g in grids:
+        direct, total = daylight_study.grid_coefficients(result.field, faces, nv, g, vertex, groups, cfg.grid_rays,
+                                                         cfg.seed)
+        dc_sky[g.name] = total[:, :n_sky]
+        sun_indirect[g.name] = total[:, n_sky:] - direct[:, n_sky:]
     t_dc = time.perf_counter() - t0
-    daylight_study.save_coefficients(out_dir / "coefficients.npz", dc, groups)
+    daylight_study.save_coefficients(out_dir / "coefficients.npz", {**{f"sky_{k}": v for k, v in dc_sky.items()},
+                                                                    **{f"sun_indirect_{k}": v for k, v in
+                                                                       sun_indirect.items()}}, groups)
     dl = cfg.daylight
     site = None
     if dl.site.latitude is not None and dl.site.longitude is not None:
         site = Site(dl.site.latitude, dl.site.longitude, dl.site.elevation, dl.site.timezone)
     north = None if dl.north is None else tuple(dl.north)
-    info = daylight_study.annual_results(dc, {g.name: g for g in grids}, str(dl.annual.weather), site,
-                                         dl.reinhart_mf(), dl.ground_reflectance, scene.up_axis, north, result.field,
-                                         out_dir, occupied=(dl.annual.occupied_from, dl.annual.occupied_to))
+    info = daylight_study.annual_results(dc_sky, sun_indirect, {g.name: g for g in grids}, str(dl.annual.weather),
+                                         site, dl.reinhart_mf(), dl.ground_reflectance, scene.up_axis, north,
+                                         result.field, out_dir, occupied=(dl.annual.occupied_from,
+                                                                          dl.annual.occupied_to))
     info["seconds"]["coefficients"] = t_dc
-    info["group_solve_seconds"] = float(sum(getattr(g, "seconds", 0.0) for g in solved.groups))
+    info["light_groups"] = len(groups)
+    info["seconds"]["group_solves"] = float(sum(getattr(g, "seconds", 0.0) for g in solved.groups))
     return info
 
 

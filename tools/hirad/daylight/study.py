@@ -54,15 +54,12 @@ def grid_table(path: Path, grid, values: dict) -> None:
 
 
 def _plane_xy(grid) -> np.ndarray:
-    """Grid points in the grid's own plane (its layout axes when it has them), for pictures."""
+    """Grid points as picture coordinates: the two world axes along which the grid's mean normal
+    is smallest, in x, y, z order (a Z-up work plane: x, y; a Y-up one: x, z)."""
     p = np.asarray(grid.points, dtype=np.float64)
-    n = np.asarray(grid.normals, dtype=np.float64).mean(axis=0)
-    n = n / (np.linalg.norm(n) or 1.0)
-    a = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = np.cross(n, a)
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    return np.stack([p @ u, p @ v], axis=1)
+    n = np.abs(np.asarray(grid.normals, dtype=np.float64).mean(axis=0))
+    keep = sorted(np.argsort(n)[:2])
+    return p[:, keep]
 
 
 def daylight_factor(results, lights, up_axis: str, out_dir: Path) -> dict:
@@ -87,14 +84,19 @@ def daylight_factor(results, lights, up_axis: str, out_dir: Path) -> dict:
     return info
 
 
-def grid_coefficients(field, faces, nv, grid, vertex_luminance: np.ndarray, lights, rays: int, seed: int) -> np.ndarray:
-    """(grid points, groups) daylight coefficients of one grid, lux per unit luminance: every
-    sensor's direct and indirect coefficients (hirad.daylight.coefficients), combined into the
-    grid's points by its sensor weights."""
+def grid_coefficients(field, faces, nv, grid, vertex_luminance: np.ndarray, lights, rays: int,
+                      seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(direct, total): (grid points, groups) daylight coefficients of one grid, lux per unit
+    luminance (or per lux of a sun bin): every sensor's direct and direct + indirect coefficients
+    (hirad.daylight.coefficients), combined into the grid's points by its sensor weights."""
     sp, sn = grid.sensor_points, grid.sensor_normals
     stencil = HitStencil(field, faces, nv, sp, sn, rays, seed)
-    sensors = direct_coefficients(field, sp, sn, lights) + stencil.apply(vertex_luminance)
-    return np.stack([grid.combine(sensors[:, g]) for g in range(sensors.shape[1])], axis=1)
+    direct = direct_coefficients(field, sp, sn, lights)
+    total = direct + stencil.apply(vertex_luminance)
+
+    def points(m):
+        return np.stack([grid.combine(m[:, g]) for g in range(m.shape[1])], axis=1)
+    return points(direct), points(total)
 
 
 def save_coefficients(path: Path, dc: dict, lights) -> None:
@@ -109,11 +111,47 @@ def save_coefficients(path: Path, dc: dict, lights) -> None:
     files.write_bytes(path, buf.getvalue())
 
 
-def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: int, ground_reflectance: float,
-                   up_axis: str, north, field, out_dir: Path, occupied=(8.0, 18.0)) -> dict:
-    """The annual metrics of every grid from its daylight coefficients `dc[name]` (points x
-    (patches + ground)); writes per grid a CSV and heat maps into out_dir and returns the
-    report's part. `field` traces the exact direct sun for ASE."""
+def sun_bins(sky_patches, sun) -> np.ndarray:
+    """Per hour the sky patch holding the sun (-1 at night): whose sun-bin solution gives the
+    sun's interreflected light."""
+    from .sources import patch_index
+
+    alt = np.radians(90.0 - np.asarray(sun.zenith, dtype=np.float64))
+    az = np.radians(np.asarray(sun.azimuth, dtype=np.float64))
+    return np.where(np.asarray(sun.daytime, bool), patch_index(sky_patches, alt, az), -1)
+
+
+def annual_illuminance(dc_sky, sun_indirect, grid, field, sky, sensors_direct=None):
+    """(hours, points) illuminance of the year and (hours, points) its direct sun alone:
+
+        E(h) = sky_h . DC_sky + E_dn(h) (D_sun(h) + I_bin(h)),
+
+    sky_h the hour's sky-only patch luminances and ground (the sun's light is not put into a
+    patch), D_sun the exact direct sun (cos x transmittance towards the sun's true position) and
+    I_bin the interreflected light of a 1-lux sun at the centre of the patch that holds it."""
+    E = _annual.annual_illuminance(dc_sky, sky)
+    day = np.flatnonzero(sky.daytime)
+    direct = np.zeros_like(E)
+    if len(day):
+        edn = np.asarray(sky.direct_normal_illuminance, dtype=np.float64)[day]
+        t = field.direct_transmittance(np.ascontiguousarray(grid.sensor_points),
+                                       np.ascontiguousarray(grid.sensor_normals),
+                                       np.ascontiguousarray(sky.sun_directions()[day])).astype(np.float64)
+        d = np.stack([grid.combine(t[:, k]) for k in range(len(day))], axis=0)  # (day hours, points)
+        bins = sun_bins(sky.patches, sky.sun)[day]
+        ind = np.where((bins >= 0)[:, None], np.asarray(sun_indirect)[:, np.maximum(bins, 0)].T, 0.0)
+        direct[day] = edn[:, None] * d
+        E[day] += edn[:, None] * (d + ind)
+    return E, direct
+
+
+def annual_results(dc_sky: dict, sun_indirect: dict, grids: dict, weather_path: str, site, patches_mf: int,
+                   ground_reflectance: float, up_axis: str, north, field, out_dir: Path,
+                   occupied=(8.0, 18.0)) -> dict:
+    """The annual metrics of every grid from its sky daylight coefficients `dc_sky[name]`
+    (points x (patches + ground)) and its sun bins' interreflected light `sun_indirect[name]`
+    (points x patches); writes per grid a CSV and heat maps into out_dir and returns the report's
+    part. `field` traces the exact direct sun."""
     import time
 
     from .weather import read_weather
@@ -122,32 +160,19 @@ def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: i
     weather = read_weather(weather_path)
     up = "Y" if str(up_axis).upper() == "Y" else "Z"
     sky = _annual.sky_matrix(weather, site, patches=patches_mf, ground_reflectance=ground_reflectance,
-                             include_sun=True, up=up, north=north)
+                             include_sun=False, up=up, north=north)
     t_sky = time.perf_counter() - t0
-    sun = sky.sun
-    day = np.flatnonzero(sky.daytime)
-    sun_dirs = sky.sun_directions()[day]
-    edn = np.asarray(sky.direct_normal_illuminance, dtype=np.float64)[day]
     out_dir.mkdir(parents=True, exist_ok=True)
-    info = {"weather": str(weather_path), "hours": int(len(sky.values)), "daytime_hours": int(len(day)),
-            "sky_patches": int(sky.patches.count), "grids": {}, "seconds": {"sky_matrix": t_sky}}
-    t_products = t_direct = 0.0
-    for name, coeffs in dc.items():
+    info = {"weather": str(weather_path), "hours": int(len(sky.values)), "daytime_hours": int(np.count_nonzero(sky.daytime)),
+            "sky_patches": int(sky.patches.count), "method": "sky patches and ground by daylight coefficients; the sun "
+            "exact for its direct light, its interreflected light from the sun bin (patch) that holds it",
+            "occupied_hours_of_day": list(occupied), "grids": {}, "seconds": {"sky_matrix": t_sky}}
+    t_products = 0.0
+    for name, coeffs in dc_sky.items():
         grid = grids[name]
         t1 = time.perf_counter()
-        E = _annual.annual_illuminance(coeffs, sky)
+        E, direct = annual_illuminance(coeffs, sun_indirect[name], grid, field, sky)
         t_products += time.perf_counter() - t1
-        # direct sun alone, exact: E_dn x cos x transmittance per daytime hour (ASE)
-        t1 = time.perf_counter()
-        direct = np.zeros_like(E)
-        if len(day):
-            t = field.direct_transmittance(np.ascontiguousarray(grid.sensor_points),
-                                           np.ascontiguousarray(grid.sensor_normals),
-                                           np.ascontiguousarray(sun_dirs)).astype(np.float64)
-            sensors = t * edn[None, :]
-            points = np.stack([grid.combine(sensors[:, h]) for h in range(len(day))], axis=1)
-            direct[day] = points.T
-        t_direct += time.perf_counter() - t1
         m = _annual.annual_metrics(E, sky.times, E_direct=direct,
                                    diffuse_illuminance=sky.diffuse_horizontal_illuminance, weights=grid.weights,
                                    start_hour=occupied[0], end_hour=occupied[1])
@@ -173,5 +198,5 @@ def annual_results(dc: dict, grids: dict, weather_path: str, site, patches_mf: i
             "EN17037_level": m.get("en17037_level"),
             "EN17037_minimum_met": None if en is None else bool(en.met),
         }
-    info["seconds"].update(hourly_products=t_products, direct_sun=t_direct)
+    info["seconds"]["hourly_products"] = t_products
     return info
