@@ -155,15 +155,19 @@ struct Arrivals {
     std::vector<uint32_t> owner;
     std::vector<float> seen;  // transmittance of the shadow ray (0 blocked, 1 open, between: glass)
 
+    // stride > 1: of a sky (more than kSkyDirections directions) only the directions j with
+    // j % stride == offset, their weights times stride (one share of an interleaved set).
     void collect(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
-                 const Vec3* n, const Vec3& start) {
+                 const Vec3* n, const Vec3& start, size_t stride = 1, size_t offset = 0) {
         from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear();
         for (uint32_t li = 0; li < luminaires.size(); ++li) {
             const Luminaire& l = luminaires[li];
             if (l.distant) {
                 if (!(l.illuminance > 0)) continue;
                 const double far = visibility ? visibility->reach(start) : 1.0;
-                for (size_t k = 0; k < l.points.size(); ++k) {
+                const bool share = stride > 1 && l.points.size() > kSkyDirections;
+                const size_t step = share ? stride : 1;
+                for (size_t k = share ? offset : 0; k < l.points.size(); k += step) {
                     if (!(l.weights[k] > 0)) continue;
                     const Vec3& d = l.points[k];  // unit, towards the light
                     const double c = n ? dot(*n, d) : 1.0;
@@ -171,7 +175,7 @@ struct Arrivals {
                     from.push_back(start);
                     to.push_back(start + d * far);
                     dir.push_back(d);
-                    wi.push_back(l.weights[k] * l.illuminance);
+                    wi.push_back(l.weights[k] * l.illuminance * double(step));
                     r2.push_back(1.0);
                     cosr.push_back(c);
                     owner.push_back(li);
@@ -307,7 +311,13 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
                     xs[size_t(a) * g + b] = p.point((a + 0.5) / g, (b + 0.5) / g);
                     ns[size_t(a) * g + b] = p.normal;
                 }
-            for (size_t k = 0; k < m; ++k) hs[k] = luminaire_irradiance_at(luminaires, &visibility, xs[k], ns[k], lift);
+            Arrivals arrivals;
+            for (size_t k = 0; k < m; ++k) {
+                // skies: point k takes every m-th direction from the k-th (interleaved), so the
+                // element's mean sees each direction once, from stratified points
+                arrivals.collect(luminaires, &visibility, xs[k], &ns[k], xs[k] + ns[k] * lift, m, k);
+                hs[k] = irradiance_of(luminaires, arrivals);
+            }
             RGB sum{};
             double lo = 1e300, hi = -1e300;
             for (const RGB& h : hs) {

@@ -92,7 +92,7 @@ void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibilit
                        size_t count, RGB* s0, std::array<RGB, 3>* s1);
 
 // The luminaires' light over a surface element: the mean of H at the g x g stratum centres
-// of the element (Patch::point), and the spread (max - min of the luminance Y of H over
+// of the element (Patch::point; skies interleaved over them, kSkyDirections), and the spread (max - min of the luminance Y of H over
 // those points, W/m^2 or lux), which says whether the element resolves the light. For many
 // elements at once (parallel over elements): `mean` and `spread` are resized to the count.
 struct Patch;
@@ -105,6 +105,14 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
 // of the scene (0 blocked, glass factors). Directions must be unit. Parallel over points.
 void distant_transmittance(const Visibility& visibility, const Vec3* x, const Vec3* n, size_t count,
                            const std::vector<Vec3>& directions, double lift, float* out);
+
+// A light of more than this many directions (a sky: patches cut into cells) lights an element's
+// g x g points interleaved: point k takes every (g^2)-th direction from the k-th, weighted g^2
+// times. The element's mean then sees each direction once from stratified points (a sky costs
+// an element as many rays as it has directions, not g^2 times that); the points' spread, which
+// decides splits, carries the interleaving's noise as well as the light's variation. Suns and
+// luminaires are seen whole from every point (their shadow edges need it).
+constexpr size_t kSkyDirections = 64;
 
 // Directions normalised; a zero or non-finite one is an std::invalid_argument.
 std::vector<Vec3> unit_directions(const std::vector<Vec3>& directions);

@@ -169,6 +169,9 @@ def daylight_inputs(cfg: Config, scene, source: Path | None = None):
         lights = daylight_luminaires(scene, cfg) if (scene.daylight or dl.sky.model != "usd") else []
         groups = []
         if dl.annual is not None:  # sky patches and ground of unit luminance, then 1-lux suns at the patch centres
+            from .daylight.weather import read_weather
+
+            read_weather(dl.annual.weather)  # a bad line stops the bake now, naming the file and line
             north = None if dl.north is None else tuple(dl.north)
             groups = daylight_patch_groups(scene, cfg) + sun_bin_lights(reinhart_patches(dl.reinhart_mf()),
                                                                         scene.up_axis, north)
