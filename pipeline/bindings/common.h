@@ -76,6 +76,22 @@ inline std::vector<Vec3> vec3_rows(const In<double>& a, const char* what, long n
 
 // Runs `work` on a worker thread; meanwhile calls `tick()` (with the GIL) every 100 ms and
 // checks for Ctrl-C. Exceptions from the work are rethrown here.
+// (points, directions) float32 of `source.direct_transmittance` (Engine, RayScene): the
+// arrays checked, the work done without the GIL.
+template <typename Source>
+Array<float> direct_transmittance_of(const Source& source, const In<double>& p, const In<double>& n,
+                                     const In<double>& d) {
+    auto pts = vec3_rows(p, "points");
+    auto nrm = vec3_rows(n, "normals", long(pts.size()));
+    auto dirs = vec3_rows(d, "directions");
+    std::vector<float> out;
+    {
+        nb::gil_scoped_release release;
+        out = source.direct_transmittance(pts, nrm, dirs);
+    }
+    return to_numpy(std::move(out), {pts.size(), dirs.size()});
+}
+
 template <typename Work, typename Tick>
 void run_reporting(Work&& work, Tick&& tick) {
     std::exception_ptr error;

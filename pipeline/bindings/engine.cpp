@@ -250,17 +250,7 @@ void bind_engine(nb::module_& m) {
              "Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: "
              "that light group's solution alone.")
         .def("direct_transmittance",
-             [](const Engine& e, In<double> p, In<double> n, In<double> d) {
-                 auto pts = vec3_rows(p, "points");
-                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
-                 auto dirs = vec3_rows(d, "directions");
-                 std::vector<float> out;
-                 {
-                     nb::gil_scoped_release release;
-                     out = e.direct_transmittance(pts, nrm, dirs);
-                 }
-                 return to_numpy(out, {pts.size(), dirs.size()});
-             },
+             [](const Engine& e, In<double> p, In<double> n, In<double> d) { return direct_transmittance_of(e, p, n, d); },
              "points"_a, "normals"_a, "directions"_a,
              "(P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit "
              "direction out of the scene (0 blocked; glass factors), over the current patches.")

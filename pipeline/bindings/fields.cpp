@@ -166,17 +166,7 @@ void bind_fields(nb::module_& m) {
              "v), each (sensors, k*k); patch -1 where a ray met nothing or the back of a surface. The indirect "
              "illuminance of corner radiance L is pi / (k*k) x the sum of L interpolated at the hits.")
         .def("direct_transmittance",
-             [](const RayScene& s, In<double> p, In<double> n, In<double> d) {
-                 auto pts = vec3_rows(p, "points");
-                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
-                 auto dirs = vec3_rows(d, "directions");
-                 std::vector<float> out;
-                 {
-                     nb::gil_scoped_release release;
-                     out = s.direct_transmittance(pts, nrm, dirs);
-                 }
-                 return to_numpy(std::move(out), {pts.size(), dirs.size()});
-             },
+             [](const RayScene& s, In<double> p, In<double> n, In<double> d) { return direct_transmittance_of(s, p, n, d); },
              "points"_a, "normals"_a, "directions"_a,
              "(sensors, D) float32: max(0, n . d) x the transmittance of the ray from each sensor towards each "
              "direction out of the scene (0 blocked; glass factors), as illuminance's luminaires see it.")

@@ -590,10 +590,15 @@ def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, 
         dc_sky[g.name] = total[:, :n_sky]
         sun_indirect[g.name] = total[:, n_sky:] - direct[:, n_sky:]
     t_dc = time.perf_counter() - t0
-    daylight_study.save_coefficients(out_dir / "coefficients.npz", {**{f"sky_{k}": v for k, v in dc_sky.items()},
-                                                                    **{f"sun_indirect_{k}": v for k, v in
-                                                                       sun_indirect.items()}}, groups)
     dl = cfg.daylight
+    tau = np.ascontiguousarray(patches_transmittance(result))
+    daylight_study.save_coefficients(
+        out_dir / "coefficients.npz",
+        {**{f"sky_{k}": v for k, v in dc_sky.items()}, **{f"sun_indirect_{k}": v for k, v in sun_indirect.items()}},
+        groups, grids, (np.ascontiguousarray(result.corners), np.ascontiguousarray(result.nv), tau),
+        {"patches_mf": dl.reinhart_mf(), "ground_reflectance": dl.ground_reflectance, "up_axis": scene.up_axis,
+         "north": None if dl.north is None else list(dl.north),
+         "occupied": [dl.annual.occupied_from, dl.annual.occupied_to], "grid_rays": cfg.grid_rays, "seed": cfg.seed})
     site = None
     if dl.site.latitude is not None and dl.site.longitude is not None:
         site = Site(dl.site.latitude, dl.site.longitude, dl.site.elevation, dl.site.timezone)
@@ -606,6 +611,12 @@ def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, 
     info["light_groups"] = len(groups)
     info["seconds"]["group_solves"] = float(sum(getattr(g, "seconds", 0.0) for g in solved.groups))
     return info
+
+
+def patches_transmittance(result) -> np.ndarray:
+    """The glazing of a result's display faces (0 where it has none)."""
+    t = getattr(result, "transmittance", None)
+    return np.zeros(len(result.corners)) if t is None else np.asarray(t, dtype=np.float64)
 
 
 def _luminaire_schedule(specs, patches: dict) -> list[dict]:

@@ -416,6 +416,49 @@ def relight(out: Path = typer.Argument(..., help="output directory of a `hirad b
 
 
 @app.command()
+def annual(coefficients: Path = typer.Argument(..., help="grids/annual/coefficients.npz of a bake with daylight.annual"),
+           weather: Path = typer.Argument(..., help="EPW or TMY3 weather file"),
+           output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                                 help="Directory to write [annual-<weather stem> beside the coefficients]"),
+           latitude: Optional[float] = typer.Option(None, "--latitude", help="Site latitude (default: the weather file's)"),
+           longitude: Optional[float] = typer.Option(None, "--longitude", help="Site longitude (default: the file's)")):
+    """Annual daylight metrics for another weather file (or site) from a bake's daylight
+    coefficients, without solving: only the hourly matrix products and the direct sun are
+    computed. Writes per grid a CSV and heat maps, and annual.json."""
+    from . import __version__, files
+
+    out = output or coefficients.parent / f"annual-{weather.stem}"
+
+    def go():
+        from .daylight import study
+        from .daylight.sun import Site
+        from .daylight.weather import read_weather
+
+        inputs = [("coefficients", coefficients), ("weather file", weather)]
+        files.check_output(out, inputs)
+        if not coefficients.is_file():
+            _fail(f"{coefficients}: no such file")
+        w = read_weather(weather)  # a bad line is named with the file and the line
+        site = None
+        if latitude is not None or longitude is not None:
+            site = Site(w.latitude if latitude is None else latitude, w.longitude if longitude is None else longitude,
+                        w.elevation, w.timezone)
+        staging = files.make_staging(out, __version__)
+        with files.removed_on_failure(staging):
+            info = study.rerun_annual(coefficients, weather, staging, site=site)
+            files.write_json(staging / "annual.json", {"hirad_version": __version__, **info})
+            files.finish_staging(staging, __version__)
+            files.replace_output(staging, out, inputs)
+        files.remove_stale_staging(out)
+        for name, g in info["grids"].items():
+            print(f"{name}: sDA300/50% {g['sDA300/50%']:.3f}, ASE1000/250h {g['ASE1000/250h']:.3f}, "
+                  f"mean DA300 {g['mean_DA300']:.3f}, mean UDI 100-3000 {g['mean_UDI_100_3000']:.3f}")
+        print(out)
+
+    _run_guarded(go)
+
+
+@app.command()
 def grid(solution: Path = typer.Argument(..., help="solution.usda written by `hirad bake`"),
          study: Path = typer.Argument(..., help="YAML of maintenance_factor, up_axis and grids: (as a config's grids)"),
          output: Optional[Path] = typer.Option(None, "--output", "-o",

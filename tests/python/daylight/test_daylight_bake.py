@@ -202,3 +202,24 @@ def test_missing_dome_texture_is_named(tmp_path):
     r = run_cli("bake", cfg, "--set", f"output={out}")
     assert r.returncode != 0 and "missing_sky.exr" in r.stderr and "/Room/Sky" in r.stderr
     assert_no_output(out)
+
+
+def test_annual_rerun_from_coefficients_needs_no_solve(annual_bake, tmp_path):
+    """`hirad annual COEFFICIENTS WEATHER`: the same weather file gives the bake's metrics again
+    (the same products from the stored coefficients, grids and surfaces); an EPW of the same
+    year gives them too (its reader and the TMY3 reader agree); a bad line is named."""
+    tmp, _, _ = annual_bake
+    npz = tmp / "annual" / "grids" / "annual" / "coefficients.npz"
+    baked = json.loads((tmp / "annual" / "report.json").read_text())["grids"]["annual"]["grids"]["workplane"]
+    out = tmp_path / "again"
+    r = run_cli("annual", npz, TMY3, "-o", out)
+    assert r.returncode == 0, r.stderr
+    again = json.loads((out / "annual.json").read_text())["grids"]["workplane"]
+    for key in ("sDA300/50%", "ASE1000/250h", "mean_DA300", "mean_UDI_100_3000"):
+        assert again[key] == pytest.approx(baked[key], abs=1e-12), key
+    assert (out / "workplane_da300.png").is_file()
+    epw = tmp_path / "bad.epw"
+    line = _epw_with_bad_line(epw)
+    r = run_cli("annual", npz, epw, "-o", tmp_path / "bad")
+    assert r.returncode != 0 and f"{epw}:{line}" in r.stderr
+    assert_no_output(tmp_path / "bad")

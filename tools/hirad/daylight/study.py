@@ -99,16 +99,72 @@ def grid_coefficients(field, faces, nv, grid, vertex_luminance: np.ndarray, ligh
     return points(direct), points(total)
 
 
-def save_coefficients(path: Path, dc: dict, lights) -> None:
-    """The daylight coefficients (lux per cd/m^2) of every grid, with the patch directions, so a
-    new weather file or orientation needs only the products: npz with dc_<grid> (points x (patches
-    + ground)) and the lights' names."""
+def save_coefficients(path: Path, dc: dict, lights, grids=(), field_faces=None, settings=None) -> None:
+    """Everything a new weather file, site or north needs without a new bake (rerun_annual): the
+    daylight coefficients (dc_<name>, lux per cd/m^2 or per lux of a sun bin), the lights' names,
+    every grid's points and sensors, the surfaces the direct sun is traced against
+    (field_faces: corners (F, 4, 3), nv (F,), transmittance (F,)) and the bake's settings."""
     import io
+    import json
 
+    arrays = {f"dc_{k}": v for k, v in dc.items()}
+    for g in grids:
+        for a in ("points", "normals", "weights", "sensor_points", "sensor_normals", "sensor_weights", "sensor_owner"):
+            arrays[f"grid_{g.name}__{a}"] = np.asarray(getattr(g, a))
+        arrays[f"grid_{g.name}__semi_cylindrical"] = np.array(g.measure.type == "semi_cylindrical")
+    if field_faces is not None:
+        arrays.update(field_corners=field_faces[0], field_nv=field_faces[1], field_transmittance=field_faces[2])
     buf = io.BytesIO()
-    np.savez_compressed(buf, names=np.array([l.name for l in lights]), **{f"dc_{k}": v for k, v in dc.items()})
+    np.savez_compressed(buf, names=np.array([l.name for l in lights]), settings=np.array(json.dumps(settings or {})),
+                        **arrays)
     path.parent.mkdir(parents=True, exist_ok=True)
     files.write_bytes(path, buf.getvalue())
+
+
+class StoredGrid:
+    """A grid as save_coefficients keeps it: its points, sensors and combine()."""
+
+    def __init__(self, name: str, z, prefix: str):
+        self.name = name
+        for a in ("points", "normals", "weights", "sensor_points", "sensor_normals", "sensor_weights", "sensor_owner"):
+            setattr(self, a, np.asarray(z[f"{prefix}__{a}"]))
+        self.semi_cylindrical = bool(z[f"{prefix}__semi_cylindrical"])
+
+    def combine(self, sensor_values) -> np.ndarray:
+        e = np.asarray(sensor_values, dtype=np.float64)
+        out = np.bincount(self.sensor_owner, weights=self.sensor_weights * e, minlength=len(self.points))
+        return np.maximum(out, 0.0) if self.semi_cylindrical else out
+
+
+def rerun_annual(coefficients: Path, weather: Path, out_dir: Path, *, site=None, north=None,
+                 occupied=None, ground_reflectance=None) -> dict:
+    """The annual metrics again from a bake's grids/annual/coefficients.npz for another weather
+    file, site or north, by matrix products only (no solve): writes into out_dir as the bake does
+    and returns the same report part. `north` (a world vector) turns the sky and the sun; the
+    coefficients' own sky patches keep their directions, so this is exact for the sky only when
+    north is the bake's: a turned building needs its own bake (the report says which north)."""
+    import json
+
+    from hirad import _engine
+    from hirad.daylight.glazing import angular_table
+
+    z = np.load(coefficients, allow_pickle=False)
+    settings = json.loads(str(z["settings"]))
+    names = sorted({k[len("grid_"):].split("__")[0] for k in z.files if k.startswith("grid_")})
+    grids = {n: StoredGrid(n, z, f"grid_{n}") for n in names}
+    tau = np.ascontiguousarray(z["field_transmittance"], dtype=np.float64)
+    glass = {"transmittance": tau, "glass_angular": np.asarray(angular_table(), dtype=np.float64)} if np.any(tau > 0) else {}
+    field = _engine.SurfaceField(np.ascontiguousarray(z["field_corners"], dtype=np.float64),
+                                 np.ascontiguousarray(z["field_nv"], dtype=np.int32), **glass)
+    dc_sky = {n: np.asarray(z[f"dc_sky_{n}"]) for n in names}
+    sun = {n: np.asarray(z[f"dc_sun_indirect_{n}"]) for n in names}
+    north = settings.get("north") if north is None else north
+    info = annual_results(dc_sky, sun, grids, str(weather), site, int(settings["patches_mf"]),
+                          float(settings["ground_reflectance"] if ground_reflectance is None else ground_reflectance),
+                          settings["up_axis"], None if north is None else tuple(north), field, Path(out_dir),
+                          occupied=tuple(settings["occupied"]) if occupied is None else tuple(occupied))
+    info["coefficients"] = str(coefficients)
+    return info
 
 
 def sun_bins(sky_patches, sun) -> np.ndarray:
