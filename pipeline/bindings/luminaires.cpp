@@ -1,5 +1,6 @@
 // hirad._engine.Luminaire: a light source that is not a Lambertian surface
 // (pipeline/geometry/luminaire.h): emitting points over its opening and a candela table.
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 
 #include "pipeline/bindings/common.h"
@@ -38,17 +39,21 @@ void bind_luminaires(nb::module_& m) {
              "degrees, colour (1, 3): channel c emits candela x colour[c]. Invalid data: ValueError.")
         .def_static("distant",
                     [](const std::string& name, In<double> directions, In<double> weights, double illuminance,
-                       In<double> colour) {
+                       In<double> colour, std::optional<In<double>> tints) {
                         std::vector<Vec3> d = vec3_rows(directions, "directions");
-                        require_shape(weights, {long(d.size())}, "weights");
+                        const long k = long(d.size());
+                        require_shape(weights, {k}, "weights");
                         std::vector<double> w(weights.data(), weights.data() + weights.shape(0));
+                        std::vector<RGB> t;
+                        if (tints) t = vec3_rows(*tints, "tints", k);
                         return distant_light(name, std::move(d), std::move(w), illuminance,
-                                             vec3_rows(colour, "colour", 1)[0]);
+                                             vec3_rows(colour, "colour", 1)[0], std::move(t));
                     },
-                    "name"_a, "directions"_a, "weights"_a, "illuminance"_a, "colour"_a,
+                    "name"_a, "directions"_a, "weights"_a, "illuminance"_a, "colour"_a, "tints"_a.none() = nb::none(),
                     "A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light "
                     "(normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a "
-                    "surface facing it, colour (1, 3). Invalid data: ValueError.")
+                    "surface facing it, colour (1, 3); tints (k, 3), optional: per direction a colour factor (a sky "
+                    "of varying colour as one light). Invalid data: ValueError.")
         .def_ro("name", &Luminaire::name)
         .def_ro("is_distant", &Luminaire::distant, "True for a distant light (points are directions).")
         .def_ro("illuminance", &Luminaire::illuminance, "Distant: E_perp per unit colour, lux (or W/m^2).")

@@ -45,6 +45,9 @@ void Luminaire::validate() const {
             if (std::fabs(length(points[k]) - 1) > 1e-9)
                 refuse(*this, "direction " + std::to_string(k) + " is not a unit vector");
         if (!(illuminance >= 0) || !std::isfinite(illuminance)) refuse(*this, "illuminance is negative or not finite");
+        if (!tints.empty() && tints.size() != points.size()) refuse(*this, "tints and directions differ in number");
+        for (const RGB& t : tints)
+            if (!isfinite(t) || t.x < 0 || t.y < 0 || t.z < 0) refuse(*this, "a tint is negative or not finite");
         return;
     }
     for (int a = 0; a < 3; ++a)
@@ -113,11 +116,13 @@ uint64_t Luminaire::fingerprint() const {
     for (double v : candela) f = hash_pair(f, bits(v), 15);
     for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(colour[a]), 16);
     if (distant) f = hash_pair(f, bits(illuminance), 18);
+    for (const RGB& t : tints)
+        for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(t[a]), 20);
     return f;
 }
 
 Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vector<double> weights,
-                        double illuminance, RGB colour) {
+                        double illuminance, RGB colour, std::vector<RGB> tints) {
     Luminaire l;
     l.name = std::move(name);
     l.distant = true;
@@ -129,6 +134,7 @@ Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vec
     l.weights = std::move(weights);
     l.illuminance = illuminance;
     l.colour = colour;
+    l.tints = std::move(tints);
     l.axis[0] = {1, 0, 0};
     l.axis[1] = {0, 1, 0};
     l.axis[2] = {0, 0, 1};
@@ -153,13 +159,14 @@ struct Arrivals {
     std::vector<Vec3> from, to, dir;
     std::vector<double> wi, r2, cosr;
     std::vector<uint32_t> owner;
+    std::vector<RGB> tint;    // per arrival: the light's colour (times its direction's tint)
     std::vector<float> seen;  // transmittance of the shadow ray (0 blocked, 1 open, between: glass)
 
     // stride > 1: of a sky (more than kSkyDirections directions) only the directions j with
     // j % stride == offset, their weights times stride (one share of an interleaved set).
     void collect(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
                  const Vec3* n, const Vec3& start, size_t stride = 1, size_t offset = 0) {
-        from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear();
+        from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear(); tint.clear();
         for (uint32_t li = 0; li < luminaires.size(); ++li) {
             const Luminaire& l = luminaires[li];
             if (l.distant) {
@@ -179,6 +186,7 @@ struct Arrivals {
                     r2.push_back(1.0);
                     cosr.push_back(c);
                     owner.push_back(li);
+                    tint.push_back(l.tints.empty() ? l.colour : mul(l.colour, l.tints[k]));
                 }
                 continue;
             }
@@ -199,6 +207,7 @@ struct Arrivals {
                 r2.push_back(dd);
                 cosr.push_back(c);
                 owner.push_back(li);
+                tint.push_back(l.colour);
             }
         }
         seen.assign(from.size(), 1.0f);
@@ -210,7 +219,7 @@ struct Arrivals {
 RGB irradiance_of(const std::vector<Luminaire>& luminaires, const Arrivals& a) {
     RGB sum{};
     for (size_t s = 0; s < a.from.size(); ++s)
-        if (a.seen[s] > 0) sum += luminaires[a.owner[s]].colour * (a.seen[s] * a.wi[s] * a.cosr[s] / a.r2[s]);
+        if (a.seen[s] > 0) sum += a.tint[s] * (a.seen[s] * a.wi[s] * a.cosr[s] / a.r2[s]);
     return sum;
 }
 
@@ -247,7 +256,7 @@ void luminaire_moments(const std::vector<Luminaire>& luminaires, const Visibilit
             a.collect(luminaires, visibility, x[q], nullptr, x[q]);
             for (size_t s = 0; s < a.from.size(); ++s) {
                 if (!(a.seen[s] > 0)) continue;
-                const RGB v = luminaires[a.owner[s]].colour * (a.seen[s] * a.wi[s] / a.r2[s]);
+                const RGB v = a.tint[s] * (a.seen[s] * a.wi[s] / a.r2[s]);
                 s0[q] += v;
                 for (int c = 0; c < 3; ++c) s1[q][c] += v * a.dir[s][c];
             }

@@ -60,6 +60,8 @@ struct Luminaire {
     RGB colour{1, 1, 1};          // channel multiplier
     bool distant = false;         // a distant light: points are directions (see above)
     double illuminance = 0;       // distant: E_perp per unit colour, lux or W/m^2
+    std::vector<RGB> tints;       // distant, optional: per direction a colour times `colour` (a
+                                  // textured dome's cells in one light); empty: all white
 
     // Checks the data (sizes, finiteness, weights, frame); throws std::invalid_argument
     // naming the luminaire and the problem.
@@ -120,7 +122,7 @@ std::vector<Vec3> unit_directions(const std::vector<Vec3>& directions);
 // A distant light (validated): `directions` towards the light (normalised here), weights summing
 // to 1, E_perp per unit colour.
 Luminaire distant_light(std::string name, std::vector<Vec3> directions, std::vector<double> weights,
-                        double illuminance, RGB colour);
+                        double illuminance, RGB colour, std::vector<RGB> tints = {});
 
 uint64_t luminaires_fingerprint(const std::vector<Luminaire>& luminaires);
 

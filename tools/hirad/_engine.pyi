@@ -56,9 +56,9 @@ class Luminaire:
         """
 
     @staticmethod
-    def distant(name: str, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], illuminance: float, colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> Luminaire:
+    def distant(name: str, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], illuminance: float, colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], tints: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> Luminaire:
         """
-        A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light (normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a surface facing it, colour (1, 3). Invalid data: ValueError.
+        A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light (normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a surface facing it, colour (1, 3); tints (k, 3), optional: per direction a colour factor (a sky of varying colour as one light). Invalid data: ValueError.
         """
 
     @property

@@ -146,7 +146,8 @@ def test_patch_lights_add_up_to_the_combined_sky():
     lum = rng.uniform(0, 10, size=(145, 3))
     sky = sources.sky_lights(lum, 1, up="Y", ground_reflectance=0.25, subdivisions=2)
     assert len(sky.patches) == 145
-    assert len(sky.combined) == 3  # patches of different colours: one light per channel
+    assert len(sky.combined) == 1  # patches of different colours: one light, a tint per direction
+    assert sky.combined[0].tints is not None
     normals = rng.normal(size=(20, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     total = sum(s.irradiance(normals) for s in sky.patches + sky.ground)

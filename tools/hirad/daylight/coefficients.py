@@ -81,7 +81,8 @@ def direct_coefficients(field, points, normals, lights) -> np.ndarray:
     k = 0
     for g, l in enumerate(lights):
         n = l.count
-        out[:, g] = (t[:, k:k + n].astype(np.float64) @ l.weights) * l.illuminance * float(_Y @ l.colour)
+        w = l.weights if l.tints is None else l.weights * (l.tints @ _Y)
+        out[:, g] = (t[:, k:k + n].astype(np.float64) @ w) * l.illuminance * float(_Y @ l.colour)
         k += n
     return out
 

@@ -118,6 +118,9 @@ class DistantLightSpec:
     kind: str = "sun"
     source: str = ""
     notes: list = field(default_factory=list)
+    # optional (k, 3): per direction a colour factor times `colour` (a sky of varying colour in
+    # one light, its weights carrying the luminance Y and its tints Y = 1)
+    tints: np.ndarray | None = None
 
     def __post_init__(self):
         d = np.asarray(self.directions, dtype=np.float64).reshape(-1, 3)
@@ -142,6 +145,11 @@ class DistantLightSpec:
         if c.size != 3 or not (np.isfinite(c).all() and (c >= 0).all()):
             raise DaylightError(f"{where}: colour must be 3 finite numbers >= 0, got {self.colour!r}")
         self.colour = np.ascontiguousarray(c)
+        if self.tints is not None:
+            t = np.asarray(self.tints, dtype=np.float64).reshape(-1, 3)
+            if len(t) != len(d) or not (np.isfinite(t).all() and (t >= 0).all()):
+                raise DaylightError(f"{where}: tints must be one finite RGB >= 0 per direction")
+            self.tints = np.ascontiguousarray(t)
 
     @property
     def count(self) -> int:
@@ -157,6 +165,9 @@ class DistantLightSpec:
         """(n, 3) unoccluded colour x illuminance x sum_k w_k max(0, n . d_k) for unit normals
         (n, 3) (or one normal (3,)): the engine's formula with every T_k = 1."""
         n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+        if self.tints is not None:
+            cos = (np.maximum(n @ self.directions.T, 0.0) * self.weights[None, :]) @ self.tints
+            return cos * self.illuminance * self.colour[None, :]
         cos = np.maximum(n @ self.directions.T, 0.0) @ self.weights
         return cos[:, None] * self.illuminance * self.colour[None, :]
 
@@ -165,7 +176,7 @@ class DistantLightSpec:
         from hirad import _engine
 
         return _engine.Luminaire.distant(self.name, self.directions, self.weights, float(self.illuminance),
-                                         np.ascontiguousarray(self.colour.reshape(1, 3)))
+                                         np.ascontiguousarray(self.colour.reshape(1, 3)), tints=self.tints)
 
 
 def _unit(v, what: str) -> np.ndarray:
@@ -352,8 +363,10 @@ def patch_luminance(luminance, sky_patches: SkyPatches, order: int = 8) -> np.nd
 
 def _cell_specs(name: str, kind: str, source: str, dirs: np.ndarray, omega: np.ndarray,
                 lum: np.ndarray) -> list[DistantLightSpec]:
-    """One light for cells of RGB luminance `lum` (M, 3) and solid angles `omega` (M,) when they
-    share one chromaticity, else three (R, G, B); none when all are black."""
+    """One light for cells of RGB luminance `lum` (M, 3) and solid angles `omega` (M,): its weights
+    the cells' luminance Y x solid angle, and, when the cells differ in chromaticity, each cell's
+    own as its tint (RGB / Y); none when all are black. A cell with colour but Y = 0 (possible
+    only for negative-weight primaries, so never here) would be dropped."""
     flux = lum * omega[:, None]  # (M, 3) L Omega per channel
     y = flux @ Y_WEIGHTS
     if not (flux > 0).any():
@@ -364,17 +377,10 @@ def _cell_specs(name: str, kind: str, source: str, dirs: np.ndarray, omega: np.n
         keep = y > 0
         return [DistantLightSpec(name=name, directions=dirs[keep], weights=y[keep], illuminance=float(y.sum()),
                                  colour=chroma[0], kind=kind, source=source)]
-    out = []
-    for ch, label in enumerate("RGB"):
-        keep = flux[:, ch] > 0
-        if not keep.any():
-            continue
-        col = np.zeros(3)
-        col[ch] = 1.0
-        out.append(DistantLightSpec(name=f"{name} ({label})", directions=dirs[keep], weights=flux[keep, ch],
-                                    illuminance=float(flux[:, ch].sum()), colour=col, kind=kind, source=source,
-                                    notes=[f"channel {label} of a sky of varying colour"]))
-    return out
+    keep = y > 0
+    return [DistantLightSpec(name=name, directions=dirs[keep], weights=y[keep], illuminance=float(y.sum()),
+                             colour=np.ones(3), kind=kind, source=source, tints=flux[keep] / y[keep][:, None],
+                             notes=["a sky of varying colour: one tint per direction"])]
 
 
 @dataclass
@@ -383,7 +389,7 @@ class SkyLights:
 
     ``patches``: one light per sky patch (index = patch index; black patches have illuminance 0);
     ``ground``: one uniform ground light, or one per mirrored patch (a dome's lower half);
-    ``combined``: the sky and the ground together (one light, or three for a sky whose patches
+    ``combined``: the sky and the ground together (one light, tinted per direction for a sky whose patches
     differ in colour) - what a point-in-time bake uses; ``patch_luminance`` (N, 3),
     ``ground_luminance`` (3,) or (N, 3); ``horizontal_illuminance`` (3,): the sky's (without the
     sun) on an unobstructed upward plane; ``ground_illuminance`` (3,): the E_h (sky and sun) that
@@ -820,7 +826,7 @@ def daylight_luminaires(scene_arrays, config, warnings: list | None = None) -> l
     * a sky model: that sky and its sun (site and time), replacing the scene's DomeLight and
       DistantLight prims (named in a warning).
 
-    Suns first, then the sky (one light, or three for a sky of varying colour). Warnings go to
+    Suns first, then the sky (one light, tinted per direction when its colour varies). Warnings go to
     `warnings` (default: the scene's own list)."""
     dl = _daylight_config(config)
     if warnings is None:
