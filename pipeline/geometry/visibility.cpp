@@ -168,6 +168,11 @@ Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing
     // Medium quality: the high-quality builder's spatial splits abort (an assertion on empty
     // clipped bounds) on the thin halves of triangles stored as quads in large display meshes.
     rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_MEDIUM);
+    // Robust (watertight) traversal and intersection: a ray along a shared edge of two patches,
+    // common in architectural scenes (grid points aligned with a ceiling's element edges and a
+    // sky direction along an axis), otherwise slips between them and sees the sky through a
+    // closed ceiling.
+    rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
     RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_QUAD);
     const size_t n = patches.size();
     auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,

@@ -29,6 +29,11 @@ It was written again for the two hierarchical configs when refinement began to s
 estimates by node keys instead of node indices (distributed link generation: a group refined
 on another machine numbers its new nodes differently but must draw the same samples); the
 estimates are other samples of the same integrals, so the values moved within sampling noise.
+It was written again for all three configs when Embree's traversal became robust (watertight,
+RTC_SCENE_FLAG_ROBUST, stop 22): rays along a shared edge of two patches had slipped between
+them (the daylight bench found the sky seen through a closed ceiling along axis directions), so
+form-factor and visibility rays that graze patch edges now hit; the values moved by what those
+rays carried.
 Rewrite it only for a change of the physics, and say which in the commit.
 """
 

@@ -224,3 +224,20 @@ def test_glazing_values_are_checked():
         make_model([FLOOR], 0.5, transmittance=[0.6])  # 0.5 + 0.6 > 1
     with pytest.raises(ValueError, match="angular"):
         make_model([FLOOR], 0.1, transmittance=[0.8], glass_angular=[0.5])
+
+
+def test_no_ray_slips_between_the_patches_of_a_closed_room():
+    """A closed 6 x 4 x 3 m room meshed into 0.5 m patches; points on the lattice of the patch
+    corners, rays along the lattice's axes and diagonals and straight up (the sky patch centres
+    at azimuths of multiples of 45 degrees): rays that run exactly along shared patch edges and
+    through shared corners. The room must stop every one (watertight traversal)."""
+    m = make_model(_box(6.0, 4.0, 3.0), 0.5, max_edge=0.5)
+    xs, ys = np.meshgrid(np.arange(0.5, 6.0, 0.5), np.arange(0.5, 4.0, 0.5))
+    pts = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)], axis=1)
+    dirs = []
+    for alt in (26.565051177, 45.0, 63.434948823, 90.0):  # slopes 1/2, 1, 2 and vertical
+        for az in range(0, 360, 45):
+            a, z = math.radians(alt), math.radians(az)
+            dirs.append([math.cos(a) * math.sin(z), math.cos(a) * math.cos(z), math.sin(a)])
+    t = m.direct_transmittance(pts, np.tile(UP, (len(pts), 1)), np.array(dirs))
+    assert np.count_nonzero(t) == 0
