@@ -97,6 +97,16 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
 bool record_step(HierarchicalSolution& sol, const SolverOptions& opt, const char* solver, uint64_t step, double res,
                  uint32_t face, const char* step_name = "iteration") {
     require_finite_residual(solver, res, step, step_name);
+    // A solve whose residual has grown a million times over its best diverges (the spectral
+    // radius of rho F above 1: a reflectance near 1 on an element whose link estimates sum
+    // above 1): stop now, not after max_iterations with an overflowing radiosity.
+    sol.least_residual = std::min(sol.least_residual, res);
+    if (step > 8 && res > 1e6 * sol.least_residual)
+        throw NonFiniteError(std::string(solver) + ": the residual grew from " + std::to_string(sol.least_residual) +
+                             " to " + std::to_string(res) + " at " + step_name + " " + std::to_string(step) +
+                             ": the solve diverges (a reflectance near 1, up to the 0.999 hirad allows, where the link "
+                             "estimates of an element sum above 1; lower that material's reflectance or raise "
+                             "hierarchy.samples); stopped, nothing was written");
     sol.residual_history.push_back(res);
     sol.iterations = step;
     sol.residual = res;

@@ -23,6 +23,7 @@ struct HierarchicalSolution {
     double residual = 0;
     bool converged = false;
     std::vector<double> residual_history;
+    double least_residual = 1e300;  // the smallest residual so far (divergence check)
 };
 
 // Sorts links by receiver, then source (the order the gather reads them in).
