@@ -169,9 +169,12 @@ def daylight_inputs(cfg: Config, scene, source: Path | None = None):
         lights = daylight_luminaires(scene, cfg) if (scene.daylight or dl.sky.model != "usd") else []
         groups = []
         if dl.annual is not None:  # sky patches and ground of unit luminance, then 1-lux suns at the patch centres
-            from .daylight.weather import read_weather
+            from .daylight.weather import WeatherFileError, read_weather
 
-            read_weather(dl.annual.weather)  # a bad line stops the bake now, naming the file and line
+            try:
+                read_weather(dl.annual.weather)  # a bad line stops the bake now, naming the file and line
+            except WeatherFileError as e:
+                raise located(("daylight", "annual", "weather"), str(e)) from None
             north = None if dl.north is None else tuple(dl.north)
             groups = daylight_patch_groups(scene, cfg) + sun_bin_lights(reinhart_patches(dl.reinhart_mf()),
                                                                         scene.up_axis, north)

@@ -432,13 +432,16 @@ def annual(coefficients: Path = typer.Argument(..., help="grids/annual/coefficie
     def go():
         from .daylight import study
         from .daylight.sun import Site
-        from .daylight.weather import read_weather
+        from .daylight.weather import WeatherFileError, read_weather
 
         inputs = [("coefficients", coefficients), ("weather file", weather)]
         files.check_output(out, inputs)
         if not coefficients.is_file():
-            _fail(f"{coefficients}: no such file")
-        w = read_weather(weather)  # a bad line is named with the file and the line
+            _fail(f"{coefficients}: no such file", EXIT_USAGE)
+        try:
+            w = read_weather(weather)  # a bad line is named with the file and the line
+        except (WeatherFileError, OSError) as e:
+            _fail(str(e), EXIT_USAGE)
         site = None
         if latitude is not None or longitude is not None:
             site = Site(w.latitude if latitude is None else latitude, w.longitude if longitude is None else longitude,

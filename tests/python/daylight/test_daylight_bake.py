@@ -174,8 +174,8 @@ def test_bad_weather_file_is_named_with_its_line(tmp_path):
     out = tmp_path / "out"
     r = run_cli("bake", ROOM, "--set", f"output={out}", "--set", f"daylight.annual.weather={epw}",
                 *[x for o in QUIET for x in ("--set", o)])
-    assert r.returncode != 0
-    assert f"{epw}:{line}" in r.stderr
+    assert r.returncode == 2  # a bad input file, found before anything runs
+    assert f"{epw}:{line}" in r.stderr and "daylight.annual.weather" in r.stderr
     assert_no_output(out)
 
 
@@ -221,7 +221,7 @@ def test_annual_rerun_from_coefficients_needs_no_solve(annual_bake, tmp_path):
     epw = tmp_path / "bad.epw"
     line = _epw_with_bad_line(epw)
     r = run_cli("annual", npz, epw, "-o", tmp_path / "bad")
-    assert r.returncode != 0 and f"{epw}:{line}" in r.stderr
+    assert r.returncode == 2 and f"{epw}:{line}" in r.stderr
     assert_no_output(tmp_path / "bad")
 
 
