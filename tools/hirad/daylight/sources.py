@@ -452,13 +452,18 @@ def sky_lights(luminance, sky_patches=None, up="Y", north=None, ground_reflectan
     gdirs = cells.directions(up, north, below=True)
     omega = cells.solid_angle
 
-    patch_specs = []
-    for p in range(sp.count):
-        sel = cells.owner == p
-        y, colour = _split_rgb(lum[p])
-        patch_specs.append(DistantLightSpec(name=f"{name} patch {p}", directions=dirs[sel],
-                                            weights=omega[sel], illuminance=y * float(sp.solid_angle[p]),
-                                            colour=colour, kind="sky patch", source=source))
+    def per_patch(label: str, kind: str, cell_dirs: np.ndarray, values: np.ndarray) -> list:
+        """One light per patch: its cells' directions by solid angle, illuminance L_p Omega_p."""
+        out = []
+        for p in range(sp.count):
+            sel = cells.owner == p
+            y, colour = _split_rgb(values[p])
+            out.append(DistantLightSpec(name=f"{name} {label} {p}", directions=cell_dirs[sel], weights=omega[sel],
+                                        illuminance=y * float(sp.solid_angle[p]), colour=colour, kind=kind,
+                                        source=source))
+        return out
+
+    patch_specs = per_patch("patch", "sky patch", dirs, lum)
     # what the sky's cells give an unobstructed upward plane
     e_sky = (cell_lum * (omega * np.maximum(dirs @ up_v, 0.0))[:, None]).sum(axis=0)
 
@@ -490,13 +495,7 @@ def sky_lights(luminance, sky_patches=None, up="Y", north=None, ground_reflectan
         if e_lit is not None:
             ground_specs[0].notes.append(f"rho_g = {float(ground_reflectance):g}, E_h = {float(e_lit @ Y_WEIGHTS):.6g}")
     else:
-        ground_specs = []
-        for p in range(sp.count):
-            sel = cells.owner == p
-            y, colour = _split_rgb(g_lum[p])
-            ground_specs.append(DistantLightSpec(name=f"{name} ground patch {p}", directions=gdirs[sel],
-                                                 weights=omega[sel], illuminance=y * float(sp.solid_angle[p]),
-                                                 colour=colour, kind="ground patch", source=source))
+        ground_specs = per_patch("ground patch", "ground patch", gdirs, g_lum)
         g_cells = g_lum[cells.owner]
 
     combined = _cell_specs(name, "sky", source, np.concatenate([dirs, gdirs]), np.concatenate([omega, omega]),
