@@ -9,8 +9,9 @@ traceback (set HIRAD_DEBUG=1 to see one). Exit codes:
     2    usage or config error: a bad option or config value, an option that does not apply,
          an output or link store hirad refuses to write (an input, a directory it did not make)
     3    scene error: the USD scene (or a solution layer) cannot be used
-    4    the run failed: the bake could not finish, an output could not be written (disk full,
-         permissions), not enough memory
+    4    the run failed: the bake could not finish (a solve that diverged: the message names
+         the meshes of reflectance near 1 and the config keys to change), an output could not
+         be written (disk full, permissions), not enough memory
     5    hirad batch: some jobs failed or were cancelled (the others are done; `hirad batch
          status STUDY.yaml` says which and why)
     130  interrupted by SIGINT (Ctrl-C); the partial output is removed
@@ -136,6 +137,60 @@ def _run_guarded(fn):
         raise
 
 
+# What the engine's solvers say when a solve diverges (hierarchical_solver.cpp: the residual grew
+# a million times over its best) or its radiosity stopped being finite (core/checks.h).
+_DIVERGENCE_MARKERS = (": the solve diverges", "the radiosity is no longer finite")
+
+
+def _diverged(e: BaseException) -> Optional[str]:
+    """The engine's message when `e` is a solve that diverged (a RuntimeError from the engine, or
+    the out-of-core bake's BakeError wrapping one), else None."""
+    from .errors import BakeError
+
+    if not isinstance(e, (RuntimeError, BakeError)):
+        return None
+    text = _one_line(e)
+    return text if any(m in text for m in _DIVERGENCE_MARKERS) else None
+
+
+def _divergence_advice(config: Path, sets: tuple) -> str:
+    """What to change after a diverged solve: the likely cause (a reflectance near 1 where an
+    element's sampled link estimates sum above 1) with the meshes whose reflectance is near 1 and
+    the config keys that decide it, read from the config and its scene (best effort: a config or
+    scene that cannot be read now only shortens the advice)."""
+    text = (" -- the likely cause: surfaces of reflectance near 1, whose sampled link (form factor) "
+            "estimates sum above 1, so that every bounce returns more light than it received")
+    try:
+        from . import usd
+        from .config import load_config
+
+        cfg = load_config(config, sets)
+        scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
+                               uv_primvars=tuple(cfg.materials.uv_primvars), require_emission=False,
+                               ies_mode=cfg.photometry.ies_mode)
+    except Exception:  # the advice is a courtesy: the divergence is the error
+        return text + ("; lower the reflectance of the brightest materials (at most 0.95 is physical) or "
+                       "materials.default_reflectance, or raise hierarchy.samples (formfactors.samples for method: "
+                       "flat) for better link estimates")
+    refl = np.asarray(scene.face_reflectance, dtype=np.float64).max(axis=1) if scene.num_faces else np.zeros(0)
+    high: dict[str, float] = {}
+    for f in np.flatnonzero(refl >= 0.95):
+        path = scene.meshes[int(scene.face_mesh[f])].path
+        high[path] = max(high.get(path, 0.0), float(refl[f]))
+    keys = []
+    if high:
+        shown = sorted(high.items(), key=lambda kv: -kv[1])
+        names = ", ".join(f"{p} ({r:.3g})" for p, r in shown[:6]) + (f" and {len(shown) - 6} more" if len(shown) > 6 else "")
+        keys.append(f"lower the reflectance of the materials on {names} (at most 0.95 is physical)")
+    if max(cfg.materials.default_reflectance) >= 0.95:
+        keys.append(f"lower materials.default_reflectance (now {list(cfg.materials.default_reflectance)})")
+    if cfg.method == "flat":
+        keys.append(f"raise formfactors.samples (now {cfg.formfactors.samples}) for better form factor estimates")
+    else:
+        keys.append(f"raise hierarchy.samples (now {cfg.hierarchy.samples}) for better link estimates")
+    return text + "; " + "; or ".join(keys)
+
+
 def _version(value: bool) -> None:
     if value:
         from . import __version__
@@ -207,9 +262,21 @@ def bake(config: Path = typer.Argument(..., help="YAML config"),
     if progress not in ("auto", "bar", "plain", "jsonl", "none"):
         _fail(f"--progress {progress!r}: auto, bar, plain, jsonl or none")
     mode = "none" if quiet or (as_json and progress == "auto") else progress
-    result = _run_guarded(lambda: run(config, quiet=mode == "none", threads=threads, snapshots=snapshots,
-                                      resume=resume, reuse_links=reuse_links, overrides=tuple(sets),
-                                      progress=mode, scheduler=scheduler, link_threads=link_threads))
+
+    def go():
+        try:
+            return run(config, quiet=mode == "none", threads=threads, snapshots=snapshots, resume=resume,
+                       reuse_links=reuse_links, overrides=tuple(sets), progress=mode, scheduler=scheduler,
+                       link_threads=link_threads)
+        except Exception as e:
+            diverged = _diverged(e)
+            if diverged is None:
+                raise
+            from .errors import BakeError
+
+            raise BakeError(f"{config}: {diverged}{_divergence_advice(config, tuple(sets))}") from None
+
+    result = _run_guarded(go)
     if as_json:
         print(json.dumps(result.report, indent=2))
     elif not quiet:
