@@ -558,6 +558,11 @@ def grid(solution: Path = typer.Argument(..., help="solution.usda written by `hi
         sol = load_solution(solution)
         if sol.emitted_radiance is None:
             sol.illuminance(np.zeros((0, 3)), np.zeros((0, 3)))  # the layer predates emission: say so
+        # the bake's glazing, sun and sky (daylight.npz beside the layer): direct light through the
+        # windows as the bake's grids had it
+        from .studies.usdgrids import apply_stored_daylight
+
+        apply_stored_daylight(sol, solution)
         up_axis = spec.up_axis if "up_axis" in spec.model_fields_set else sol.up_axis
         rooms = {}
         for g in spec.grids.values():

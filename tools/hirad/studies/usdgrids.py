@@ -422,3 +422,189 @@ def grids_from_stage(stage_or_path: Union["object", str, Path], up_axis: Optiona
             raise StudyError(f"prim {path}: has {PREFIX} attributes but is a {prim.GetTypeName() or 'typeless prim'}; "
                              "a calculation surface is a Mesh or a Plane")
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# stored daylight: what `hirad grid` needs to read a daylit solution layer as the bake did
+# ----------------------------------------------------------------------------------------------
+#
+# A bake evaluates its grids on a SurfaceField whose faces carry their glazing (the normal
+# transmittance of direct light, hirad.daylight.glazing) and whose lights include the sun and
+# sky as distant lights. The solution layer holds neither: the bake writes them beside it as
+# `daylight.npz` (named in the layer's customLayerData `hirad:daylight`), and `hirad grid`
+# applies them to the loaded solution, so that its grids see the sun and sky through the
+# windows exactly as the bake's did. Contents:
+#
+# * `faces`: the number of faces of the layer (its meshes in order, each one's faces in order:
+#   the order hirad.solution.load_solution reads them);
+# * `transmittance` (faces,), when any face is glass; `glass_faces` and `glass_centroids`, the
+#   glazed faces and their centroids, to check that the layer is still the one it was written
+#   for;
+# * per distant light k: `d<k>_directions`, `_weights`, `_illuminance`, `_colour` (unweighted),
+#   `_weight` (its light group's dimmer x colour, 1 without groups; hirad relight rewrites it),
+#   `_tints` (when it has them), `_kind`, `_source`; `names` of all.
+
+DAYLIGHT_FILE = "daylight.npz"
+DAYLIGHT_KEY = "hirad:daylight"
+_DAYLIGHT_FORMAT = "hirad-stored-daylight"
+
+
+def _centroids(corners: np.ndarray, nv: np.ndarray) -> np.ndarray:
+    c = np.asarray(corners, dtype=np.float64)
+    k = np.asarray(nv).reshape(-1, 1)
+    mask = (np.arange(c.shape[1])[None, :] < k)[..., None]
+    return (c * mask).sum(axis=1) / k
+
+
+def day_light_weights(groups, n_specs: int, n_day: int) -> np.ndarray:
+    """(n_day, 3): each distant light's group weight (dimmer x colour; 1 in no group). A bake's
+    luminaire index i >= n_specs is distant light i - n_specs (hirad.relight.resolve_groups)."""
+    w = np.ones((n_day, 3))
+    for g in groups or ():
+        for i in g.luminaires:
+            if n_specs <= i < n_specs + n_day:
+                w[i - n_specs] = g.weight
+    return w
+
+
+def save_stored_daylight(out_dir: Path, day_lights, transmittance, corners, nv, layer_faces, *, groups=None,
+                         n_specs: int = 0) -> dict:
+    """Writes OUT/daylight.npz when the bake has glass or distant lights (sun, sky) and returns
+    the solution layer's metadata naming it ({} when there is nothing to store). `day_lights`:
+    hirad.daylight.sources.DistantLightSpec, unweighted; `transmittance`, `corners`, `nv`: per
+    display face; `layer_faces`: the display faces of each solution mesh, in the layer's order
+    (hirad.outputs.meshes.patch_meshes); `groups`/`n_specs`: the light groups and the number of
+    non-distant luminaires before the distant ones (their weights)."""
+    import io
+
+    from .. import files
+
+    order = np.concatenate([np.asarray(f, dtype=np.int64) for f in layer_faces]) if len(layer_faces) else \
+        np.zeros(0, dtype=np.int64)
+    tau = None if transmittance is None else np.asarray(transmittance, dtype=np.float64)[order]
+    glazed = tau is not None and bool(np.any(tau > 0))
+    if not glazed and not day_lights:
+        return {}
+    arrays: dict = {"format": np.array(_DAYLIGHT_FORMAT), "version": np.array(1), "faces": np.array(len(order)),
+                    "names": np.array([str(d.name) for d in day_lights], dtype=str)}
+    if glazed:
+        glass = np.flatnonzero(tau > 0)
+        arrays.update(transmittance=tau, glass_faces=glass,
+                      glass_centroids=_centroids(np.asarray(corners)[order][glass], np.asarray(nv)[order][glass]))
+    weights = day_light_weights(groups, n_specs, len(day_lights))
+    for k, d in enumerate(day_lights):
+        arrays.update({f"d{k}_directions": np.asarray(d.directions, dtype=np.float64),
+                       f"d{k}_weights": np.asarray(d.weights, dtype=np.float64),
+                       f"d{k}_illuminance": np.array(float(d.illuminance)),
+                       f"d{k}_colour": np.asarray(d.colour, dtype=np.float64).reshape(3),
+                       f"d{k}_weight": weights[k], f"d{k}_kind": np.array(str(d.kind)),
+                       f"d{k}_source": np.array(str(d.source))})
+        if d.tints is not None:
+            arrays[f"d{k}_tints"] = np.asarray(d.tints, dtype=np.float64)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    files.write_bytes(Path(out_dir) / DAYLIGHT_FILE, buf.getvalue())
+    return {DAYLIGHT_KEY: DAYLIGHT_FILE}
+
+
+def read_stored_daylight(path) -> dict:
+    """The arrays of a daylight.npz (a StudyError naming the file when it is not one)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        if str(arrays.get("format")) != _DAYLIGHT_FORMAT:
+            raise ValueError("not a hirad stored-daylight file")
+        int(arrays["faces"])
+        for k in range(len(arrays["names"])):
+            for a in ("directions", "weights", "illuminance", "colour", "weight"):
+                arrays[f"d{k}_{a}"]
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise StudyError(f"{path}: not a hirad daylight file ({e})") from None
+    return arrays
+
+
+def stored_day_lights(arrays: dict, path="daylight.npz") -> list:
+    """The distant lights of a daylight.npz, each with its colour times its group weight."""
+    from ..daylight.sources import DaylightError, DistantLightSpec
+
+    out = []
+    for k, name in enumerate(arrays["names"]):
+        try:
+            out.append(DistantLightSpec(
+                name=str(name), directions=arrays[f"d{k}_directions"], weights=arrays[f"d{k}_weights"],
+                illuminance=float(arrays[f"d{k}_illuminance"]),
+                colour=np.asarray(arrays[f"d{k}_colour"]) * np.asarray(arrays[f"d{k}_weight"]),
+                kind=str(arrays.get(f"d{k}_kind", "sun")), source=str(arrays.get(f"d{k}_source", "")),
+                tints=arrays.get(f"d{k}_tints")))
+        except DaylightError as e:
+            raise StudyError(f"{path}: {e}") from None
+    return out
+
+
+def _layer_metadata(solution) -> dict:
+    from pxr import Sdf
+
+    layer = Sdf.Layer.OpenAsAnonymous(str(solution), True)  # its metadata only
+    return dict(layer.customLayerData) if layer is not None else {}
+
+
+def _old_distant(luminaires) -> list[str]:
+    """Names of luminaires that are distant lights stored by a hirad that kept only their
+    directions (as points on the unit sphere) and no light (all-zero candela)."""
+    out = []
+    for l in luminaires:
+        if getattr(l, "is_distant", False):
+            continue
+        pts = np.asarray(l.points, dtype=np.float64)
+        if not np.any(np.asarray(l.candela)) and len(pts) and np.allclose(np.linalg.norm(pts, axis=1), 1.0,
+                                                                            atol=1e-9):
+            out.append(str(l.name))
+    return out
+
+
+def apply_stored_daylight(sol, solution) -> dict:
+    """Gives a loaded solution (hirad.solution.SurfaceSolution of `solution`, its layer) the
+    glazing and the sun and sky its bake stored in daylight.npz, so that its illuminance is the
+    bake's. Returns what was applied ({"glazed_faces", "distant_lights"}). A layer that names a
+    missing or damaged file, or whose faces no longer match it, or an older daylit layer whose
+    luminaires.npz kept the sun and sky without their light, is a SceneError (exit 3)."""
+    from ..usd import SceneError
+
+    name = _layer_metadata(solution).get(DAYLIGHT_KEY)
+    if not name:
+        old = _old_distant(sol.luminaires)
+        if old:
+            raise SceneError(f"{solution}: its luminaires file holds the distant lights {', '.join(old)} (sun, sky) "
+                             "without their light and the layer names no daylight file (glazing): written by an "
+                             "older hirad; bake the scene again to evaluate grids on it")
+        return {"glazed_faces": 0, "distant_lights": 0}
+    file = Path(solution).parent / str(name)
+    if not file.is_file():
+        raise SceneError(f"{solution}: names its daylight file {name} (the glazing, sun and sky), which is missing "
+                         "beside it (their light through the windows would be lost)")
+    try:
+        arrays = read_stored_daylight(file)
+        lights = stored_day_lights(arrays, file)
+    except StudyError as e:
+        raise SceneError(str(e)) from None
+    faces = int(arrays["faces"])
+    if faces != len(sol.corners):
+        raise SceneError(f"{file}: written for {faces} faces, the layer {solution} has {len(sol.corners)}: the layer "
+                         "changed since the bake; bake again")
+    glazed = 0
+    if "transmittance" in arrays:
+        tau = np.asarray(arrays["transmittance"], dtype=np.float64)
+        glass = np.asarray(arrays["glass_faces"], dtype=np.int64)
+        at = _centroids(np.asarray(sol.corners)[glass], np.asarray(sol.nv)[glass])
+        scale = 1.0 + float(np.abs(np.asarray(sol.corners)).max()) if len(sol.corners) else 1.0
+        off = np.abs(at - np.asarray(arrays["glass_centroids"])).max() if len(glass) else 0.0
+        if tau.shape != (faces,) or off > 1e-5 * scale:
+            raise SceneError(f"{file}: its glazed faces are not where the layer {solution} has them (off by "
+                             f"{off:.3g} m): the layer changed since the bake; bake again")
+        sol.transmittance = tau
+        glazed = int(len(glass))
+    if lights:
+        keep = [l for l in sol.luminaires if not getattr(l, "is_distant", False)]
+        sol.luminaires = keep + [d.to_engine() for d in lights]
+    sol._field = None  # built again with the glazing and the lights
+    return {"glazed_faces": glazed, "distant_lights": len(lights)}
