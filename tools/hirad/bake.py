@@ -330,9 +330,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             path = staging / "solution.usda"
             meta = {"hirad:version": __version__, "hirad:config": cfg.fingerprint(),
                     "hirad:units": units.layer_units(cfg.units)}
-            if luminaires:
-                save_luminaires(luminaires, staging / LUMINAIRES_FILE)
+            if any(not l.is_distant for l in luminaires):  # the sun and sky go to daylight.npz
+                save_luminaires([l for l in luminaires if not l.is_distant], staging / LUMINAIRES_FILE)
                 meta["hirad:luminaires"] = LUMINAIRES_FILE
+            from .studies.usdgrids import save_stored_daylight  # glazing, sun and sky, for `hirad grid`
+            meta.update(save_stored_daylight(staging, day_lights, result.transmittance, result.corners, result.nv,
+                                             mesh_faces, groups=light_groups, n_specs=len(specs)))
             usd.write_solution_layer(cfg.scene, path, scene, meshes, meta)
             outputs["usd"] = "solution.usda"
     if cfg.outputs.preview.enabled:
