@@ -39,23 +39,29 @@ void bind_luminaires(nb::module_& m) {
              "degrees, colour (1, 3): channel c emits candela x colour[c]. Invalid data: ValueError.")
         .def_static("distant",
                     [](const std::string& name, In<double> directions, In<double> weights, double illuminance,
-                       In<double> colour, std::optional<In<double>> tints) {
+                       In<double> colour, std::optional<In<double>> tints, bool interleave) {
                         std::vector<Vec3> d = vec3_rows(directions, "directions");
                         const long k = long(d.size());
                         require_shape(weights, {k}, "weights");
                         std::vector<double> w(weights.data(), weights.data() + weights.shape(0));
                         std::vector<RGB> t;
                         if (tints) t = vec3_rows(*tints, "tints", k);
-                        return distant_light(name, std::move(d), std::move(w), illuminance,
-                                             vec3_rows(colour, "colour", 1)[0], std::move(t));
+                        Luminaire l = distant_light(name, std::move(d), std::move(w), illuminance,
+                                                    vec3_rows(colour, "colour", 1)[0], std::move(t));
+                        l.interleave = interleave;
+                        return l;
                     },
                     "name"_a, "directions"_a, "weights"_a, "illuminance"_a, "colour"_a, "tints"_a.none() = nb::none(),
+                    "interleave"_a = false,
                     "A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light "
                     "(normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a "
                     "surface facing it, colour (1, 3); tints (k, 3), optional: per direction a colour factor (a sky "
-                    "of varying colour as one light). Invalid data: ValueError.")
+                    "of varying colour as one light). interleave: one part of a sky cut into many lights (daylight "
+                    "coefficients' patch groups): on elements, interleaved with the other such lights as one sky "
+                    "(luminaire.h). Invalid data: ValueError.")
         .def_ro("name", &Luminaire::name)
         .def_ro("is_distant", &Luminaire::distant, "True for a distant light (points are directions).")
+        .def_ro("interleave", &Luminaire::interleave, "Distant: part of a sky interleaved over elements' points.")
         .def_ro("illuminance", &Luminaire::illuminance, "Distant: E_perp per unit colour, lux (or W/m^2).")
         .def_prop_ro("points", [](const Luminaire& l) { return rows3(l.points); }, kOwned, "(k, 3) m.")
         .def_prop_ro("weights", [](const Luminaire& l) { return to_numpy(l.weights, {l.weights.size()}); }, kOwned,

@@ -191,12 +191,34 @@ RGB Engine::group_emission(const LightGroup& g, uint32_t face) const {
     return (f.mesh < group_mesh_[k].size() && group_mesh_[k][f.mesh]) ? f.emission : RGB{};
 }
 
-std::vector<RGB> Engine::group_direct(const LightGroup& g, const Visibility& vis, const std::vector<Patch*>& shapes) const {
-    std::vector<RGB> mean(shapes.size());
-    if (g.luminaires.empty() || shapes.empty()) return mean;
-    std::vector<double> spread;
-    element_luminaire_irradiance(g.luminaires, vis, shapes.data(), shapes.size(), kLuminaireSamples, mean, spread);
-    return mean;
+std::vector<RGB> Engine::groups_direct(size_t begin, size_t end, const Visibility& vis,
+                                      const std::vector<Patch*>& shapes) const {
+    // The interleaved sky directions of the groups before `begin` (their numbering goes on).
+    size_t sky_start = 0;
+    for (size_t q = 0; q < begin; ++q)
+        for (const Luminaire& l : groups_[q].luminaires)
+            if (l.distant && l.interleave) sky_start += l.points.size();
+    std::vector<Luminaire> lights;
+    std::vector<uint32_t> owner;
+    for (size_t q = begin; q < end; ++q)
+        for (const Luminaire& l : groups_[q].luminaires) {
+            lights.push_back(l);
+            owner.push_back(uint32_t(q - begin));
+        }
+    std::vector<RGB> out;
+    if (lights.empty() || shapes.empty()) {
+        out.assign((end - begin) * shapes.size(), RGB{});
+        return out;
+    }
+    element_group_irradiance(lights, owner, end - begin, vis, shapes.data(), shapes.size(), kLuminaireSamples, out,
+                             sky_start);
+    return out;
+}
+
+size_t Engine::group_batch(size_t elements) const {
+    // Groups lit together: their direct light held for every element, at most ~256 MB of it.
+    const size_t per_group = std::max<size_t>(1, elements) * sizeof(RGB);
+    return std::clamp<size_t>((size_t(256) << 20) / per_group, 1, 64);
 }
 
 std::vector<HierarchicalSolution> Engine::solve_groups_on(
@@ -213,13 +235,17 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
         emission[k] = shapes[k]->emission;
         direct[k] = shapes[k]->direct;
     }
-    for (const LightGroup& g : groups_) {
+    const size_t batch = group_batch(shapes.size());
+    std::vector<RGB> lit;
+    for (size_t q = 0; q < groups_.size(); ++q) {
         const auto t0 = std::chrono::steady_clock::now();
-        const std::vector<RGB> d = group_direct(g, vis, shapes);
+        const size_t first = q - q % batch;
+        if (q == first) lit = groups_direct(first, std::min(groups_.size(), first + batch), vis, shapes);
+        const RGB* d = lit.data() + (q - first) * shapes.size();
         for (size_t k = 0; k < shapes.size(); ++k) {
             Patch& p = *shapes[k];
             p.direct = d[k];
-            p.emission = group_emission(g, p.face) + mul(p.reflectance, d[k]);
+            p.emission = group_emission(groups_[q], p.face) + mul(p.reflectance, d[k]);
         }
         // As every round's solve: from the emission (rounds.cpp).
         std::vector<RGB> start = node_emission(h);
@@ -469,13 +495,17 @@ std::vector<GroupSolution> Engine::solve_groups(const SolveOptions& o, const For
             }
         }
     } restore{P, emission, direct};
-    for (const LightGroup& g : groups_) {
+    const size_t batch = group_batch(shapes.size());
+    std::vector<RGB> lit;
+    for (size_t q = 0; q < groups_.size(); ++q) {
         const auto t0 = std::chrono::steady_clock::now();
         GroupSolution gs;
-        gs.direct = group_direct(g, *visibility_, shapes);
+        const size_t first = q - q % batch;
+        if (q == first) lit = groups_direct(first, std::min(groups_.size(), first + batch), *visibility_, shapes);
+        gs.direct.assign(lit.begin() + (q - first) * shapes.size(), lit.begin() + (q - first + 1) * shapes.size());
         for (size_t i = 0; i < P.size(); ++i) {
             P[i].direct = gs.direct[i];
-            P[i].emission = group_emission(g, P[i].face) + mul(P[i].reflectance, gs.direct[i]);
+            P[i].emission = group_emission(groups_[q], P[i].face) + mul(P[i].reflectance, gs.direct[i]);
         }
         FlatSolveResult r = solve(o, ff);
         gs.irradiance = transport(r.radiosity, ff).irradiance;
@@ -694,9 +724,14 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     if (!groups.empty()) {
         std::vector<Patch*> shapes;
         for (uint32_t i : leaves) shapes.push_back(&h.nodes[i].shape);
+        const size_t batch = group_batch(shapes.size());
+        std::vector<RGB> lit;
         for (size_t k = 0; k < groups.size(); ++k) {
             GroupSolution gs;
-            gs.direct = group_direct(groups_[k], *state->visibility, shapes);
+            const size_t first = k - k % batch;
+            if (k == first)
+                lit = groups_direct(first, std::min(groups.size(), first + batch), *state->visibility, shapes);
+            gs.direct.assign(lit.begin() + (k - first) * shapes.size(), lit.begin() + (k - first + 1) * shapes.size());
             gs.radiosity.resize(leaves.size());
             gs.irradiance.resize(leaves.size());
             for (size_t j = 0; j < leaves.size(); ++j) {

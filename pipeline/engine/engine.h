@@ -365,7 +365,11 @@ private:
         std::vector<double>* seconds = nullptr) const;
     // A group's emission of face f.
     RGB group_emission(const LightGroup& g, uint32_t face) const;
-    std::vector<RGB> group_direct(const LightGroup& g, const Visibility& vis, const std::vector<Patch*>& shapes) const;
+    // The direct light of groups [begin, end) over `shapes`, lit together
+    // (element_group_irradiance): row (q - begin) * shapes.size() + k.
+    std::vector<RGB> groups_direct(size_t begin, size_t end, const Visibility& vis,
+                                   const std::vector<Patch*>& shapes) const;
+    size_t group_batch(size_t elements) const;  // how many groups are lit together
     // The source term of patches lit by the luminaires: direct and emission = E_self + rho direct.
     void light_patches(std::vector<Patch*>& patches, const Visibility& visibility, std::vector<double>* spread) const;
     void light_new_elements(Hierarchy& h, const Visibility& visibility, std::vector<uint32_t>* fresh,

@@ -118,6 +118,7 @@ uint64_t Luminaire::fingerprint() const {
     if (distant) f = hash_pair(f, bits(illuminance), 18);
     for (const RGB& t : tints)
         for (int a = 0; a < 3; ++a) f = hash_pair(f, bits(t[a]), 20);
+    if (interleave) f = hash_pair(f, 1, 21);
     return f;
 }
 
@@ -164,17 +165,24 @@ struct Arrivals {
 
     // stride > 1: of a sky (more than kSkyDirections directions) only the directions j with
     // j % stride == offset, their weights times stride (one share of an interleaved set).
+    // Lights marked `interleave` share one numbering of their directions (sky_index), from
+    // sky_start (the directions of such lights before this list, when a sky comes in parts).
     void collect(const std::vector<Luminaire>& luminaires, const Visibility* visibility, const Vec3& x,
-                 const Vec3* n, const Vec3& start, size_t stride = 1, size_t offset = 0) {
+                 const Vec3* n, const Vec3& start, size_t stride = 1, size_t offset = 0, size_t sky_start = 0) {
         from.clear(); to.clear(); dir.clear(); wi.clear(); r2.clear(); cosr.clear(); owner.clear(); tint.clear();
+        size_t sky_index = sky_start;
         for (uint32_t li = 0; li < luminaires.size(); ++li) {
             const Luminaire& l = luminaires[li];
             if (l.distant) {
+                const size_t first = sky_index;
+                if (l.interleave) sky_index += l.points.size();
                 if (!(l.illuminance > 0)) continue;
                 const double far = visibility ? visibility->reach(start) : 1.0;
-                const bool share = stride > 1 && l.points.size() > kSkyDirections;
+                const bool share = stride > 1 && (l.interleave || l.points.size() > kSkyDirections);
                 const size_t step = share ? stride : 1;
-                for (size_t k = share ? offset : 0; k < l.points.size(); k += step) {
+                // this light's first direction that falls to point `offset`
+                const size_t begin = !share ? 0 : l.interleave ? (offset + stride - first % stride) % stride : offset;
+                for (size_t k = begin; k < l.points.size(); k += step) {
                     if (!(l.weights[k] > 0)) continue;
                     const Vec3& d = l.points[k];  // unit, towards the light
                     const double c = n ? dot(*n, d) : 1.0;
@@ -302,6 +310,49 @@ void distant_transmittance(const Visibility& vis, const Vec3* x, const Vec3* n, 
     });
 }
 
+namespace {
+
+// An element's g x g stratum centres (Patch::point) and its normal at each.
+void element_points(const Patch& p, int g, std::vector<Vec3>& xs, std::vector<Vec3>& ns) {
+    for (int a = 0; a < g; ++a)
+        for (int b = 0; b < g; ++b) {
+            xs[size_t(a) * g + b] = p.point((a + 0.5) / g, (b + 0.5) / g);
+            ns[size_t(a) * g + b] = p.normal;
+        }
+}
+
+}  // namespace
+
+void element_group_irradiance(const std::vector<Luminaire>& luminaires, const std::vector<uint32_t>& group,
+                              size_t groups, const Visibility& visibility, const Patch* const* elements, size_t count,
+                              int g, std::vector<RGB>& out, size_t sky_start) {
+    if (g < 1) throw std::invalid_argument("element_group_irradiance: g must be at least 1");
+    if (group.size() != luminaires.size())
+        throw std::invalid_argument("element_group_irradiance: one group per luminaire");
+    for (uint32_t q : group)
+        if (q >= groups) throw std::invalid_argument("element_group_irradiance: a group index out of range");
+    out.assign(groups * count, RGB{});
+    const double lift = 1e-5 * visibility.scene_size();
+    const size_t m = size_t(g) * size_t(g);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 16), [&](const tbb::blocked_range<size_t>& r) {
+        std::vector<Vec3> xs(m), ns(m);
+        Arrivals arrivals;
+        for (size_t e = r.begin(); e < r.end(); ++e) {
+            element_points(*elements[e], g, xs, ns);
+            for (size_t k = 0; k < m; ++k) {
+                arrivals.collect(luminaires, &visibility, xs[k], &ns[k], xs[k] + ns[k] * lift, m, k, sky_start);
+                for (size_t s = 0; s < arrivals.from.size(); ++s) {
+                    if (!(arrivals.seen[s] > 0)) continue;
+                    const uint32_t q = group[arrivals.owner[s]];
+                    out[q * count + e] += arrivals.tint[s] * (arrivals.seen[s] * arrivals.wi[s] * arrivals.cosr[s] /
+                                                              arrivals.r2[s]);
+                }
+            }
+            for (size_t q = 0; q < groups; ++q) out[q * count + e] = out[q * count + e] / double(m);
+        }
+    });
+}
+
 void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, const Visibility& visibility,
                                   const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
                                   std::vector<double>& spread) {
@@ -314,12 +365,7 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
         std::vector<Vec3> xs(m), ns(m);
         std::vector<RGB> hs(m);
         for (size_t e = r.begin(); e < r.end(); ++e) {
-            const Patch& p = *elements[e];
-            for (int a = 0; a < g; ++a)
-                for (int b = 0; b < g; ++b) {
-                    xs[size_t(a) * g + b] = p.point((a + 0.5) / g, (b + 0.5) / g);
-                    ns[size_t(a) * g + b] = p.normal;
-                }
+            element_points(*elements[e], g, xs, ns);
             Arrivals arrivals;
             for (size_t k = 0; k < m; ++k) {
                 // skies: point k takes every m-th direction from the k-th (interleaved), so the

@@ -62,6 +62,10 @@ struct Luminaire {
     double illuminance = 0;       // distant: E_perp per unit colour, lux or W/m^2
     std::vector<RGB> tints;       // distant, optional: per direction a colour times `colour` (a
                                   // textured dome's cells in one light); empty: all white
+    bool interleave = false;      // distant: one part of a sky cut into many lights (the sky
+                                  // patches of daylight coefficients): on elements, interleaved
+                                  // with the other such lights of the list as one sky
+                                  // (kSkyDirections), whatever its own size
 
     // Checks the data (sizes, finiteness, weights, frame); throws std::invalid_argument
     // naming the luminaire and the problem.
@@ -102,6 +106,17 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
                                   const Patch* const* elements, size_t count, int g, std::vector<RGB>& mean,
                                   std::vector<double>& spread);
 
+// element_luminaire_irradiance for many light groups at once: `group[l]` is luminaire l's group
+// (< groups); out[q * count + e] the mean direct light of group q over element e. Each
+// element's points trace the rays of all groups' lights together, so lights marked
+// `interleave` (a sky cut into one group per patch) cost an element one ray per direction in
+// all, not g^2 per direction per group; the groups' sum is the light of the whole sky as
+// element_luminaire_irradiance would interleave it. `sky_start`: the interleaved directions
+// that come before these lights (a sky's groups lit in batches number their directions on).
+void element_group_irradiance(const std::vector<Luminaire>& luminaires, const std::vector<uint32_t>& group,
+                              size_t groups, const Visibility& visibility, const Patch* const* elements, size_t count,
+                              int g, std::vector<RGB>& out, size_t sky_start = 0);
+
 // Far directions seen from points (daylight coefficients, sun hours): out[p * D + d] =
 // max(0, n_p . d_d) T(x_p lifted by `lift` along n_p, d_d), T the transmittance of the ray out
 // of the scene (0 blocked, glass factors). Directions must be unit. Parallel over points.
@@ -110,7 +125,8 @@ void distant_transmittance(const Visibility& visibility, const Vec3* x, const Ve
 
 // A light of more than this many directions (a sky: patches cut into cells) lights an element's
 // g x g points interleaved: point k takes every (g^2)-th direction from the k-th, weighted g^2
-// times. The element's mean then sees each direction once from stratified points (a sky costs
+// times. Lights marked `interleave` are one such sky together: their directions are numbered
+// one after the other through the list, and point k takes every (g^2)-th of that numbering. The element's mean then sees each direction once from stratified points (a sky costs
 // an element as many rays as it has directions, not g^2 times that); the points' spread, which
 // decides splits, carries the interleaving's noise as well as the light's variation. Suns and
 // luminaires are seen whole from every point (their shadow edges need it).

@@ -56,9 +56,9 @@ class Luminaire:
         """
 
     @staticmethod
-    def distant(name: str, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], illuminance: float, colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], tints: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> Luminaire:
+    def distant(name: str, directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], weights: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], illuminance: float, colour: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], tints: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, interleave: bool = False) -> Luminaire:
         """
-        A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light (normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a surface facing it, colour (1, 3); tints (k, 3), optional: per direction a colour factor (a sky of varying colour as one light). Invalid data: ValueError.
+        A distant light (luminaire.h): the sun or sky patches. directions (k, 3) towards the light (normalised), weights (k) summing to 1, illuminance E_perp per unit colour (lux or W/m^2) on a surface facing it, colour (1, 3); tints (k, 3), optional: per direction a colour factor (a sky of varying colour as one light). interleave: one part of a sky cut into many lights (daylight coefficients' patch groups): on elements, interleaved with the other such lights as one sky (luminaire.h). Invalid data: ValueError.
         """
 
     @property
@@ -67,6 +67,10 @@ class Luminaire:
     @property
     def is_distant(self) -> bool:
         """True for a distant light (points are directions)."""
+
+    @property
+    def interleave(self) -> bool:
+        """Distant: part of a sky interleaved over elements' points."""
 
     @property
     def illuminance(self) -> float:

@@ -233,7 +233,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if luminaires:
         model.set_luminaires(luminaires)
     if day_groups:  # daylight coefficients: each sky patch and the ground solved alone on the links
-        model.set_light_groups([[] for _ in day_groups], [[g.to_engine()] for g in day_groups])
+        # (their lights interleaved over the elements' points as one sky: luminaire.h)
+        model.set_light_groups([[] for _ in day_groups], [[g.to_engine(interleave=True)] for g in day_groups])
     light_groups = None
     if cfg.light_groups:  # hirad.relight: each group solved alone on the shared links
         from . import relight

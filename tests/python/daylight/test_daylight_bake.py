@@ -92,7 +92,7 @@ def test_annual_hour_is_linear_on_the_links():
     grid = B._build_config_grids(cfg, scene, None)[0]
     m = B.build_engine(scene)
     m.set_luminaires([l.to_engine() for l in lights])
-    m.set_light_groups([[] for _ in groups], [[g.to_engine()] for g in groups])
+    m.set_light_groups([[] for _ in groups], [[g.to_engine(interleave=True)] for g in groups])
     r = m.solve_hierarchical(B.hierarchy_options(cfg), _engine.SolveOptions(method="jacobi", tolerance=1e-4))
     m.use_leaves_as_patches()
     pa = m.patch_arrays()

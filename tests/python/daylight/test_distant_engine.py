@@ -241,3 +241,75 @@ def test_no_ray_slips_between_the_patches_of_a_closed_room():
             dirs.append([math.cos(a) * math.sin(z), math.cos(a) * math.cos(z), math.sin(a)])
     t = m.direct_transmittance(pts, np.tile(UP, (len(pts), 1)), np.array(dirs))
     assert np.count_nonzero(t) == 0
+
+
+def _sky_directions(count, seed=3):
+    """`count` unit directions over the upper hemisphere towards -y (z > 0.3, y <= 0),
+    reproducible."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(count, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 0.3
+    d[:, 1] = -np.abs(d[:, 1])
+    return d / np.linalg.norm(d, axis=1)[:, None]
+
+
+def _patch_groups(directions, per_group, interleave):
+    groups = []
+    for k in range(0, len(directions), per_group):
+        d = directions[k:k + per_group]
+        groups.append(_engine.Luminaire.distant(f"patch {k}", d, np.full(len(d), 1.0 / len(d)), 100.0 + k,
+                                                np.ones((1, 3)), interleave=interleave))
+    return groups
+
+
+def test_interleaved_sky_groups_see_each_direction_once_and_sum_to_the_whole_sky():
+    """A sky cut into 100 groups of 3 directions (more groups than one batch lights together),
+    over a floor half under a shading sheet. Each direction of an interleaved group is seen from
+    one of an element's 3 x 3 points with 9 times its weight (luminaire.h), so:
+    * on the open part of the floor every group's direct light is exactly E sum_k w_k (n . d_k)
+      (Lambert's cosine law; no point sees a shadow);
+    * the groups' sum on every patch is the whole sky as one light of 300 directions, which
+      the engine interleaves over the same points in the same order (to rounding);
+    * the groups cost the floor one ray per direction and patch, a ninth of seeing every
+      direction from every point."""
+    dirs = _sky_directions(300)
+    floor = quad([0, 0, 0], [2, 0, 0], [0, 1, 0])
+    shade = quad([0, 0.5, 0.3], [0, 0.5, 0], [2, 0, 0])  # over y in [0.5, 1], facing down
+    groups = _patch_groups(dirs, 3, interleave=True)
+    e = np.array([g.illuminance for g in groups])
+    whole = _engine.Luminaire.distant("sky", dirs, np.repeat(e, 3) / np.repeat(e, 3).sum(),
+                                      float(np.repeat(e, 3).sum() / 3), np.ones((1, 3)))
+
+    def model(lights_groups):
+        m = make_model([floor, shade], 0.0, max_area=0.05)
+        m.set_luminaires([whole])
+        m.set_light_groups([[] for _ in lights_groups], [[g] for g in lights_groups])
+        m.compute_links(_engine.FormFactorOptions(method="raycast", samples=4, seed=1))
+        return m
+
+    m = model(groups)
+    before = m.rays_cast()
+    sol = m.solve_groups(_engine.SolveOptions(method="jacobi", tolerance=1e-9))
+    interleaved_rays = m.rays_cast() - before
+    pa = m.patch_arrays()
+    on_floor = pa.face == 0
+    direct = np.stack([np.asarray(s.direct)[:, 0] for s in sol])  # (groups, patches)
+    exact = np.array([g.illuminance * (np.maximum(g.points @ UP, 0) @ g.weights) for g in groups])
+    # A patch is unshaded when no direction's shadow of the sheet (the sheet's rectangle moved by
+    # -0.3 (dx, dy) / dz onto the floor) overlaps the patch's rectangle.
+    lo, hi = pa.corners[:, :, :2].min(axis=1), pa.corners[:, :, :2].max(axis=1)
+    sx, sy = -0.3 * dirs[:, 0] / dirs[:, 2], -0.3 * dirs[:, 1] / dirs[:, 2]
+    overlap = ((lo[:, None, 0] < 2 + sx[None]) & (hi[:, None, 0] > sx[None]) &
+               (lo[:, None, 1] < 1 + sy[None]) & (hi[:, None, 1] > 0.5 + sy[None]))
+    unshaded = on_floor & ~overlap.any(axis=1)
+    assert unshaded.sum() >= 4
+    assert np.allclose(direct[:, unshaded], exact[:, None], rtol=1e-12, atol=0)
+    # the sum is the whole sky's light on every patch (shaded ones too)
+    assert np.allclose(direct.sum(axis=0)[on_floor], np.asarray(pa.direct)[on_floor, 0], rtol=1e-9, atol=1e-9)
+    assert (np.asarray(pa.direct)[on_floor, 0].min() < 0.8 * np.asarray(pa.direct)[on_floor, 0].max())  # a shadow
+
+    m2 = model(_patch_groups(dirs, 3, interleave=False))
+    before = m2.rays_cast()
+    m2.solve_groups(_engine.SolveOptions(method="jacobi", tolerance=1e-9))
+    whole_rays = m2.rays_cast() - before
+    assert whole_rays > 7 * interleaved_rays

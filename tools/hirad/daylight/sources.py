@@ -171,12 +171,14 @@ class DistantLightSpec:
         cos = np.maximum(n @ self.directions.T, 0.0) @ self.weights
         return cos[:, None] * self.illuminance * self.colour[None, :]
 
-    def to_engine(self):
-        """The engine's ``hirad._engine.Luminaire.distant``."""
+    def to_engine(self, interleave: bool = False):
+        """The engine's ``hirad._engine.Luminaire.distant``; ``interleave``: one of many lights that
+        cut one sky (daylight coefficients' groups), lit on elements together as one sky."""
         from hirad import _engine
 
         return _engine.Luminaire.distant(self.name, self.directions, self.weights, float(self.illuminance),
-                                         np.ascontiguousarray(self.colour.reshape(1, 3)), tints=self.tints)
+                                         np.ascontiguousarray(self.colour.reshape(1, 3)), tints=self.tints,
+                                         interleave=interleave)
 
 
 def _unit(v, what: str) -> np.ndarray:
