@@ -473,7 +473,12 @@ def relight(out: Path = typer.Argument(..., help="output directory of a `hirad b
 
         from .relight import relight as run
 
+        from .relight import NOT_RELIT
+
         report = run(out, set_, output)
+        for name in report.get("not_relit", []):  # never silently left behind
+            print(f"hirad: warning: {out / name} not relit, not in {report['output']}: {NOT_RELIT.get(name, '')}",
+                  file=sys.stderr)
         if json_out:
             print(json.dumps(report, indent=1))
         else:

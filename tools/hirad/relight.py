@@ -14,6 +14,14 @@ term), and the bake writes the total as sum_g dimmer_g color_g B_g, each group's
 with new primvars, the lightmap pages (when the bake had lightmaps), the grids and their report
 (when it had grids) and report.json. Exact up to float rounding: dimming a group by 0.3 gives
 B_total - 0.7 B_group.
+
+Daylight: the sun (each UsdLux DistantLight, or `daylight.sun` for the config's sky model) and the
+sky (the DomeLight prims, or `daylight.sky`) are emitters like the luminaires: a group selects them
+by those paths (`paths: ["/Room/Sun"]`), and those no group selects join `rest`. Their light is
+relit with their group's weight, and `daylight.npz` (the sun and sky `hirad grid` reads) with it.
+What a relight does not redo is named in the report's `not_relit` and as warnings: the irradiance
+volume, and the daylight factor grids (grids/daylight_factor/: DF is relative to the sky's own
+outside illuminance, a ratio a dimmer does not change; bake again for a new sky).
 """
 
 from __future__ import annotations
@@ -36,6 +44,15 @@ GROUPS_DIR = "groups"
 GROUPS_FILE = "groups/groups.json"
 VALUES_FILE = "groups/values.npz"
 FORMAT = "hirad-light-groups"
+# What a relight does not redo (named in its report and as warnings): the irradiance volume, and
+# the daylight factor and annual daylight grids (relative to the sky, or of the weather file's
+# year: bake again); the per-mesh lightmap files and RGBM PNGs are not written either.
+NOT_RELIT = {
+    "volume.vdb": "the irradiance volume's probes are not stored per light group; bake again for a relit volume",
+    "grids/daylight_factor": "the daylight factor is the ratio to the sky's own outside illuminance, which no dimmer "
+                             "changes; bake again with another sky",
+    "grids/annual": "the annual metrics come from the weather file's skies, not from light groups",
+}
 
 
 class RelightError(OptionError):
@@ -62,9 +79,17 @@ class LightGroup:
         return self.dimmer * np.asarray(self.color, dtype=np.float64)
 
 
-def _emitters(scene, specs) -> list[tuple[str, str, int]]:
+def day_light_path(d) -> str:
+    """The path a light group selects a distant light (sun, sky) by: its USD prim (the
+    DistantLight, the DomeLight) or its config key (daylight.sun, daylight.sky)."""
+    src = str(getattr(d, "source", "") or "")
+    return src if src else f"daylight.{d.kind}"
+
+
+def _emitters(scene, specs, day_lights=()) -> list[tuple[str, str, int]]:
     """(path, kind, index) of every emitter: ("mesh", mesh index) for meshes with an emitting
-    face, ("luminaire", spec index) for luminaires (config lights as lights.NAME)."""
+    face, ("luminaire", spec index) for luminaires (config lights as lights.NAME), and the
+    distant lights (sun, sky) as luminaires len(specs) + k, by day_light_path."""
     out = []
     emitting = np.zeros(len(scene.meshes), dtype=bool)
     lit = scene.face_emission.max(axis=1) > 0 if len(scene.face_emission) else np.zeros(0, dtype=bool)
@@ -74,6 +99,8 @@ def _emitters(scene, specs) -> list[tuple[str, str, int]]:
     for i, s in enumerate(specs):
         path = s.source if str(s.source).startswith("/") else f"lights.{s.name}"
         out.append((path, "luminaire", i))
+    for k, d in enumerate(day_lights):
+        out.append((day_light_path(d), "luminaire", len(specs) + k))
     return out
 
 
@@ -99,13 +126,15 @@ def _safe(name: str) -> str:
     return s if re.match(r"^[A-Za-z_]", s) else "_" + s
 
 
-def resolve_groups(cfg, scene, specs, warn: Callable[[str], None]) -> list[LightGroup]:
+def resolve_groups(cfg, scene, specs, warn: Callable[[str], None], day_lights=()) -> list[LightGroup]:
     """The config's light groups over the scene's emitters (each emitter in the first group
     that takes it, in the config's order), then `rest` for the emitters in no group. Patterns,
-    collections and groups that select nothing are named in warnings."""
+    collections and groups that select nothing are named in warnings. `day_lights`: the bake's
+    distant lights (sun, sky; hirad.daylight.sources.DistantLightSpec), luminaires
+    len(specs) + k in the groups."""
     from .config.schema import REST_GROUP
 
-    emitters = _emitters(scene, specs)
+    emitters = _emitters(scene, specs, day_lights)
     paths = [p for p, _, _ in emitters]
     taken: dict[int, str] = {}
     groups: list[LightGroup] = []
@@ -168,7 +197,41 @@ def resolve_groups(cfg, scene, specs, warn: Callable[[str], None]) -> list[Light
             rest.members.append(p)
     if rest.members:
         groups.append(rest)
+    _check_sun_and_ground(cfg, groups, len(specs), day_lights)
     return groups
+
+
+def _sun_lit_ground(cfg) -> bool:
+    """Whether the ground below the horizon, part of the sky's light, reflects the sun: a ground
+    of daylight.ground_reflectance (the config's sky models always; the scene's DomeLight with
+    usd_ground: reflectance) lit by the sky and the sun (hirad.daylight.sources.sky_lights)."""
+    dl = getattr(cfg, "daylight", None)
+    if dl is None or not dl.ground_reflectance > 0:
+        return False
+    return dl.sky.model != "usd" or dl.usd_ground != "dome"
+
+
+def _check_sun_and_ground(cfg, groups: Sequence[LightGroup], n_specs: int, day_lights) -> None:
+    """The sun and the sky (with its ground) in different groups is exact only when the ground
+    does not reflect the sun: otherwise the sky's group would carry the sun's light off the ground,
+    and dimming the sun's group would leave it. Refused then (a RelightError, exit 2), naming the
+    groups, the lights and the keys that decide it."""
+    if not day_lights or not _sun_lit_ground(cfg):
+        return
+    group_of = {i: g.name for g in groups for i in g.luminaires}
+    suns = {day_light_path(d): group_of.get(n_specs + k) for k, d in enumerate(day_lights) if d.kind == "sun"}
+    skies = {day_light_path(d): group_of.get(n_specs + k) for k, d in enumerate(day_lights)
+             if d.kind in ("sky", "ground")}
+    if not suns or not skies or len(set(suns.values()) | set(skies.values())) == 1:
+        return
+    where = "; ".join(f"{p} in group {g}" for p, g in {**suns, **skies}.items())
+    ground = ("the config's sky model" if cfg.daylight.sky.model != "usd" else "daylight.usd_ground: reflectance")
+    raise RelightError(
+        f"lights.groups: the sun and the sky are in different light groups ({where}), but the ground below the "
+        f"horizon, which is part of the sky's light, reflects the sun ({ground}, daylight.ground_reflectance "
+        f"{cfg.daylight.ground_reflectance:g}): dimming the sun's group would leave its light off the ground. Put "
+        "the sun and the sky in one group, or give the sky a ground of its own (daylight.usd_ground: dome, or "
+        "daylight.ground_reflectance: 0)")
 
 
 def weighted_specs(specs, groups: Sequence[LightGroup]):
@@ -176,9 +239,20 @@ def weighted_specs(specs, groups: Sequence[LightGroup]):
     w = [np.ones(3) for _ in specs]
     for g in groups:
         for i in g.luminaires:
-            w[i] = g.weight
+            if i < len(w):  # beyond: the distant lights (weighted_day_lights)
+                w[i] = g.weight
     return [replace(s, colour=np.asarray(s.colour) * wi) if not np.array_equal(wi, np.ones(3)) else s
             for s, wi in zip(specs, w)]
+
+
+def weighted_day_lights(day_lights, groups: Sequence[LightGroup], n_specs: int):
+    """The distant lights (sun, sky) with each one's colour times its group's dimmer x colour
+    (luminaire n_specs + k is day_lights[k])."""
+    from .studies.usdgrids import day_light_weights
+
+    w = day_light_weights(groups, n_specs, len(day_lights))
+    return [replace(d, colour=np.asarray(d.colour) * wi) if not np.array_equal(wi, np.ones(3)) else d
+            for d, wi in zip(day_lights, w)]
 
 
 # --------------------------------------------------------------------------------------
@@ -312,6 +386,11 @@ def relight(out_dir, sets: Sequence[str] = (), output=None, *, quiet: bool = Tru
     t0 = time.perf_counter()
     out_dir = Path(out_dir).absolute()
     doc, values = _stored(out_dir)
+    old = _old_daylight(out_dir)
+    if old:
+        raise RelightError(f"{out_dir}: baked by a hirad whose light groups left out the sun and sky ({', '.join(old)}): "
+                           "its stored group solutions hold none of their light, so it cannot be relit; bake it "
+                           "again; nothing written")
     groups = doc["groups"]
     names = [g["name"] for g in groups]
     changes = parse_sets(sets, names)
@@ -431,6 +510,12 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
         if lum.is_file():
             _relit_luminaires(lum, staging / "luminaires.npz", doc, weights, values)
             written.append("luminaires.npz")
+        from .studies.usdgrids import DAYLIGHT_KEY
+
+        day = stage_layer.customLayerData.get(DAYLIGHT_KEY)
+        if day:  # the glazing, sun and sky `hirad grid` reads: the sun and sky with their new weights
+            _relit_daylight(out_dir / str(day), staging / str(day), doc, weights)
+            written.append(str(day))
     # --- lightmaps: the stored group pages, weighted
     lm = doc.get("lightmaps")
     if lm:
@@ -480,7 +565,7 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
                                   for g in doc["groups"]])
     files.write_json(staging / GROUPS_FILE, relit_doc)
     written.append(GROUPS_DIR + "/")
-    not_relit = [n for n in ("volume.vdb",) if (out_dir / n).exists()]
+    not_relit = [n for n in NOT_RELIT if (out_dir / n).exists()]
     return {
         "hirad_version": version,
         "relit_from": str(out_dir),
@@ -490,6 +575,45 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
         "grids": grid_report,
         "not_relit": not_relit,
     }
+
+
+def _relit_daylight(src: Path, dst: Path, doc: dict, weights: np.ndarray) -> None:
+    """daylight.npz with each distant light's weight its group's new one (its colour is kept
+    unweighted), so that `hirad grid` on the relit layer sees the relit sun and sky."""
+    import io
+
+    from . import files
+    from .studies import StudyError
+    from .studies.usdgrids import read_stored_daylight
+
+    try:
+        arrays = read_stored_daylight(src)
+    except StudyError as e:
+        raise RelightError(f"{e}; nothing written") from None
+    index = {int(arrays[f"d{k}_luminaire"]): k for k in range(len(arrays["names"])) if f"d{k}_luminaire" in arrays}
+    for gi, g in enumerate(doc["groups"]):
+        for i in g["luminaires"]:
+            if i in index:
+                arrays[f"d{index[i]}_weight"] = np.asarray(weights[gi], dtype=np.float64)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    files.write_bytes(dst, buf.getvalue())
+
+
+def _old_daylight(out_dir: Path) -> list[str]:
+    """The distant lights (sun, sky) of an output baked before they could join light groups: its
+    luminaires.npz kept them without their light (directions on the unit sphere, zero candela)."""
+    lum = out_dir / "luminaires.npz"
+    if not lum.is_file():
+        return []
+    try:
+        with np.load(lum, allow_pickle=False) as z:
+            names = [str(n) for n in z["names"]]
+            return [n for k, n in enumerate(names)
+                    if not np.any(z[f"l{k}_candela"]) and len(z[f"l{k}_points"])
+                    and np.allclose(np.linalg.norm(z[f"l{k}_points"], axis=1), 1.0, atol=1e-9)]
+    except (OSError, KeyError, ValueError):
+        return []  # relighting it names the damage
 
 
 def _relit_luminaires(src: Path, dst: Path, doc: dict, weights: np.ndarray, values: dict) -> None:
@@ -505,7 +629,7 @@ def _relit_luminaires(src: Path, dst: Path, doc: dict, weights: np.ndarray, valu
     for gi, g in enumerate(doc["groups"]):
         for i in g["luminaires"]:
             key = f"l{i}_colour"
-            if key in arrays and base is not None:
+            if key in arrays and base is not None and i < len(base):  # beyond: the sun and sky (daylight.npz)
                 arrays[key] = (base[i] * weights[gi]).reshape(arrays[key].shape)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
@@ -619,7 +743,7 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
     return _GroupResult(result.corners, result.nv, corner_radiance, corner_irradiance, cameras=result.cameras,
                         up_axis=result.up_axis, patch_radiosity=None, patch_irradiance=None, patches=result.patches,
                         _model=model, hierarchical=result.hierarchical, emitted_radiance=emitted,
-                        luminaires=list(luminaires))
+                        luminaires=list(luminaires), transmittance=result.transmittance)
 
 
 def replay_result(result, records: list, weights: np.ndarray):

@@ -442,7 +442,8 @@ def grids_from_stage(stage_or_path: Union["object", str, Path], up_axis: Optiona
 #   for;
 # * per distant light k: `d<k>_directions`, `_weights`, `_illuminance`, `_colour` (unweighted),
 #   `_weight` (its light group's dimmer x colour, 1 without groups; hirad relight rewrites it),
-#   `_tints` (when it has them), `_kind`, `_source`; `names` of all.
+#   `_tints` (when it has them), `_kind`, `_source`, `_luminaire` (its index among the bake's
+#   luminaires, as light groups name it); `names` of all.
 
 DAYLIGHT_FILE = "daylight.npz"
 DAYLIGHT_KEY = "hirad:daylight"
@@ -498,6 +499,7 @@ def save_stored_daylight(out_dir: Path, day_lights, transmittance, corners, nv, 
                        f"d{k}_illuminance": np.array(float(d.illuminance)),
                        f"d{k}_colour": np.asarray(d.colour, dtype=np.float64).reshape(3),
                        f"d{k}_weight": weights[k], f"d{k}_kind": np.array(str(d.kind)),
+                       f"d{k}_luminaire": np.array(int(n_specs) + k),
                        f"d{k}_source": np.array(str(d.source))})
         if d.tints is not None:
             arrays[f"d{k}_tints"] = np.asarray(d.tints, dtype=np.float64)
