@@ -238,7 +238,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     light_groups = None
     if cfg.light_groups:  # hirad.relight: each group solved alone on the shared links
         from . import relight
-        light_groups = relight.resolve_groups(cfg, scene, specs, rep.warn)
+        light_groups = relight.resolve_groups(cfg, scene, specs, rep.warn, day_lights)  # the sun and sky too
         group_luminaires = [[luminaires[i] for i in g.luminaires] for g in light_groups]
         model.set_light_groups([g.meshes for g in light_groups], group_luminaires)
     skipped = {k: getattr(stats, k) for k in ("degenerate_faces", "nonfinite_faces", "self_intersecting_faces",
@@ -271,7 +271,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         patches = dict(patches, emission=grouped.total(grouped.emission))
         base_specs = specs
         specs = relight.weighted_specs(specs, light_groups)
-        luminaires = [s.to_engine() for s in specs]
+        luminaires = [s.to_engine() for s in specs] + [
+            d.to_engine() for d in relight.weighted_day_lights(day_lights, light_groups, len(specs))]
     n = model.num_patches
     method = cfg.solver.method
     ff = cfg.formfactors
@@ -717,7 +718,7 @@ def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
                                     cameras=result.cameras, up_axis=result.up_axis,
                                     emitted_radiance=np.ascontiguousarray(
                                         grouped.emission[k][store["face_patch"]] / np.pi),
-                                    luminaires=list(grouped.luminaires[k])))
+                                    luminaires=list(grouped.luminaires[k]), transmittance=result.transmittance))
     calls = {"k": 0}
 
     def evaluate(points, normals):
