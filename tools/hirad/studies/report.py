@@ -3,7 +3,11 @@
 The page holds the luminaire schedule, every grid's statistics (Em, Emin, Emax, U0, Ud and the
 maintained Em, Emin, Emax) with its false-colour picture, further pictures (a luminance view),
 the units, the maintenance factor, hirad's version and the solver's figures (residual, energy
-balance). Pictures are embedded as base64 ``data:`` URIs and the style sheet is inline: the file
+balance). A daylight bake adds its daylight factor grids (mean, least and greatest DF, U0 =
+DFmin/DFmean, the area with DF >= 2 %, the outside illuminance, each grid's DF picture) and its
+annual results (the weather file, the site, the hours counted; per grid sDA300/50 %,
+ASE1000/250 h, mean DA300, the three UDI bands, the EN 17037 level, with the DA300, UDI and
+direct-sun heat maps): :func:`daylight_parts` reads them from the bake's grids directory. Pictures are embedded as base64 ``data:`` URIs and the style sheet is inline: the file
 needs nothing else, offline or mailed to a client. Every text from the caller is HTML-escaped.
 No clock is read: the same study gives the same bytes (a date, if wanted, is the caller's
 ``subtitle`` or a ``solver`` entry).
@@ -83,6 +87,10 @@ class Study:
     grid_pictures: Optional[Mapping[str, bytes]] = None  # name -> PNG; drawn when absent
     unit_system: Optional[str] = None
     luminance: Optional[tuple[str, bytes]] = None
+    # daylight (daylight_parts): report.json's grids.daylight_factor with "pictures" {grid: PNG},
+    # and grids.annual with "pictures" {grid: [(caption, PNG)]} and per grid "udi_bands"
+    daylight_factor: Optional[Mapping[str, Any]] = None
+    annual: Optional[Mapping[str, Any]] = None
 
     def __post_init__(self):
         if self.unit_system is None:
@@ -249,6 +257,8 @@ def render_html(study: Study) -> str:
         what = UNIT_SYSTEMS[study.unit_system]["quantity"]
         out.append(f'<img alt="false-colour {what} of {gid}" src="{_data_uri(study.picture_of(r))}">')
         out.append("</div>")
+    out += _daylight_factor_html(study.daylight_factor)
+    out += _annual_html(study.annual)
     if study.luminance is not None:
         caption, png = study.luminance
         out.append(f'<h2>Luminance</h2><div class="grid" id="luminance"><h3>{html.escape(caption)}</h3>'
@@ -258,6 +268,211 @@ def render_html(study: Study) -> str:
                    f'<img alt="{html.escape(caption, quote=True)}" src="{_data_uri(png)}"></div>')
     out.append("</body></html>")
     return "\n".join(out) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# daylight: daylight factor and annual results (hirad.daylight.study writes them)
+# ---------------------------------------------------------------------------------------------
+
+#: (key, label, kind) of a daylight factor grid's row: kind "df" a DF in %, "ratio", "fraction"
+DF_ROWS = (("em", "mean DF (%)", "df"), ("emin", "least DF, DFmin (%)", "df"), ("emax", "greatest DF (%)", "df"),
+           ("u0", "uniformity U0 = DFmin / DFmean", "ratio"),
+           ("area_fraction_df_2", "area with DF ≥ 2 %", "fraction"))
+#: (key, label, kind) of an annual grid's row
+ANNUAL_ROWS = (("sDA300/50%", "sDA300/50 % (area with DA300 ≥ 50 %)", "fraction"),
+               ("ASE1000/250h", "ASE1000/250 h (area with direct sun > 1000 lx over 250 occupied hours)", "fraction"),
+               ("mean_DA300", "mean DA300 (occupied hours ≥ 300 lx)", "fraction"),
+               ("udi_below_100", "UDI < 100 lx (fell short), mean", "fraction"),
+               ("mean_UDI_100_3000", "UDI 100–3000 lx (useful), mean", "fraction"),
+               ("udi_above_3000", "UDI > 3000 lx (exceeded), mean", "fraction"),
+               ("EN17037_level", "EN 17037 daylight provision (illuminance method)", "text"),
+               ("EN17037_minimum_met", "EN 17037 minimum level met", "text"),
+               ("occupied_hours", "occupied hours counted", "count"))
+ANNUAL_PICTURES = (("da300", "Daylight autonomy DA300 (% of occupied hours)"),
+                   ("udi", "Useful daylight illuminance 100–3000 lx (% of occupied hours)"),
+                   ("sunlit_hours", "Occupied hours of direct sun above 1000 lx"))
+_UDI_COLUMNS = ("udi_below_100", "udi_100_3000", "udi_above_3000")
+
+
+def _value_text(v: Any, kind: str) -> str:
+    if v is None:
+        return "–"
+    if kind == "df" and isinstance(v, (int, float)):
+        return f"{v:.2f} %"
+    if kind == "fraction" and isinstance(v, (int, float)) and not isinstance(v, bool):
+        return f"{100 * v:.1f} %"
+    if kind == "ratio" and isinstance(v, (int, float)):
+        return f"{v:.3f}"
+    if kind == "text" and v is None:
+        return "none met"
+    return _fmt(v)
+
+
+def _value_cell(grid: str, key: str, v: Any, kind: str) -> str:
+    """A table cell with the value shown and its full value in data-value (repr of a float)."""
+    data = "" if v is None else (repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v))
+    text = _value_text(v, kind) if not (kind == "text" and v is None) else "none met"
+    return (f'<td class="n" data-grid="{html.escape(grid, quote=True)}" data-key="{html.escape(key, quote=True)}" '
+            f'data-value="{html.escape(data, quote=True)}">{html.escape(text)}</td>')
+
+
+def _daylight_factor_html(df: Optional[Mapping[str, Any]]) -> list[str]:
+    if not df:
+        return []
+    grids = df.get("grids") or {}
+    pictures = df.get("pictures") or {}
+    out = ['<h2>Daylight factor</h2>',
+           f'<p>{html.escape(str(df.get("formula", "DF = 100 E / E_h,out")))}: E is the illuminance at a point '
+           'under the overcast sky without sun (direct sky light through the openings and the interreflected '
+           'light), E_h,out the same sky\'s illuminance on an unobstructed horizontal plane outside: '
+           f'<span id="df-outside" data-value="{df.get("outside_horizontal_illuminance_lux")!r}">'
+           f'{_esc(df.get("outside_horizontal_illuminance_lux"))}</span> lx.</p>',
+           '<table id="daylight-factor-summary"><tr><th>grid</th>'
+           + "".join(f"<th>{html.escape(label)}</th>" for _, label, _ in DF_ROWS) + "</tr>"]
+    for name, st in grids.items():
+        out.append(f"<tr><td>{html.escape(name)}</td>"
+                   + "".join(_value_cell(name, k, st.get(k), kind) for k, _, kind in DF_ROWS) + "</tr>")
+    out.append("</table>")
+    out.append('<p id="df-en17037">EN 17037 daylight factor targets (D_T over 50 % and D_TM over 95 % of the '
+               "reference plane, from the site's median external diffuse illuminance) are not computed for a "
+               "daylight factor study: the sky here has no site; the annual study states the EN 17037 level by the "
+               "illuminance method.</p>")
+    for name, st in grids.items():
+        gid = html.escape(name, quote=True)
+        out.append(f'<div class="grid" id="df-{gid}"><h3>Daylight factor: {html.escape(name)}</h3><table>')
+        if st.get("points") is not None:
+            out.append(f'<tr><th>points</th><td class="n">{_esc(st.get("points"))}</td></tr>')
+        for k, label, kind in DF_ROWS:
+            out.append(f"<tr><th>{html.escape(label)}</th>{_value_cell(name, k, st.get(k), kind)}</tr>")
+        out.append("</table>")
+        if name in pictures:
+            out.append(f'<img alt="daylight factor of {gid}" src="{_data_uri(pictures[name])}">')
+        out.append("</div>")
+    return out
+
+
+def _site_text(site: Optional[Mapping[str, Any]]) -> str:
+    if not site:
+        return "not stated"
+    lat, lon = site.get("latitude"), site.get("longitude")
+    parts = []
+    if isinstance(lat, (int, float)) and isinstance(lon, (int, float)):
+        parts.append(f"latitude {lat:.4f}°, longitude {lon:.4f}°")
+    if isinstance(site.get("elevation"), (int, float)):
+        parts.append(f"elevation {site['elevation']:g} m")
+    tz = site.get("timezone")
+    if isinstance(tz, (int, float)) and not isinstance(tz, bool):
+        parts.append(f"UTC{tz:+g} h")
+    elif isinstance(tz, str) and tz:
+        parts.append(f"time zone {tz}")
+    if site.get("from"):
+        parts.append(f"from {site['from']}")
+    return ", ".join(parts) or "not stated"
+
+
+def _annual_html(an: Optional[Mapping[str, Any]]) -> list[str]:
+    if not an:
+        return []
+    grids = an.get("grids") or {}
+    pictures = an.get("pictures") or {}
+    occ = an.get("occupied_hours_of_day") or []
+    occ_text = f"{occ[0]:g}:00–{occ[1]:g}:00 every day (IES LM-83)" if len(occ) == 2 else "–"
+    out = ["<h2>Annual daylight</h2>", '<table id="annual-context">']
+    rows = (("weather file", "weather", html.escape(str(an.get("weather", "–")))),
+            ("site", "site", html.escape(_site_text(an.get("site")))),
+            ("hours in the year", "hours", _esc(an.get("hours"))),
+            ("daytime hours (sun above the horizon)", "daytime_hours", _esc(an.get("daytime_hours"))),
+            ("occupied hours of the day", "occupied_hours_of_day", html.escape(occ_text)),
+            ("sky patches", "sky_patches", _esc(an.get("sky_patches"))),
+            ("method", "method", html.escape(str(an.get("method", "–")))))
+    for label, key, text in rows:
+        v = an.get(key)
+        data = "" if v is None or isinstance(v, (dict, list)) else html.escape(str(v), quote=True)
+        extra = ""
+        if key == "site" and isinstance(v, Mapping):  # the full values, as for the tables' numbers
+            extra = "".join(f' data-{k}="{html.escape(repr(v[k]) if isinstance(v[k], float) else str(v[k]), quote=True)}"'
+                            for k in ("latitude", "longitude", "elevation", "timezone") if v.get(k) is not None)
+        out.append(f'<tr><th>{html.escape(label)}</th><td data-key="{key}" data-value="{data}"{extra}>{text}</td></tr>')
+    out.append("</table>")
+    out.append('<table id="annual-summary"><tr><th>grid</th>'
+               + "".join(f"<th>{html.escape(label)}</th>" for _, label, _ in ANNUAL_ROWS) + "</tr>")
+    for name, g in grids.items():
+        out.append(f"<tr><td>{html.escape(name)}</td>"
+                   + "".join(_value_cell(name, k, _annual_value(g, k), kind) for k, _, kind in ANNUAL_ROWS) + "</tr>")
+    out.append("</table>")
+    for name, g in grids.items():
+        gid = html.escape(name, quote=True)
+        out.append(f'<div class="grid" id="annual-{gid}"><h3>Annual daylight: {html.escape(name)}</h3><table>')
+        for k, label, kind in ANNUAL_ROWS:
+            out.append(f"<tr><th>{html.escape(label)}</th>{_value_cell(name, k, _annual_value(g, k), kind)}</tr>")
+        out.append("</table>")
+        for caption, png in pictures.get(name, []):
+            out.append(f'<img alt="{html.escape(caption, quote=True)}: {gid}" src="{_data_uri(png)}">')
+        out.append("</div>")
+    return out
+
+
+def _annual_value(g: Mapping[str, Any], key: str) -> Any:
+    if key in ("udi_below_100", "udi_above_3000"):
+        return (g.get("udi_bands") or {}).get(key)
+    return g.get(key)
+
+
+def _read_png(path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as e:
+        raise StudyError(f"{path}: cannot read the picture for the report: {e.strerror or e}") from None
+
+
+def _weighted_columns(path, columns, weights, name: str) -> dict:
+    """The weighted means of CSV columns (a StudyError naming the file when it does not fit)."""
+    import csv
+
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+        head = rows[0]
+        data = {c: [float(r[head.index(c)]) for r in rows[1:]] for c in columns}
+    except (OSError, IndexError, ValueError) as e:
+        raise StudyError(f"{path}: cannot read the grid {name}'s {', '.join(columns)} for the report ({e})") from None
+    import numpy as np
+
+    w = np.ones(len(rows) - 1) if weights is None else np.asarray(weights, dtype=np.float64)
+    if len(w) != len(rows) - 1 or not w.sum() > 0:
+        raise StudyError(f"{path}: {len(rows) - 1} points, the grid {name} has {len(w)}")
+    return {c: float(np.average(np.asarray(v), weights=w)) for c, v in data.items()}
+
+
+def daylight_parts(grids_dir, daylight_factor: Optional[Mapping[str, Any]] = None,
+                   annual: Optional[Mapping[str, Any]] = None, results: Sequence[GridResult] = ()) -> dict:
+    """Study's `daylight_factor` and `annual` from what a daylight bake wrote into `grids_dir`
+    (hirad.daylight.study): report.json's parts with each grid's pictures read from
+    daylight_factor/NAME.png and annual/NAME_{da300,udi,sunlit_hours}.png, and the annual grids' UDI
+    bands (below 100, above 3000 lx) as the mean of annual/NAME.csv weighted as the grid's points
+    (`results`). A missing file is a StudyError naming it."""
+    from pathlib import Path
+
+    out: dict = {}
+    d = Path(grids_dir)
+    weights = {r.name: r.grid.weights for r in results}
+    if daylight_factor:
+        part = dict(daylight_factor)
+        part["pictures"] = {name: _read_png(d / "daylight_factor" / f"{name}.png") for name in part.get("grids", {})}
+        out["daylight_factor"] = part
+    if annual:
+        part = dict(annual)
+        grids = {}
+        pictures = {}
+        for name, g in (annual.get("grids") or {}).items():
+            means = _weighted_columns(d / "annual" / f"{name}.csv", _UDI_COLUMNS, weights.get(name), name)
+            grids[name] = {**g, "udi_bands": {"udi_below_100": means["udi_below_100"],
+                                              "udi_above_3000": means["udi_above_3000"]}}
+            pictures[name] = [(caption, _read_png(d / "annual" / f"{name}_{suffix}.png"))
+                              for suffix, caption in ANNUAL_PICTURES]
+        part["grids"], part["pictures"] = grids, pictures
+        out["annual"] = part
+    return out
 
 
 def write_report_html(study: Study, path) -> str:
@@ -374,6 +589,7 @@ def _pdf_matplotlib(study: Study) -> bytes:
             ax.imshow(imread(io.BytesIO(study.picture_of(r)), format="png"))
             ax.axis("off")
             pdf.savefig(fig)
+        _daylight_pages(pdf, study, table, a4)
         for caption, png in study.all_pictures():
             fig = Figure(figsize=a4)
             fig.text(0.08, 0.95, caption, fontsize=14, weight="bold")
@@ -382,6 +598,44 @@ def _pdf_matplotlib(study: Study) -> bytes:
             ax.axis("off")
             pdf.savefig(fig)
     return buf.getvalue()
+
+
+def _daylight_pages(pdf, study: Study, table, a4) -> None:
+    """The matplotlib PDF's daylight factor and annual pages (as the HTML shows them)."""
+    from matplotlib.figure import Figure
+    from matplotlib.image import imread
+
+    df = study.daylight_factor or {}
+    for name, st in (df.get("grids") or {}).items():
+        fig = Figure(figsize=a4)
+        fig.text(0.08, 0.95, f"Daylight factor: {name}", fontsize=14, weight="bold")
+        fig.text(0.08, 0.92, f"{df.get('formula', 'DF = 100 E / E_h,out')}, E_h,out = "
+                             f"{_fmt(df.get('outside_horizontal_illuminance_lux'))} lx", fontsize=8)
+        ax = fig.add_axes((0.08, 0.66, 0.84, 0.22))
+        table(ax, [[label, _value_text(st.get(k), kind)] for k, label, kind in DF_ROWS])
+        png = (df.get("pictures") or {}).get(name)
+        if png:
+            ax = fig.add_axes((0.05, 0.04, 0.9, 0.58))
+            ax.imshow(imread(io.BytesIO(png), format="png"))
+            ax.axis("off")
+        pdf.savefig(fig)
+    an = study.annual or {}
+    for name, g in (an.get("grids") or {}).items():
+        fig = Figure(figsize=a4)
+        fig.text(0.08, 0.95, f"Annual daylight: {name}", fontsize=14, weight="bold")
+        fig.text(0.08, 0.925, f"weather {an.get('weather', '-')}", fontsize=7)
+        fig.text(0.08, 0.905, f"site: {_site_text(an.get('site'))}; {_fmt(an.get('hours'))} hours, "
+                              f"{_fmt(an.get('daytime_hours'))} daytime", fontsize=7)
+        ax = fig.add_axes((0.08, 0.66, 0.84, 0.22))
+        table(ax, [[label, "none met" if kind == "text" and _annual_value(g, k) is None
+                    else _value_text(_annual_value(g, k), kind)] for k, label, kind in ANNUAL_ROWS], fontsize=7)
+        pics = (an.get("pictures") or {}).get(name, [])
+        for i, (caption, png) in enumerate(pics):
+            ax = fig.add_axes((0.03 + i * 0.32, 0.25, 0.31, 0.35))
+            ax.imshow(imread(io.BytesIO(png), format="png"))
+            ax.set_title(caption, fontsize=6)
+            ax.axis("off")
+        pdf.savefig(fig)
 
 
 def write_study(study: Study, out_dir, *, pdf: bool = True, engine: str = "auto") -> dict:
