@@ -363,6 +363,18 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                 evaluator = result.illuminance_evaluator(cfg.grid_rays, cfg.seed)
             results = evaluate_grids(grids, evaluator, maintenance_factor=cfg.maintenance_factor)
             update(len(grids), f"{len(grids)} grids")
+        daylight = {}  # before the study report, which shows them
+        if cfg.daylight.daylight_factor:
+            from .daylight import study as daylight_study
+
+            with rep.stage("daylight factor"):
+                daylight["daylight_factor"] = daylight_study.daylight_factor(
+                    results, day_lights, scene.up_axis, staging / "grids" / "daylight_factor")
+        if day_groups:
+            with rep.stage("annual daylight"):
+                daylight["annual"] = _annual_daylight(cfg, scene, model, solved, result, display, grids, day_groups,
+                                                      staging / "grids" / "annual")
+        with rep.stage("grid report"):
             grid_report = write_grid_study(
                 results, staging / "grids", units=cfg.units, maintenance_factor=cfg.maintenance_factor,
                 seed=cfg.seed, rays=cfg.grid_rays, title=f"Lighting study: {Path(cfg.scene).name}",
@@ -370,18 +382,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                         "residual": solved.residual, "tolerance": cfg.solver.tolerance,
                         "energy balance (max relative error)": balance.get("max_relative_error")},
                 warn=rep.warn, luminaires=_luminaire_schedule(specs, patches),
-                luminance=_luminance_image(cfg, result, scene, rep.warn))
+                luminance=_luminance_image(cfg, result, scene, rep.warn), daylight=daylight)
         outputs["grids"] = "grids/"
-        if cfg.daylight.daylight_factor:
-            from .daylight import study as daylight_study
-
-            with rep.stage("daylight factor"):
-                grid_report["daylight_factor"] = daylight_study.daylight_factor(
-                    results, day_lights, scene.up_axis, staging / "grids" / "daylight_factor")
-        if day_groups:
-            with rep.stage("annual daylight"):
-                grid_report["annual"] = _annual_daylight(cfg, scene, model, solved, result, display, grids, day_groups,
-                                                         staging / "grids" / "annual")
         if grids_info is not None:
             grids_info.update(units=cfg.units, maintenance_factor=cfg.maintenance_factor, seed=cfg.seed,
                               rays=cfg.grid_rays, title=f"Lighting study: {Path(cfg.scene).name}",
@@ -546,16 +548,19 @@ def _room_polygons(stage_path, room: str, up_axis: str) -> list:
 
 
 def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: float, seed: int, rays: int,
-                     title: str, solver: dict, subtitle: str = "", warn=None, luminaires=(), luminance=None) -> dict:
+                     title: str, solver: dict, subtitle: str = "", warn=None, luminaires=(), luminance=None,
+                     daylight=None) -> dict:
     """Writes the evaluated grids into `out_dir` (per grid NAME.csv, NAME.json, NAME.png;
     report.html and, when WeasyPrint works, report.pdf) and returns what report.json says of
-    them: units, maintenance factor, seed, rays and each grid's statistics."""
-    from .studies.report import Study, pdf_engine, units_text, write_report_pdf, write_study
+    them: units, maintenance factor, seed, rays and each grid's statistics, and `daylight`
+    (daylight_factor, annual: written into out_dir already), which the report shows too."""
+    from .studies.report import Study, daylight_parts, pdf_engine, units_text, write_report_pdf, write_study
 
     study = Study(results=results, maintenance_factor=maintenance_factor, title=title, subtitle=subtitle,
                   luminaires=list(luminaires),
                   units=units_text(units), unit_system=units, luminance=luminance,
-                  solver={**solver, "units": units, "grid seed": seed, "rays per point": rays})
+                  solver={**solver, "units": units, "grid seed": seed, "rays per point": rays},
+                  **daylight_parts(out_dir, **(daylight or {}), results=results))
     written = write_study(study, out_dir, pdf=False)
     pdf = None
     if pdf_engine("auto") == "weasyprint":
@@ -576,6 +581,7 @@ def write_grid_study(results, out_dir: Path, *, units: str, maintenance_factor: 
         "rays": rays,
         "files": names,
         "grids": {r.name: r.stats.as_dict() for r in results},
+        **(daylight or {}),
     }
 
 
@@ -616,6 +622,14 @@ def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, 
                                          result.field, out_dir, occupied=(dl.annual.occupied_from,
                                                                           dl.annual.occupied_to))
     info["seconds"]["coefficients"] = t_dc
+    site_from = "daylight.site" if site is not None else "weather file"
+    if site is None:  # the weather file's, as annual_results takes it
+        from .daylight.weather import read_weather
+
+        w = read_weather(dl.annual.weather)
+        site = Site(float(w.latitude), float(w.longitude), float(w.elevation), w.timezone)
+    info["site"] = {"latitude": site.latitude, "longitude": site.longitude, "elevation": site.elevation,
+                    "timezone": site.timezone, "from": site_from}
     info["light_groups"] = len(groups)
     info["seconds"]["group_solves"] = float(sum(getattr(g, "seconds", 0.0) for g in solved.groups))
     return info
