@@ -134,6 +134,9 @@ void bind_results(nb::module_& m) {
         .def_ro("nodes", &H::nodes)
         .def_ro("clusters", &H::clusters)
         .def_ro("balance_splits", &H::balance_splits, "Leaves split for the 2:1 balance of the display.")
+        .def_ro("limited_leaves", &H::limited_leaves,
+                "Leaves whose gathered light the last solve scaled to rho F = 0.999 (their link estimates summed "
+                "above the hemisphere with a reflectance near 1; hierarchical_solver.h gain limit).")
         .def_ro("rounds", &H::rounds, "The final round.")
         .def_ro("settled", &H::settled, "Refinement stopped splitting (else max_rounds ended it).")
         .def_ro("links_per_round", &H::links_per_round)

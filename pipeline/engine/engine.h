@@ -202,6 +202,8 @@ struct HierarchicalResult {
     uint64_t nodes = 0;
     uint64_t clusters = 0;
     uint64_t balance_splits = 0;      // leaves split for the 2:1 balance of the display
+    uint64_t limited_leaves = 0;      // leaves whose gather the last solve kept to the gain limit
+                                      // (hierarchical_solver.h kGainLimit)
     int rounds = 0;                   // the final round
     bool settled = false;             // refinement stopped splitting (else max_rounds ended it)
     std::vector<uint64_t> links_per_round;

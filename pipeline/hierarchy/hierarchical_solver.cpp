@@ -54,8 +54,41 @@ std::vector<size_t> receiver_groups(const std::vector<Link>& links) {
 
 // Parents come before children in index order, so one forward sweep pushes and one backward
 // sweep pulls.
+std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
+    std::vector<double> f(h.nodes.size(), 0.0);
+    for (const Link& l : links) f[l.receiver] += double(l.coupling) / h.nodes[l.receiver].area;
+    return gather_scale(h, std::move(f));
+}
+
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f) {
+    const size_t n = h.nodes.size();
+    if (f.size() != n) throw std::invalid_argument("gather_scale: one sum per node");
+    std::vector<double> scale;
+    for (size_t i = 0; i < n; ++i) {
+        const Node& node = h.nodes[i];
+        if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
+        if (!node.leaf() || node.cluster) continue;
+        const RGB& rho = node.shape.reflectance;
+        const double gain = std::max({rho.x, rho.y, rho.z}) * f[i];
+        if (!(gain > kGainLimit)) continue;
+        if (scale.empty()) scale.assign(n, 1.0);
+        scale[i] = kGainLimit / gain;
+    }
+    return scale;
+}
+
+namespace {
+
+uint64_t limited(const std::vector<double>& scale) {
+    uint64_t count = 0;
+    for (double s : scale) count += s < 1.0;
+    return count;
+}
+
+}  // namespace
+
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity) {
+               std::vector<RGB>& radiosity, const std::vector<double>& scale) {
     const size_t n = h.nodes.size();
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
@@ -64,6 +97,7 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
     for (size_t i = n; i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.leaf()) {
+            if (!scale.empty()) irradiance[i] = irradiance[i] * scale[i];
             radiosity[i] = node.cluster ? RGB{} : node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
             continue;
         }
@@ -78,11 +112,13 @@ namespace {
 
 // Stores b with the irradiance that goes with it, and per node the fraction of its power its
 // own and its ancestors' links carry to some receiver (for the energy balance).
-void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB> b, HierarchicalSolution& sol) {
+void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB> b, HierarchicalSolution& sol,
+            const std::vector<double>& scale) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), unused(n);
     for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, unused);
+    push_pull(h, gathered, irradiance, unused, scale);
+    sol.limited_leaves = limited(scale);
     std::vector<double> own(n, 0.0);
     for (const Link& l : links) own[l.source] += double(l.coupling) / h.nodes[l.source].area;
     sol.outgoing.assign(n, 0.0);
@@ -97,9 +133,9 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
 bool record_step(HierarchicalSolution& sol, const SolverOptions& opt, const char* solver, uint64_t step, double res,
                  uint32_t face, const char* step_name = "iteration") {
     require_finite_residual(solver, res, step, step_name);
-    // A solve whose residual has grown a million times over its best diverges (the spectral
-    // radius of rho F above 1: a reflectance near 1 on an element whose link estimates sum
-    // above 1): stop now, not after max_iterations with an overflowing radiosity.
+    // A solve whose residual has grown a million times over its best diverges. The gain limit
+    // (gather_scale) keeps every leaf's rho F below 1, so this is the last guard, not the cure:
+    // stop now, not after max_iterations with an overflowing radiosity.
     sol.least_residual = std::min(sol.least_residual, res);
     if (step > 8 && res > 1e6 * sol.least_residual)
         throw NonFiniteError(std::string(solver) + ": the residual grew from " + std::to_string(sol.least_residual) +
@@ -132,6 +168,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     const std::vector<size_t> groups = receiver_groups(links);
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
+    const std::vector<double> scale = gather_scale(h, links);
 
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         std::fill(gathered.begin(), gathered.end(), RGB{});
@@ -141,7 +178,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
             gathered[r] = acc / h.nodes[r].area;
         });
-        push_pull(h, gathered, irradiance, next);
+        push_pull(h, gathered, irradiance, next, scale);
         double r2 = 0;
         for (uint32_t i : leaves) {
             RGB d = next[i] - b[i];
@@ -151,7 +188,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
         if (record_step(sol, opt, "hierarchical Jacobi", it, res, UINT32_MAX)) break;
         b.swap(next);
     }
-    finish(h, links, std::move(b), sol);
+    finish(h, links, std::move(b), sol, scale);
     return sol;
 }
 
@@ -189,7 +226,7 @@ FaceTrees face_trees(const Hierarchy& h) {
 
 // Push `gathered` down one face tree and set B at its leaves, pull B up to the face root.
 void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const std::vector<RGB>& gathered,
-                    std::vector<RGB>& irradiance, std::vector<RGB>& radiosity) {
+                    std::vector<RGB>& irradiance, std::vector<RGB>& radiosity, const std::vector<double>& scale) {
     for (uint32_t i : tree) {
         const Node& node = h.nodes[i];
         const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
@@ -199,6 +236,7 @@ void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const
         const uint32_t i = tree[k];
         const Node& node = h.nodes[i];
         if (node.leaf()) {
+            if (!scale.empty()) irradiance[i] = irradiance[i] * scale[i];
             radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
             continue;
         }
@@ -227,11 +265,12 @@ double leaf_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves, const 
 }
 
 // One Jacobi evaluation T(b) = E + rho * (gather + push) at the leaves, pulled up.
-std::vector<RGB> apply(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& b) {
+std::vector<RGB> apply(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& b,
+                       const std::vector<double>& scale) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), out(n);
     for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, out);
+    push_pull(h, gathered, irradiance, out, scale);
     return out;
 }
 
@@ -250,13 +289,14 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
     }
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
+    const std::vector<double> scale = gather_scale(h, links);
 
     HierarchicalSolution sol;
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
     std::vector<RGB> gathered(n), irradiance(n);
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         // Residual of the current iterate, then one sweep.
-        std::vector<RGB> tb = apply(h, links, b);
+        std::vector<RGB> tb = apply(h, links, b, scale);
         std::vector<RGB> diff(n);
         for (uint32_t i : leaves) diff[i] = tb[i] - b[i];
         const double res = leaf_norm(h, leaves, diff) / enorm;
@@ -265,11 +305,11 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
             for (uint32_t i : trees.nodes[f]) gathered[i] = RGB{};
             for (uint32_t k : by_face[f])
                 gathered[links[k].receiver] += b[links[k].source] * (double(links[k].coupling) / h.nodes[links[k].receiver].area);
-            push_pull_face(h, trees.nodes[f], gathered, irradiance, b);
+            push_pull_face(h, trees.nodes[f], gathered, irradiance, b, scale);
             pull_ancestors(h, trees.roots[f], b);
         }
     }
-    finish(h, links, std::move(b), sol);
+    finish(h, links, std::move(b), sol, scale);
     return sol;
 }
 
@@ -287,12 +327,13 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         for (uint32_t k = 0; k < links.size(); ++k) by_source[cursor[links[k].source]++] = k;
     }
     const double enorm = leaf_emission_norm(h, leaves);
+    const std::vector<double> scale = gather_scale(h, links);
 
     // b: radiosity already shot; r = T(b) - b: unshot, kept at the leaves.
     std::vector<RGB> b = start.size() == n ? start : std::vector<RGB>(n);
     std::vector<RGB> r(n);
     {
-        std::vector<RGB> tb = apply(h, links, b);
+        std::vector<RGB> tb = apply(h, links, b, scale);
         for (uint32_t i : leaves) r[i] = tb[i] - b[i];
     }
     auto face_power = [&](size_t f) {
@@ -365,7 +406,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
                 gathered[i] = RGB{};
                 if (node.leaf()) {
                     r2 -= node.area * dot(r[i], r[i]);
-                    r[i] += mul(node.shape.reflectance, pushed[i]);
+                    r[i] += mul(node.shape.reflectance, scale.empty() ? pushed[i] : pushed[i] * scale[i]);
                     r2 += node.area * dot(r[i], r[i]);
                 }
             }
@@ -388,7 +429,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         if (record_step(sol, opt, "hierarchical Southwell", shot, res, face_root, "shot")) break;
     }
     // Irradiance of the returned b, and the outgoing fractions, as for Jacobi.
-    finish(h, links, std::move(b), sol);
+    finish(h, links, std::move(b), sol, scale);
     return sol;
 }
 

@@ -24,7 +24,24 @@ struct HierarchicalSolution {
     bool converged = false;
     std::vector<double> residual_history;
     double least_residual = 1e300;  // the smallest residual so far (divergence check)
+    uint64_t limited_leaves = 0;    // leaves whose gather was scaled (gather_scale)
 };
+
+// The gain limit. A leaf's estimated form factors F (the sum of G / A_R over the links received
+// at it and at its ancestors) sum to at most 1 exactly, but a sampled estimate may exceed 1; with
+// a reflectance rho near 1 (hirad allows up to 0.999) the leaf then reflects more than it
+// receives (rho F > 1) and Jacobi, Gauss-Seidel and Southwell diverge. Every leaf's gathered
+// irradiance is kept to rho_max F <= kGainLimit (rho_max its largest channel): the iteration is
+// then a contraction in the max norm (each leaf's row of rho K sums to at most kGainLimit < 1;
+// pulling up averages) and converges. Leaves with rho_max F <= kGainLimit, which is every leaf of
+// a material below 0.8 unless its estimates exceed the hemisphere by 25 %, are untouched.
+constexpr double kGainLimit = 0.999;
+
+// Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf
+// (1 at inner nodes and within the limit); empty when no leaf needs one.
+std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links);
+// The same from the sums of G / A_R over the links received at each node (streamed links).
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received);
 
 // Sorts links by receiver, then source (the order the gather reads them in).
 void sort_links(std::vector<Link>& links);
@@ -32,8 +49,9 @@ void sort_links(std::vector<Link>& links);
 // Push-pull: irradiance gathered at every node pushed down to the leaves (a child receives its
 // parent's irradiance unchanged: it is per unit area, so power is conserved), B = E + rho H
 // at the leaves, B pulled up as area-weighted means. `irradiance` receives the pushed values.
+// `scale` (gather_scale, or empty): the leaves' irradiance is scaled before B is set.
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity);
+               std::vector<RGB>& radiosity, const std::vector<double>& scale = {});
 
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);

@@ -194,13 +194,30 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
+    // The gain limit (hierarchical_solver.h) from the couplings each node receives: one pass
+    // over the links' transport in group and part order (the same sums whatever the threads).
+    std::vector<double> scale;
+    {
+        std::vector<double> in(n, 0.0);
+        TransportLinks t;
+        for (size_t g = 0; g < ng; ++g)
+            for (size_t p = 0; p < chunks.parts(g); ++p) {
+                chunks.read_transport(g, p, t);
+                const std::vector<uint32_t> receivers = t.receivers();
+                for (size_t k = 0; k < receivers.size(); ++k) {
+                    if (receivers[k] >= n) throw std::runtime_error("streaming solve: a link's receiver is not a node");
+                    in[receivers[k]] += double(t.coupling[k]) / area[receivers[k]];
+                }
+            }
+        scale = gather_scale(h, std::move(in));
+    }
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
     // before it is written).
     auto gather_and_push_pull = [&] {
         for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b);
+        push_pull(h, irradiance, irradiance, b, scale);
     };
 
     HierarchicalSolution sol;
@@ -380,6 +397,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     stats.rounds = round;
     sol.iterations = round;
+    for (double f : scale) sol.limited_leaves += f < 1.0;
     // Fraction of each node's power carried by its own and its ancestors' links.
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)

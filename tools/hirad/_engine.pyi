@@ -689,6 +689,12 @@ class HierarchicalResult:
         """Leaves split for the 2:1 balance of the display."""
 
     @property
+    def limited_leaves(self) -> int:
+        """
+        Leaves whose gathered light the last solve scaled to rho F = 0.999 (their link estimates summed above the hemisphere with a reflectance near 1; hierarchical_solver.h gain limit).
+        """
+
+    @property
     def rounds(self) -> int:
         """The final round."""
 

@@ -445,7 +445,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "hierarchy": None if cfg.method != "hierarchical" else {
             k: getattr(solved, k) for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                    "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
-                                   "epsilon_watts", "balance_splits")},
+                                   "epsilon_watts", "balance_splits", "limited_leaves")},
         "links": None if not (hierarchical and solved.out_of_core) else {
             "store": str(cfg.link_store()),
             "reused": solved.reused_links,
@@ -832,6 +832,10 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
         rep.warn(f"links reused from {cfg.link_store()}: {solved.links} links, no form factor computed")
     if not solved.settled and solved.rounds >= hc.max_rounds:
         rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
+    if solved.limited_leaves:
+        rep.warn(f"{solved.limited_leaves} elements reflect nearly all they receive (reflectance near 1) and their "
+                 f"link estimates sum above the hemisphere: their gathered light was scaled to reflect at most 0.999 of "
+                 f"it so the solve converges (raise hierarchy.samples, or lower those materials' reflectance)")
     # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
     model.use_leaves_as_patches()
     return solved, patch_dict(model.patch_arrays())
