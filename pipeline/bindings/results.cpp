@@ -11,6 +11,13 @@ template <class C>
 auto rgb(std::vector<RGB> C::*p) {
     return [p](const C& c) { return rows3(c.*p); };
 }
+template <class C>
+auto rgb1(RGB C::*p) {
+    return [p](const C& c) {
+        const RGB& v = c.*p;
+        return to_numpy(std::vector<double>{v.x, v.y, v.z}, {3});
+    };
+}
 template <class C, class T>
 auto arr(std::vector<T> C::*p) {
     return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
@@ -62,7 +69,9 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("face", arr(&PatchArrays::face), kOwned, "(n) engine face (after triangulation).")
         .def_prop_ro("source_face", arr(&PatchArrays::source_face), kOwned, "(n) authored face within its mesh.")
         .def_prop_ro("transmittance", arr(&PatchArrays::transmittance), kOwned,
-                     "(n) glazing: the normal transmittance of direct light (0: opaque).");
+                     "(n) glazing: the normal transmittance of direct light (0: opaque).")
+        .def_prop_ro("diffuse_transmittance", arr(&PatchArrays::diffuse_transmittance), kOwned,
+                     "(n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).");
 
     nb::class_<FlatSolveResult>(m, "FlatSolveResult", "A flat solve.")
         .def_prop_ro("radiosity", rgb(&FlatSolveResult::radiosity), kOwned, "(n, 3) B per patch, W/m^2.")
@@ -156,6 +165,16 @@ void bind_results(nb::module_& m) {
         .def_ro("peak_refine_links", &H::peak_refine_links)
         .def_ro("source_groups", &H::source_groups)
         .def_ro("streaming", &H::streaming, "The last streaming solve (out of core).")
+        .def_prop_ro("glass_back_entered", rgb1(&H::glass_back_entered), kOwned,
+                     "(3,) the backs of glazed faces (unpublished): the direct light they reflect, rho D A, W.")
+        .def_prop_ro("glass_back_absorbed", rgb1(&H::glass_back_absorbed), kOwned,
+                     "(3,) the backs of glazed faces: what they absorb of the interreflected light, (1 - rho - t) H A, W.")
+        .def_prop_ro("glass_back_escaped", rgb1(&H::glass_back_escaped), kOwned,
+                     "(3,) the backs of glazed faces: their light that reaches no surface, W, signed.")
+        .def_prop_ro("transmitted_to_front", rgb1(&H::transmitted_to_front), kOwned,
+                     "(3,) interreflected light glazed faces pass from their backs to their fronts, t H A, W.")
+        .def_prop_ro("transmitted_to_back", rgb1(&H::transmitted_to_back), kOwned,
+                     "(3,) interreflected light glazed faces pass from their fronts to their backs, t H A, W.")
         .def_ro("merge_seconds", &H::merge_seconds,
                 "Distributed: per refinement done by workers, the driver's merge of their spills, s.")
         .def_prop_ro("link_receiver", arr(&H::link_receiver), kOwned)

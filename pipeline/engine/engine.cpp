@@ -96,6 +96,12 @@ Engine::Engine(const SceneInput& in, size_t num_indices) {
     glazing_.face_transmittance.resize(scene_.faces.size());
     for (size_t f = 0; f < scene_.faces.size(); ++f) glazing_.face_transmittance[f] = scene_.faces[f].transmittance;
     glazing_.validate();
+    set_diffuse_transmittance();
+}
+
+void Engine::set_diffuse_transmittance() {
+    const double h = glazing_.hemispherical();
+    for (Face& f : scene_.faces) f.diffuse_transmittance = f.transmittance * h;
 }
 
 void Engine::set_glass_angular(std::vector<double> relative) {
@@ -103,6 +109,7 @@ void Engine::set_glass_angular(std::vector<double> relative) {
     g.angular = std::move(relative);
     g.validate();
     glazing_ = std::move(g);
+    set_diffuse_transmittance();
     if (visibility_) visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
 }
 
@@ -245,7 +252,7 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
         for (size_t k = 0; k < shapes.size(); ++k) {
             Patch& p = *shapes[k];
             p.direct = d[k];
-            p.emission = group_emission(groups_[q], p.face) + mul(p.reflectance, d[k]);
+            p.emission = (p.back ? RGB{} : group_emission(groups_[q], p.face)) + mul(p.reflectance, d[k]);
         }
         // As every round's solve: from the emission (rounds.cpp).
         std::vector<RGB> start = node_emission(h);
@@ -273,7 +280,7 @@ void Engine::light_patches(std::vector<Patch*>& patches, const Visibility& vis, 
     for (size_t k = 0; k < patches.size(); ++k) {
         Patch& p = *patches[k];
         p.direct = mean[k];
-        p.emission = scene_.faces[p.face].emission + mul(p.reflectance, mean[k]);
+        p.emission = (p.back ? RGB{} : scene_.faces[p.face].emission) + mul(p.reflectance, mean[k]);
     }
     if (spread) *spread = std::move(sp);
 }
@@ -326,7 +333,11 @@ double Engine::distant_power(const std::vector<Patch>& faces, const Visibility& 
     std::vector<double> spread;
     element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
     double power = 0;
-    for (size_t k = 0; k < faces.size(); ++k) power += luminance(mean[k]) * faces[k].area;
+    for (size_t k = 0; k < faces.size(); ++k) {
+        // glass: only what it reflects enters the exchange (what it lets through lands elsewhere)
+        const bool glass = scene_.faces[faces[k].face].transmittance > 0;
+        power += luminance(glass ? mul(faces[k].reflectance, mean[k]) : mean[k]) * faces[k].area;
+    }
     return power;
 }
 
@@ -356,6 +367,7 @@ PatchArrays Engine::patch_arrays() const {
     a.face.resize(n);
     a.source_face.resize(n);
     a.transmittance.resize(n);
+    a.diffuse_transmittance.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Patch& p = P[i];
         for (int k = 0; k < 4; ++k) {
@@ -376,6 +388,7 @@ PatchArrays Engine::patch_arrays() const {
         a.face[i] = static_cast<int32_t>(p.face);
         a.source_face[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
         a.transmittance[i] = scene_.faces[p.face].transmittance;
+        a.diffuse_transmittance[i] = scene_.faces[p.face].diffuse_transmittance;
     }
     return a;
 }
@@ -554,7 +567,8 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     links_.reset();
     solved_.reset();
     auto state = std::make_unique<Solved>(scene_);
-    state->visibility = std::make_unique<Visibility>(state->hierarchy.faces, &glazing_);
+    state->visibility =
+        std::make_unique<Visibility>(state->hierarchy.faces, &glazing_, state->hierarchy.scene_faces);
     emitted = 0;
     for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
     emitted += luminance(luminaire_flux());
@@ -613,6 +627,9 @@ SpillLog Engine::refine_groups(const HierarchyOptions& o, const OutOfCoreOptions
 RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c, size_t groups) const {
     // The light: the luminaires, and the glass's angular transmittance where there is glass.
     uint64_t light = luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_);
+    if (glazing_.any()) {
+        light = hash_pair(light, 2, 23);  // glazed faces have backs (Hierarchy::glass): other nodes
+    }
     if (glazing_.any())
         for (double r : glazing_.angular) {
             uint64_t b;
@@ -695,6 +712,32 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     return r;
 }
 
+// The glazing's terms of the energy balance (HierarchicalResult): the backs' share, and what
+// the two sides of each glazed face pass to each other.
+void Engine::glazing_balance(const Hierarchy& h, const HierarchicalSolution& sol, const std::vector<uint32_t>& backs,
+                             HierarchicalResult& r) const {
+    for (uint32_t i : backs) {
+        const Node& node = h.nodes[i];
+        const Patch& p = node.shape;
+        const double t = scene_.faces[p.face].diffuse_transmittance;
+        r.glass_back_entered += mul(p.reflectance, p.direct) * node.area;
+        r.glass_back_absorbed += mul(RGB{1 - t, 1 - t, 1 - t} - p.reflectance, sol.irradiance[i]) * node.area;
+        r.glass_back_escaped += sol.radiosity[i] * (node.area * (1.0 - sol.outgoing[i]));
+    }
+    // Each side's mean irradiance from the links (leaves' area-weighted), times t and its area.
+    std::vector<RGB> power(h.nodes.size());
+    for (size_t i = h.nodes.size(); i-- > 0;) {
+        const Node& node = h.nodes[i];
+        if (node.cluster) continue;
+        if (node.leaf()) { power[i] = sol.irradiance[i] * node.area; continue; }
+        for (uint32_t c = 0; c < node.child_count; ++c) power[i] += power[node.first_child + c];
+    }
+    for (const Hierarchy::GlassPair& g : h.glass) {
+        r.transmitted_to_front += power[g.back] * g.transmittance;
+        r.transmitted_to_back += power[g.front] * g.transmittance;
+    }
+}
+
 // Balances the solved hierarchy 2:1 for a display without cracks (new leaves carry their
 // parent's values) and keeps it for publishing and the final gather.
 HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run, double epsilon_watts,
@@ -720,7 +763,10 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
             g.radiosity.push_back(g.radiosity[parent]);
             g.irradiance.push_back(g.irradiance[parent]);
         }
-    std::vector<uint32_t> leaves = h.leaves();
+    // The backs of glazed faces are solved with the rest but not published: their light shows
+    // on the fronts (what they pass through) and in the energy balance's glazing terms.
+    std::vector<uint32_t> leaves, backs;
+    for (uint32_t i : h.leaves()) (h.nodes[i].shape.back ? backs : leaves).push_back(i);
     if (!groups.empty()) {
         std::vector<Patch*> shapes;
         for (uint32_t i : leaves) shapes.push_back(&h.nodes[i].shape);
@@ -757,6 +803,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
         // Signed, as for the flat method: the per-leaf shares only add up unclamped.
         r.escaped[k] = r.radiosity[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
     }
+    glazing_balance(h, sol, backs, r);
     r.residual = sol.residual;
     r.converged = sol.converged;
     r.limited_leaves = sol.limited_leaves;

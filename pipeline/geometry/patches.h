@@ -31,6 +31,7 @@ struct Patch {
     RGB direct;              // luminaires' irradiance, mean over the patch (luminaire.h), W/m^2
     uint32_t mesh = 0;
     uint32_t face = 0;       // index into Scene::faces
+    bool back = false;       // the back of a glazed face (Hierarchy::glass): receives from behind it
     std::array<uint32_t, 4> vertex;  // indices into PatchSet::vertices (welded per mesh)
 
     // A point on the patch from coordinates in the unit square (quads: bilinear; triangles:

@@ -147,6 +147,20 @@ double Glazing::relative(double cos_theta) const {
     return angular[k] * (1 - f) + angular[k + 1] * f;
 }
 
+double Glazing::hemispherical() const {
+    if (angular.size() < 2) return 1.0;
+    // Segment [a, b] of the table, r linear from r0 to r1:
+    // int r mu dmu = r0 (b^2 - a^2) / 2 + (r1 - r0) / (b - a) ((b^3 - a^3) / 3 - a (b^2 - a^2) / 2).
+    const size_t m = angular.size() - 1;
+    double sum = 0;
+    for (size_t k = 0; k < m; ++k) {
+        const double a = double(k) / double(m), b = double(k + 1) / double(m);
+        const double r0 = angular[k], r1 = angular[k + 1];
+        sum += r0 * (b * b - a * a) / 2 + (r1 - r0) / (b - a) * ((b * b * b - a * a * a) / 3 - a * (b * b - a * a) / 2);
+    }
+    return 2 * sum;
+}
+
 void Glazing::validate() const {
     for (size_t f = 0; f < face_transmittance.size(); ++f)
         if (!(face_transmittance[f] >= 0 && face_transmittance[f] <= 1))
@@ -157,7 +171,7 @@ void Glazing::validate() const {
         if (!(r >= 0 && r <= 1)) throw std::invalid_argument("glazing: an angular transmittance is outside [0, 1]");
 }
 
-Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing) : patches_(patches) {
+Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing, size_t count) : patches_(patches) {
     // The same kernels on every machine that has them: Embree would pick AVX-512 where the CPU
     // has it, and its wider traversal reports hits that differ from the AVX2 kernels' in the
     // last bits of t, u and v, so a render (and anything read at a hit) would change bits
@@ -174,7 +188,7 @@ Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing
     // closed ceiling.
     rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
     RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_QUAD);
-    const size_t n = patches.size();
+    const size_t n = std::min(count, patches.size());
     auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                                  3 * sizeof(float), 4 * n));
     auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,

@@ -37,14 +37,20 @@ struct Glazing {
     std::vector<double> angular;   // empty: r = 1 at every angle
     bool any() const;
     double relative(double cos_theta) const;  // r, linear in the table
+    // 2 int_0^1 r(mu) mu dmu: the fraction of tau0 that diffuse (uniform radiance) light gets
+    // through, exact for the table's linear segments (1 without a table).
+    double hemispherical() const;
     // Throws std::invalid_argument for values outside [0, 1], a table shorter than 2 or not finite.
     void validate() const;
 };
 
 class Visibility {
 public:
-    // `glazing` (may be null, or have no glass) is copied for the patches' faces.
-    explicit Visibility(const std::vector<Patch>& patches, const Glazing* glazing = nullptr);
+    // `glazing` (may be null, or have no glass) is copied for the patches' faces. Only the first
+    // `count` patches are traced (a hierarchy's faces without the backs of its glazed faces,
+    // which lie on their fronts).
+    explicit Visibility(const std::vector<Patch>& patches, const Glazing* glazing = nullptr,
+                        size_t count = SIZE_MAX);
     ~Visibility();
     Visibility(const Visibility&) = delete;
     Visibility& operator=(const Visibility&) = delete;

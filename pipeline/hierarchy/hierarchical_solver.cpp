@@ -87,18 +87,68 @@ uint64_t limited(const std::vector<double>& scale) {
 
 }  // namespace
 
+namespace {
+
+// The element root above element i.
+uint32_t side_root(const Hierarchy& h, uint32_t i) {
+    while (h.nodes[i].parent != kNoNode && !h.nodes[h.nodes[i].parent].cluster) i = h.nodes[i].parent;
+    return i;
+}
+
+}  // namespace
+
+LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale) {
+    LeafTerms t;
+    t.scale = std::move(scale);
+    if (h.glass.empty()) return t;
+    const size_t n = h.nodes.size();
+    t.side_of.assign(n, -1);
+    t.sides.resize(2 * h.glass.size());
+    for (size_t k = 0; k < h.glass.size(); ++k) {
+        t.side_of[h.glass[k].front] = int32_t(2 * k);
+        t.side_of[h.glass[k].back] = int32_t(2 * k + 1);
+        t.sides[2 * k].transmittance = t.sides[2 * k + 1].transmittance = h.glass[k].transmittance;
+    }
+    for (size_t i = 0; i < n; ++i) {  // parents first: an element tree takes its root's side
+        const Node& node = h.nodes[i];
+        if (node.cluster) continue;
+        if (t.side_of[i] < 0 && node.parent != kNoNode && !h.nodes[node.parent].cluster)
+            t.side_of[i] = t.side_of[node.parent];
+        if (t.side_of[i] >= 0 && node.leaf()) {
+            LeafTerms::Side& side = t.sides[size_t(t.side_of[i])];
+            side.leaves.push_back(uint32_t(i));
+            side.weight.push_back(node.area / h.nodes[side_root(h, uint32_t(i))].area);
+        }
+    }
+    return t;
+}
+
+RGB LeafTerms::mean(size_t side, const std::vector<RGB>& irradiance) const {
+    const Side& s = sides[side];
+    RGB sum;
+    for (size_t k = 0; k < s.leaves.size(); ++k) sum += irradiance[s.leaves[k]] * s.weight[k];
+    return sum;
+}
+
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const std::vector<double>& scale) {
+               std::vector<RGB>& radiosity, const LeafTerms& terms) {
     const size_t n = h.nodes.size();
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
         irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
     }
+    if (!terms.scale.empty())
+        for (size_t i = 0; i < n; ++i)
+            if (h.nodes[i].leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
+    std::vector<RGB> through(terms.sides.size());  // per side: t times the other side's mean
+    for (size_t s = 0; s < terms.sides.size(); ++s)
+        through[s] = terms.mean(s ^ 1, irradiance) * terms.sides[s].transmittance;
     for (size_t i = n; i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            if (!scale.empty()) irradiance[i] = irradiance[i] * scale[i];
-            radiosity[i] = node.cluster ? RGB{} : node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            if (node.cluster) { radiosity[i] = RGB{}; continue; }
+            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            if (!terms.side_of.empty() && terms.side_of[i] >= 0) radiosity[i] += through[size_t(terms.side_of[i])];
             continue;
         }
         RGB acc;
@@ -113,12 +163,12 @@ namespace {
 // Stores b with the irradiance that goes with it, and per node the fraction of its power its
 // own and its ancestors' links carry to some receiver (for the energy balance).
 void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB> b, HierarchicalSolution& sol,
-            const std::vector<double>& scale) {
+            const LeafTerms& terms) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), unused(n);
     for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, unused, scale);
-    sol.limited_leaves = limited(scale);
+    push_pull(h, gathered, irradiance, unused, terms);
+    sol.limited_leaves = limited(terms.scale);
     std::vector<double> own(n, 0.0);
     for (const Link& l : links) own[l.source] += double(l.coupling) / h.nodes[l.source].area;
     sol.outgoing.assign(n, 0.0);
@@ -168,7 +218,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     const std::vector<size_t> groups = receiver_groups(links);
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
-    const std::vector<double> scale = gather_scale(h, links);
+    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
 
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         std::fill(gathered.begin(), gathered.end(), RGB{});
@@ -178,7 +228,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
             gathered[r] = acc / h.nodes[r].area;
         });
-        push_pull(h, gathered, irradiance, next, scale);
+        push_pull(h, gathered, irradiance, next, terms);
         double r2 = 0;
         for (uint32_t i : leaves) {
             RGB d = next[i] - b[i];
@@ -188,7 +238,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
         if (record_step(sol, opt, "hierarchical Jacobi", it, res, UINT32_MAX)) break;
         b.swap(next);
     }
-    finish(h, links, std::move(b), sol, scale);
+    finish(h, links, std::move(b), sol, terms);
     return sol;
 }
 
@@ -226,18 +276,22 @@ FaceTrees face_trees(const Hierarchy& h) {
 
 // Push `gathered` down one face tree and set B at its leaves, pull B up to the face root.
 void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const std::vector<RGB>& gathered,
-                    std::vector<RGB>& irradiance, std::vector<RGB>& radiosity, const std::vector<double>& scale) {
+                    std::vector<RGB>& irradiance, std::vector<RGB>& radiosity, const LeafTerms& terms) {
     for (uint32_t i : tree) {
         const Node& node = h.nodes[i];
         const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
         irradiance[i] = gathered[i] + (root ? RGB{} : irradiance[node.parent]);
+        if (!terms.scale.empty() && node.leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
     }
+    // A glazed face's side: the other side's light as it now is (its last push).
+    const int32_t side = terms.side_of.empty() ? -1 : terms.side_of[tree.front()];
+    const RGB through = side < 0 ? RGB{}
+                                 : terms.mean(size_t(side) ^ 1, irradiance) * terms.sides[size_t(side)].transmittance;
     for (size_t k = tree.size(); k-- > 0;) {
         const uint32_t i = tree[k];
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            if (!scale.empty()) irradiance[i] = irradiance[i] * scale[i];
-            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]) + through;
             continue;
         }
         RGB acc;
@@ -266,11 +320,11 @@ double leaf_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves, const 
 
 // One Jacobi evaluation T(b) = E + rho * (gather + push) at the leaves, pulled up.
 std::vector<RGB> apply(const Hierarchy& h, const std::vector<Link>& links, const std::vector<RGB>& b,
-                       const std::vector<double>& scale) {
+                       const LeafTerms& terms) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), out(n);
     for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, out, scale);
+    push_pull(h, gathered, irradiance, out, terms);
     return out;
 }
 
@@ -289,14 +343,14 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
     }
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
-    const std::vector<double> scale = gather_scale(h, links);
+    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
 
     HierarchicalSolution sol;
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
     std::vector<RGB> gathered(n), irradiance(n);
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         // Residual of the current iterate, then one sweep.
-        std::vector<RGB> tb = apply(h, links, b, scale);
+        std::vector<RGB> tb = apply(h, links, b, terms);
         std::vector<RGB> diff(n);
         for (uint32_t i : leaves) diff[i] = tb[i] - b[i];
         const double res = leaf_norm(h, leaves, diff) / enorm;
@@ -305,11 +359,11 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
             for (uint32_t i : trees.nodes[f]) gathered[i] = RGB{};
             for (uint32_t k : by_face[f])
                 gathered[links[k].receiver] += b[links[k].source] * (double(links[k].coupling) / h.nodes[links[k].receiver].area);
-            push_pull_face(h, trees.nodes[f], gathered, irradiance, b, scale);
+            push_pull_face(h, trees.nodes[f], gathered, irradiance, b, terms);
             pull_ancestors(h, trees.roots[f], b);
         }
     }
-    finish(h, links, std::move(b), sol, scale);
+    finish(h, links, std::move(b), sol, terms);
     return sol;
 }
 
@@ -327,13 +381,13 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         for (uint32_t k = 0; k < links.size(); ++k) by_source[cursor[links[k].source]++] = k;
     }
     const double enorm = leaf_emission_norm(h, leaves);
-    const std::vector<double> scale = gather_scale(h, links);
+    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
 
     // b: radiosity already shot; r = T(b) - b: unshot, kept at the leaves.
     std::vector<RGB> b = start.size() == n ? start : std::vector<RGB>(n);
     std::vector<RGB> r(n);
     {
-        std::vector<RGB> tb = apply(h, links, b, scale);
+        std::vector<RGB> tb = apply(h, links, b, terms);
         for (uint32_t i : leaves) r[i] = tb[i] - b[i];
     }
     auto face_power = [&](size_t f) {
@@ -399,16 +453,33 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         // Receivers: push down their trees, add rho * H to the unshot radiosity of the leaves.
         std::sort(touched.begin(), touched.end());
         for (uint32_t g : touched) {
+            const int32_t side = terms.side_of.empty() ? -1 : terms.side_of[trees.roots[g]];
+            RGB through;  // a glazed side: t times the mean of what it received now
             for (uint32_t i : trees.nodes[g]) {
                 const Node& node = h.nodes[i];
                 const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
                 pushed[i] = gathered[i] + (root ? RGB{} : pushed[node.parent]);
                 gathered[i] = RGB{};
                 if (node.leaf()) {
+                    const RGB got = terms.scale.empty() ? pushed[i] : pushed[i] * terms.scale[i];
                     r2 -= node.area * dot(r[i], r[i]);
-                    r[i] += mul(node.shape.reflectance, scale.empty() ? pushed[i] : pushed[i] * scale[i]);
+                    r[i] += mul(node.shape.reflectance, got);
                     r2 += node.area * dot(r[i], r[i]);
+                    if (side >= 0) through += got * (node.area / h.nodes[trees.roots[g]].area);
                 }
+            }
+            if (side >= 0) {
+                // ... leaves the other side's leaves diffusely: unshot there
+                const LeafTerms::Side& other = terms.sides[size_t(side) ^ 1];
+                through = through * terms.sides[size_t(side)].transmittance;
+                for (uint32_t i : other.leaves) {
+                    r2 -= h.nodes[i].area * dot(r[i], r[i]);
+                    r[i] += through;
+                    r2 += h.nodes[i].area * dot(r[i], r[i]);
+                }
+                const uint32_t og = trees.slot[other.leaves.front()];
+                power[og] = face_power(og);
+                queue.push({power[og], -int64_t(og)});
             }
             power[g] = face_power(g);
             queue.push({power[g], -int64_t(g)});
@@ -429,7 +500,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         if (record_step(sol, opt, "hierarchical Southwell", shot, res, face_root, "shot")) break;
     }
     // Irradiance of the returned b, and the outgoing fractions, as for Jacobi.
-    finish(h, links, std::move(b), sol, scale);
+    finish(h, links, std::move(b), sol, terms);
     return sol;
 }
 

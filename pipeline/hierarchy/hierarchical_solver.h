@@ -49,9 +49,26 @@ void sort_links(std::vector<Link>& links);
 // Push-pull: irradiance gathered at every node pushed down to the leaves (a child receives its
 // parent's irradiance unchanged: it is per unit area, so power is conserved), B = E + rho H
 // at the leaves, B pulled up as area-weighted means. `irradiance` receives the pushed values.
-// `scale` (gather_scale, or empty): the leaves' irradiance is scaled before B is set.
+// What a leaf's B takes besides E + rho H: the gain limit's scale of H, and the light the other
+// side of a glazed face lets through (Hierarchy::glass): B = E + rho s H + t H_other, H_other
+// the area-weighted mean of the other side's leaves' (scaled) irradiance.
+struct LeafTerms {
+    struct Side {
+        std::vector<uint32_t> leaves;
+        std::vector<double> weight;  // per leaf: its share of the side's area
+        double transmittance = 0;  // t of the pair
+    };
+    std::vector<double> scale;     // per node (gather_scale), or empty
+    std::vector<Side> sides;       // pair k: 2k its front, 2k + 1 its back
+    std::vector<int32_t> side_of;  // per node: the side its element tree is, or -1 (empty: none)
+    RGB mean(size_t side, const std::vector<RGB>& irradiance) const;
+};
+// The terms of a hierarchy whose leaves do not change until the solve ends.
+LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale);
+
+// push_pull with the leaves' terms (empty: B = E + rho H).
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const std::vector<double>& scale = {});
+               std::vector<RGB>& radiosity, const LeafTerms& terms = {});
 
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);

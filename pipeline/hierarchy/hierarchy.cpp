@@ -34,9 +34,11 @@ Vec2 mid2(const Vec2& a, const Vec2& b) { return {(a.u + b.u) * 0.5, (a.v + b.v)
 }  // namespace
 
 Hierarchy::Hierarchy(const Scene& scene) {
-    const uint32_t n = static_cast<uint32_t>(scene.faces.size());
-    faces.resize(n);
-    for (uint32_t f = 0; f < n; ++f) {
+    const uint32_t ns = static_cast<uint32_t>(scene.faces.size());
+    scene_faces = ns;
+    faces.resize(ns);
+    std::vector<uint32_t> glazed;
+    for (uint32_t f = 0; f < ns; ++f) {
         const Face& face = scene.faces[f];
         Patch& p = faces[f];
         p.nv = face.nv;
@@ -46,7 +48,24 @@ Hierarchy::Hierarchy(const Scene& scene) {
         p.mesh = face.mesh;
         p.face = f;
         finish_shape(p);
+        if (face.diffuse_transmittance > 0) glazed.push_back(f);
     }
+    // The backs of glazed faces: the same polygon turned over (corners reversed), reflecting as
+    // the front, emitting nothing, after all the scene's faces.
+    for (uint32_t f : glazed) {
+        Patch back = faces[f];
+        const int nv = back.nv;
+        for (int k = 0; k < nv; ++k) {
+            back.p[k] = faces[f].p[nv - 1 - k];
+            back.uv[k] = faces[f].uv[nv - 1 - k];
+        }
+        if (nv == 3) { back.p[3] = back.p[2]; back.uv[3] = back.uv[2]; }
+        back.emission = RGB{};
+        back.back = true;
+        finish_shape(back);
+        faces.push_back(back);
+    }
+    const uint32_t n = static_cast<uint32_t>(faces.size());
     face_order.resize(n);
     std::iota(face_order.begin(), face_order.end(), 0u);
     face_node.assign(n, kNoNode);
@@ -112,6 +131,8 @@ Hierarchy::Hierarchy(const Scene& scene) {
     }
     for (uint32_t i = 0; i < nodes.size(); ++i) nodes[i].key = i;
     root = 0;
+    for (size_t k = 0; k < glazed.size(); ++k)
+        glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].diffuse_transmittance});
 }
 
 bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
@@ -154,6 +175,8 @@ void Hierarchy::subdivide(uint32_t i) {
         child.area = child.shape.area;
         child.parent = i;
         child.level = level;
+        child.face_begin = nodes[i].face_begin;  // its face's place in face_order
+        child.face_end = nodes[i].face_end;
         child.key = hash_pair(nodes[i].key, uint64_t(k) + 1, 0xC41Dull);
         bound_shape(child);
         nodes.push_back(child);

@@ -28,7 +28,7 @@ struct Node {
     bool cluster = false;
     bool lit = false;        // elements: shape.direct computed for this element (luminaire.h)
     uint16_t level = 0;      // depth below the element root (elements only)
-    uint32_t face_begin = 0, face_end = 0;  // clusters: their faces in Hierarchy::face_order
+    uint32_t face_begin = 0, face_end = 0;  // their faces in Hierarchy::face_order (an element: its face's)
     // Who the node is, whatever order the hierarchy grew in: its index for the nodes the
     // constructor builds (clusters and element roots), and for an element made by subdivision
     // a hash of its parent's key and its place among the children. Refinement seeds its link
@@ -49,7 +49,21 @@ public:
     std::vector<uint32_t> face_order;   // faces in cluster order
     std::vector<uint32_t> face_node;    // element root of each face
     std::vector<double> area_prefix;    // prefix sums of face area in face_order (size faces+1)
-    std::vector<Patch> faces;           // the faces as polygons (for Embree and sampling)
+    std::vector<Patch> faces;           // the faces as polygons (for Embree and sampling), then the
+                                        // backs of the glazed ones (Patch::back; face = the front's)
+    size_t scene_faces = 0;             // faces[0, scene_faces) are the scene's
+
+    // Glazing's two sides. A glazed face (Face::diffuse_transmittance t > 0) is two elements
+    // trees back to back: the face, and its back (the polygon turned over), each receiving the
+    // light in front of it. Each side lets t of the interreflected light it receives through
+    // to the other side, where it leaves diffusely: B = E + rho H + t H_other, H_other the mean
+    // irradiance over the other side from the links (its direct light, which the glazing
+    // transmits in direction, excluded: visibility.h). Only the fronts are traced.
+    struct GlassPair {
+        uint32_t front, back;    // element roots
+        double transmittance;    // t
+    };
+    std::vector<GlassPair> glass;
 
     // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
     // scene rebuilds the same nodes with the same indices (what the link store refers to).

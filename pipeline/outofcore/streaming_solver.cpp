@@ -40,8 +40,9 @@ SourceGroups SourceGroups::cut(const Hierarchy& h, uint32_t max_faces) {
 
 uint32_t SourceGroups::of(const Hierarchy& h, uint32_t node) const {
     const Node& n = h.nodes[node];
-    const uint32_t begin = n.cluster ? n.face_begin : face_rank[n.shape.face];
-    const uint32_t end = n.cluster ? n.face_end : begin + 1;
+    // (an element's face_begin is its face's place in face_order, as face_rank says)
+    const uint32_t begin = n.face_begin;
+    const uint32_t end = n.face_end;
     auto it = std::upper_bound(first_face.begin(), first_face.end(), begin);
     if (it == first_face.begin() || it == first_face.end()) return kNoGroup;
     const uint32_t g = static_cast<uint32_t>(it - first_face.begin()) - 1;
@@ -196,7 +197,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     const double enorm = leaf_emission_norm(h, leaves);
     // The gain limit (hierarchical_solver.h) from the couplings each node receives: one pass
     // over the links' transport in group and part order (the same sums whatever the threads).
-    std::vector<double> scale;
+    LeafTerms terms;
     {
         std::vector<double> in(n, 0.0);
         TransportLinks t;
@@ -209,7 +210,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     in[receivers[k]] += double(t.coupling[k]) / area[receivers[k]];
                 }
             }
-        scale = gather_scale(h, std::move(in));
+        terms = leaf_terms(h, gather_scale(h, std::move(in)));
     }
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
@@ -217,7 +218,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     // before it is written).
     auto gather_and_push_pull = [&] {
         for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b, scale);
+        push_pull(h, irradiance, irradiance, b, terms);
     };
 
     HierarchicalSolution sol;
@@ -397,7 +398,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     stats.rounds = round;
     sol.iterations = round;
-    for (double f : scale) sol.limited_leaves += f < 1.0;
+    for (double f : terms.scale) sol.limited_leaves += f < 1.0;
     // Fraction of each node's power carried by its own and its ancestors' links.
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)

@@ -477,6 +477,12 @@ class PatchArrays:
     def transmittance(self) -> NDArray[numpy.float64]:
         """(n) glazing: the normal transmittance of direct light (0: opaque)."""
 
+    @property
+    def diffuse_transmittance(self) -> NDArray[numpy.float64]:
+        """
+        (n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).
+        """
+
 class FlatSolveResult:
     """A flat solve."""
 
@@ -755,6 +761,36 @@ class HierarchicalResult:
     @property
     def streaming(self) -> StreamingStats:
         """The last streaming solve (out of core)."""
+
+    @property
+    def glass_back_entered(self) -> NDArray[numpy.float64]:
+        """
+        (3,) the backs of glazed faces (unpublished): the direct light they reflect, rho D A, W.
+        """
+
+    @property
+    def glass_back_absorbed(self) -> NDArray[numpy.float64]:
+        """
+        (3,) the backs of glazed faces: what they absorb of the interreflected light, (1 - rho - t) H A, W.
+        """
+
+    @property
+    def glass_back_escaped(self) -> NDArray[numpy.float64]:
+        """
+        (3,) the backs of glazed faces: their light that reaches no surface, W, signed.
+        """
+
+    @property
+    def transmitted_to_front(self) -> NDArray[numpy.float64]:
+        """
+        (3,) interreflected light glazed faces pass from their backs to their fronts, t H A, W.
+        """
+
+    @property
+    def transmitted_to_back(self) -> NDArray[numpy.float64]:
+        """
+        (3,) interreflected light glazed faces pass from their fronts to their backs, t H A, W.
+        """
 
     @property
     def merge_seconds(self) -> list[float]:

@@ -255,8 +255,13 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote)
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
+        glazing = solved  # the backs of glazed faces and what passes through glass
     else:
         solved, patches, b, h, escaped, snapshot_cb = _solve_flat(cfg, model, scene, staging, rep)
+        glazing = None
+        if np.any(patches["transmittance"] > 0):
+            rep.warn(f"{cfg.scene}: method: flat treats glass as opaque to interreflected light (the sun's and "
+                     f"sky's direct light still passes it); method: hierarchical passes the transmitted part diffusely")
     # The irradiance from the surfaces plus the luminaires' direct light (their first bounce).
     h = np.asarray(h) + patches["direct"]
     grouped = None
@@ -282,11 +287,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if day_lights:
         # Daylight has no flux of its own: what enters is the direct light the surfaces receive
         # (sun and sky through the openings, and the luminaires' received part).
-        balance = energy_balance(patches, b, h, escaped, received_as_emitted=True)
+        balance = energy_balance(patches, b, h, escaped, received_as_emitted=True, glazing=glazing)
     else:
         balance = energy_balance(patches, b, h, escaped,
                                  luminaire_flux=(np.asarray(model.luminaire_flux)[0] if not grouped else
-                                                 np.sum([s.flux for s in specs], axis=0)) if luminaires else None)
+                                                 np.sum([s.flux for s in specs], axis=0)) if luminaires else None,
+                                 glazing=glazing)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))

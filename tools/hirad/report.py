@@ -169,35 +169,56 @@ def _is_terminal(stream) -> bool:
 
 
 def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndarray, luminaire_flux=None,
-                   received_as_emitted: bool = False) -> dict:
+                   received_as_emitted: bool = False, glazing=None) -> dict:
     """Emitted power against absorbed plus escaped (through openings), per channel, in W (lm
     when photometric). `h` is the whole irradiance (from the surfaces and the luminaires).
     With luminaires, their exact flux is emitted too, and what of it reaches no surface (the
     flux less the direct light the patches receive, sum of direct x area) escapes: in a closed
     room that part is the discretisation's error of the direct light alone.
     `received_as_emitted` (daylight: sun and sky have no flux of their own): the direct light the
-    patches receive (sum of direct x area) counts as what entered; what leaves through windows is
-    part of `escaped` (the links that reach no surface) and of what glass absorbs (its 1 - rho)."""
+    patches receive (sum of direct x area) counts as what entered.
+    Glazed faces (patches' `diffuse_transmittance` t > 0) take in only the direct light they
+    reflect, rho D (what they let through is counted where it lands, as D there), and absorb
+    (1 - rho - t) of the interreflected light H - D they receive: t of it leaves on their other
+    side (with `glazing`; without, glass passes none). `glazing` (a hierarchical result): the unpublished backs of glazed faces (their rho D
+    in, their absorption, their light that reaches no surface), and what passes through glass
+    each way, reported as entered/left through windows."""
     area = patches["area"][:, None]
+    rho = patches["reflectance"]
+    direct = patches["direct"]
+    tau = patches.get("transmittance")
+    glass = (np.asarray(tau) > 0) if tau is not None else np.zeros(len(area), dtype=bool)
+    # without the glazing's two sides (the flat method) glass passes no interreflected light
+    t = np.asarray(patches["diffuse_transmittance"])[:, None] if glazing is not None else 0.0
     emitted = (patches["emission"] * area).sum(axis=0)
-    absorbed = ((1 - patches["reflectance"]) * h * area).sum(axis=0)
+    absorbed = np.where(glass[:, None], (1 - rho - t) * (h - direct), (1 - rho) * h)
+    absorbed = (absorbed * area).sum(axis=0)
     lost = np.asarray(escaped).sum(axis=0)
     out = {}
+    # the direct light that enters the surfaces' exchange (glass: only what it reflects)
+    received = (np.where(glass[:, None], rho * direct, direct) * area).sum(axis=0)
     if received_as_emitted:
-        received = (patches["direct"] * area).sum(axis=0)
         emitted = emitted + received
         out = {"direct_received_W": received.tolist()}
-        tau = patches.get("transmittance")
-        if tau is not None and np.any(tau > 0):
-            glass = tau > 0
-            out["glazing_absorbed_or_transmitted_W"] = (((1 - patches["reflectance"]) * h * area)[glass]).sum(axis=0).tolist()
     elif luminaire_flux is not None:
         flux = np.asarray(luminaire_flux, dtype=np.float64).reshape(3)
-        received = (patches["direct"] * area).sum(axis=0)
         emitted = emitted + flux
-        lost = lost + (flux - received)
+        lost = lost + (flux - received)  # glass's absorption of direct light among it
         out = {"luminaire_flux_W": flux.tolist(), "luminaire_received_W": received.tolist(),
                "luminaire_unreceived_W": (flux - received).tolist()}
+    if glazing is not None and np.any(glass):
+        back_in = np.asarray(glazing.glass_back_entered)
+        if received_as_emitted:
+            emitted = emitted + back_in
+        else:
+            lost = lost - back_in  # the luminaires' light the backs reflect was not lost
+        absorbed = absorbed + np.asarray(glazing.glass_back_absorbed)
+        lost = lost + np.asarray(glazing.glass_back_escaped)
+        out["glazing"] = {"transmitted_to_front_W": np.asarray(glazing.transmitted_to_front).tolist(),
+                          "transmitted_to_back_W": np.asarray(glazing.transmitted_to_back).tolist(),
+                          "back_direct_reflected_W": back_in.tolist(),
+                          "back_absorbed_W": np.asarray(glazing.glass_back_absorbed).tolist(),
+                          "back_escaped_W": np.asarray(glazing.glass_back_escaped).tolist()}
     scale = np.where(emitted > 0, emitted, 1.0)
     error = np.abs(emitted - absorbed - lost) / scale
     return {"emitted_W": emitted.tolist(), "absorbed_W": absorbed.tolist(), "escaped_W": lost.tolist(),
