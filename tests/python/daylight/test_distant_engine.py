@@ -244,13 +244,15 @@ def test_energy_balance_closes_with_a_glazed_opening():
     assert absorbed + escaped == pytest.approx(entering, rel=0.004)
 
 
-def test_glass_passes_interreflected_light_diffusely():
+@pytest.mark.parametrize("solver", ["jacobi", "gauss_seidel", "southwell", "block_southwell"])
+def test_glass_passes_interreflected_light_diffusely(solver):
     """An emitting panel (exitance E, facing down) over a glass pane over a floor, three unit
     squares 1 m apart, everything black. Links do not cross glass; the pane's back receives the
     panel's light, H_back = E F (F = 0.199825, unit squares at distance 1, Howell C-11, as a
     mean over the pane), and its front re-emits t H_back diffusely, of which the floor receives
     the mean irradiance t E F^2. With t = tau0 2 int r(mu) mu dmu: 0.8 with no angular table,
-    0.8 2 int mu^2 dmu = 0.8 x 2/3 with r = mu. Opaque glass (tau0 = 0) lets nothing through."""
+    0.8 2 int mu^2 dmu = 0.8 x 2/3 with r = mu. Opaque glass (tau0 = 0) lets nothing through.
+    Every hierarchical solver, in memory and streamed out of core."""
     F = 0.199825
     floor = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])          # up
     pane = quad([0, 0, 1], [0, 1, 0], [1, 0, 0])           # front down, towards the floor
@@ -259,8 +261,11 @@ def test_glass_passes_interreflected_light_diffusely():
     for tau0, table, t in ((0.8, None, 0.8), (0.8, [0.0, 1.0], 0.8 * 2 / 3), (0.0, None, 0.0)):
         m = make_model([floor, pane, panel], 0.0, emission=emission, transmittance=[0.0, tau0, 0.0],
                        glass_angular=table)
-        r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=1e-6, min_area=0.01, samples=16),
-                                 _engine.SolveOptions(method="jacobi", tolerance=1e-9))
+        ho = _engine.HierarchyOptions(epsilon=1e-6, min_area=0.01, samples=16)
+        if solver == "block_southwell":
+            r = m.solve_out_of_core(ho, _engine.SolveOptions(method=solver, tolerance=1e-9), _engine.OutOfCoreOptions())
+        else:
+            r = m.solve_hierarchical(ho, _engine.SolveOptions(method=solver, tolerance=1e-9))
         m.use_leaves_as_patches()
         pa = m.patch_arrays()
         on_floor = pa.face == 0
