@@ -103,6 +103,10 @@ in cm (W = exp(0.07 Td - 0.075), Td the dew point in deg C, Perez 1990 eq. 3; 2 
 Typical values: K_d ~ 110-125 lm/W for overcast skies, K_b ~ 90-105 lm/W for a high clear sun.
 The sky is scaled so that its horizontal illuminance is E_vd = K_d DHI (lux); the sun's direct
 normal illuminance is E_vb = K_b DNI (lux), returned apart (the sun is a separate source).
+
+For many hours at once (hirad.daylight.annual's sky matrix), :func:`perez_bins`,
+:func:`perez_parameters_array` and :func:`perez_efficacies_array` are the same formulas
+elementwise over arrays, and :func:`perez_brightness` takes arrays too.
 """
 
 from __future__ import annotations
@@ -396,21 +400,42 @@ def perez_bin(epsilon: float) -> int:
     return b
 
 
-def extraterrestrial_normal_irradiance(day_of_year: int) -> float:
-    """E0n (W/m^2) of the day, Spencer (1971) via pvlib, solar constant 1367 W/m^2."""
+def perez_bins(epsilon) -> np.ndarray:
+    """:func:`perez_bin` of an array of eps: an int array of bins 1..8 (eps < 1 and NaN count as
+    bin 1)."""
+    e = np.asarray(epsilon, dtype=np.float64)
+    b = np.ones(e.shape, dtype=np.int64)
+    for i, lo in enumerate(PEREZ_EPSILON_BINS[1:], start=2):
+        b[e >= lo] = i
+    return b
+
+
+def extraterrestrial_normal_irradiance(day_of_year):
+    """E0n (W/m^2) of the day, Spencer (1971) via pvlib, solar constant 1367 W/m^2. A float for
+    one day; an array of days gives an array (the same values, pvlib evaluates elementwise)."""
     import pvlib
-    return float(pvlib.irradiance.get_extra_radiation(int(day_of_year), solar_constant=1367.0,
-                                                      method="spencer"))
+    if np.ndim(day_of_year) == 0:
+        return float(pvlib.irradiance.get_extra_radiation(int(day_of_year), solar_constant=1367.0,
+                                                          method="spencer"))
+    doy = np.asarray(day_of_year).astype(np.int64)
+    return np.asarray(pvlib.irradiance.get_extra_radiation(doy, solar_constant=1367.0,
+                                                           method="spencer"), dtype=np.float64)
 
 
-def relative_airmass(sun_zenith: float) -> float:
-    """Relative optical air mass, Kasten (1966) via pvlib (the formula of Perez et al. 1990)."""
+def relative_airmass(sun_zenith):
+    """Relative optical air mass, Kasten (1966) via pvlib (the formula of Perez et al. 1990).
+    A float for one zenith angle (radians); an array gives an array."""
     import pvlib
-    return float(pvlib.atmosphere.get_relative_airmass(math.degrees(sun_zenith), model="kasten1966"))
+    if np.ndim(sun_zenith) == 0:
+        return float(pvlib.atmosphere.get_relative_airmass(math.degrees(sun_zenith),
+                                                           model="kasten1966"))
+    z = np.degrees(np.asarray(sun_zenith, dtype=np.float64))
+    return np.asarray(pvlib.atmosphere.get_relative_airmass(z, model="kasten1966"),
+                      dtype=np.float64)
 
 
-def perez_brightness(dhi: float, sun_zenith: float, day_of_year: int) -> float:
-    """Sky brightness Delta = DHI m / E0n."""
+def perez_brightness(dhi, sun_zenith, day_of_year):
+    """Sky brightness Delta = DHI m / E0n (floats, or arrays of equal length)."""
     return dhi * relative_airmass(sun_zenith) / extraterrestrial_normal_irradiance(day_of_year)
 
 
@@ -429,6 +454,31 @@ def perez_efficacies(epsilon: float, delta: float, sun_zenith: float, w: float =
     a, bb, c, d = PEREZ_DIRECT_EFFICACY[b]
     kb = max(0.0, a + bb * w + c * math.exp(5.73 * sun_zenith - 5.0) + d * delta)
     a, bb, c, d = PEREZ_GLOBAL_EFFICACY[b]
+    kg = a + bb * w + c * cz + d * ld
+    return kd, kb, kg
+
+
+def _table(coefficients: dict) -> np.ndarray:
+    """A per-bin coefficient dict as an array indexed by bin - 1."""
+    return np.array([coefficients[b] for b in range(1, 9)], dtype=np.float64)
+
+
+def perez_efficacies_array(epsilon, delta, sun_zenith, w=2.0):
+    """:func:`perez_efficacies` elementwise over arrays of eps, Delta, Z (radians) and W (cm):
+    (K_d, K_b, K_g) arrays in lm/W, the same formulas in the same order of operations."""
+    eps = np.asarray(epsilon, dtype=np.float64)
+    delta = np.asarray(delta, dtype=np.float64)
+    z = np.asarray(sun_zenith, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    i = perez_bins(eps) - 1
+    cz = np.cos(z)
+    ld = np.log(np.where(1e-12 > delta, 1e-12, delta))       # max(delta, 1e-12)
+    a, bb, c, d = _table(PEREZ_DIFFUSE_EFFICACY)[i].T
+    kd = a + bb * w + c * cz + d * ld
+    a, bb, c, d = _table(PEREZ_DIRECT_EFFICACY)[i].T
+    kb = a + bb * w + c * np.exp(5.73 * z - 5.0) + d * delta
+    kb = np.where(kb > 0.0, kb, 0.0)                          # max(0, K_b)
+    a, bb, c, d = _table(PEREZ_GLOBAL_EFFICACY)[i].T
     kg = a + bb * w + c * cz + d * ld
     return kd, kb, kg
 
@@ -454,6 +504,26 @@ def perez_parameters(epsilon: float, delta: float, sun_zenith: float):
     else:
         c, d = lin(2), lin(3)
     return a, bb, c, d, e
+
+
+def perez_parameters_array(epsilon, delta, sun_zenith) -> np.ndarray:
+    """:func:`perez_parameters` elementwise over arrays of eps, Delta and Z (radians): an array
+    (5, n) of a, b, c, d, e per element, with the same bin-1 forms of c and d and the same
+    Delta >= 0.2 hold in bins 2-5."""
+    eps = np.asarray(epsilon, dtype=np.float64).reshape(-1)
+    delta = np.asarray(delta, dtype=np.float64).reshape(-1)
+    z = np.asarray(sun_zenith, dtype=np.float64).reshape(-1)
+    b = perez_bins(eps)
+    delta = np.where((1.065 < eps) & (eps < 2.8) & (0.2 > delta), 0.2, delta)
+    x = np.array([PEREZ_COEFFICIENTS[k] for k in range(1, 9)], dtype=np.float64)[b - 1]  # (n, 5, 4)
+    out = x[:, :, 0].T + x[:, :, 1].T * z + delta * (x[:, :, 2].T + x[:, :, 3].T * z)
+    one = b == 1
+    if np.any(one):
+        (c1, c2, c3, c4), (d1, d2, d3, d4) = PEREZ_COEFFICIENTS[1][2], PEREZ_COEFFICIENTS[1][3]
+        dz, zz = delta[one], z[one]
+        out[2, one] = np.exp((dz * (c1 + c2 * zz)) ** c3) - c4
+        out[3, one] = -np.exp(dz * (d1 + d2 * zz)) + d3 + dz * d4
+    return out
 
 
 class PerezSky(_Sky):
