@@ -284,6 +284,9 @@ def annual(args, env: dict, tmp: Path, room: Path) -> None:
     st = rep.get("timings_s", {})
     t_annual = float(st.get("annual daylight", 0.0))
     t_groups = float(sec.get("group_solves", 0.0))
+    # the heat-map pictures are outputs (like the lightmaps): timed apart from the computation
+    t_pictures = float(sec.get("pictures", 0.0))
+    t_annual -= t_pictures
     tab = read_csv(out / "grids/annual/workplane.csv")
     pts = np.stack([tab["x"], tab["y"], tab["z"]], axis=1)
     da_h = tab["da300"]
@@ -291,7 +294,8 @@ def annual(args, env: dict, tmp: Path, room: Path) -> None:
     print(f"hirad bake: {t_bake:.1f} s wall ({ld}); report: total {st.get('total', 0):.1f} s, hierarchical solve "
           f"{st.get('hierarchical solve', 0):.1f} s (of which the {a.get('light_groups')} light groups' solves "
           f"{t_groups:.1f} s), annual daylight stage {t_annual:.1f} s (sky matrix {sec.get('sky_matrix', 0):.1f}, "
-          f"coefficients {sec.get('coefficients', 0):.2f}, hourly products {sec.get('hourly_products', 0):.2f}), "
+          f"coefficients {sec.get('coefficients', 0):.2f}, hourly products {sec.get('hourly_products', 0):.2f}; "
+          f"without its heat-map pictures, {t_pictures:.2f} s), "
           f"outputs the comparison does not need (lightmaps, preview, USD) {outputs_s:.1f} s")
     print(f"hirad: {g['points']} points, {g['occupied_hours']} occupied hours, mean DA300 {g['mean_DA300']:.4f}, "
           f"sDA300/50% {g['sDA300/50%']:.4f}, ASE1000/250h {g['ASE1000/250h']:.4f}, "
@@ -406,7 +410,8 @@ def annual(args, env: dict, tmp: Path, room: Path) -> None:
     uh, ur = dc_h[:, :-1][:, ~on45].sum(axis=1), dc_r_y[:, 1:][:, ~on45].sum(axis=1)
     print(f"the other {int((~on45).sum())} sky patches (zenith cap included): sum of their coefficients hirad "
           f"{uh.mean():.4f}, Radiance {ur.mean():.4f}; {rel_stats(uh, ur)}")
-    print(f"wall time: hirad annual part {t_annual + t_groups:.1f} s (annual stage {t_annual:.1f} s + light-group "
+    print(f"wall time: hirad annual part {t_annual + t_groups:.1f} s (annual stage {t_annual:.1f} s without its "
+          f"pictures + light-group "
           f"solves {t_groups:.1f} s; whole bake {t_bake:.1f} s, {t_bake - outputs_s:.1f} s without lightmaps, preview "
           f"and USD); Radiance gendaymtx + rcontrib + dctimestep {t_rad:.1f} s (+ oconv, .wea)")
     print(f"speed: hirad's annual part takes {(t_annual + t_groups) / t_rad:.2f}x the wall time of Radiance's "

@@ -223,7 +223,7 @@ def annual_results(dc_sky: dict, sun_indirect: dict, grids: dict, weather_path: 
             "sky_patches": int(sky.patches.count), "method": "sky patches and ground by daylight coefficients; the sun "
             "exact for its direct light, its interreflected light from the sun bin (patch) that holds it",
             "occupied_hours_of_day": list(occupied), "grids": {}, "seconds": {"sky_matrix": t_sky}}
-    t_products = 0.0
+    t_products = t_pictures = 0.0
     for name, coeffs in dc_sky.items():
         grid = grids[name]
         t1 = time.perf_counter()
@@ -234,12 +234,14 @@ def annual_results(dc_sky: dict, sun_indirect: dict, grids: dict, weather_path: 
                                    start_hour=occupied[0], end_hour=occupied[1])
         xy = _plane_xy(grid)
         da = m["da300"]
+        t1 = time.perf_counter()
         _annual.heatmap_png(out_dir / f"{name}_da300.png", 100 * da, xy, title=f"Daylight autonomy DA300: {name}",
                             units="% of occupied hours")
         _annual.heatmap_png(out_dir / f"{name}_udi.png", 100 * m["udi"].useful, xy,
                             title=f"UDI 100-3000 lx: {name}", units="% of occupied hours")
         _annual.heatmap_png(out_dir / f"{name}_sunlit_hours.png", m["sunlit_hours_1000"], xy,
                             title=f"Direct sun > 1000 lx: {name}", units="occupied hours")
+        t_pictures += time.perf_counter() - t1
         grid_table(out_dir / f"{name}.csv", grid, {"da300": da, "udi_below_100": m["udi"].below,
                                                    "udi_100_3000": m["udi"].useful, "udi_above_3000": m["udi"].above,
                                                    "sunlit_hours_1000": m["sunlit_hours_1000"]})
@@ -255,4 +257,5 @@ def annual_results(dc_sky: dict, sun_indirect: dict, grids: dict, weather_path: 
             "EN17037_minimum_met": None if en is None else bool(en.met),
         }
     info["seconds"]["hourly_products"] = t_products
+    info["seconds"]["pictures"] = t_pictures  # the heat maps (matplotlib), outputs like the lightmaps
     return info

@@ -108,9 +108,28 @@ def read_tmy3(path) -> Weather:
                    float(meta["longitude"]), float(meta["altitude"]), float(meta["TZ"]), str(path))
 
 
+_READ: dict = {}  # (resolved path, size, mtime) -> Weather: a bake reads its file more than once
+
+
 def read_weather(path) -> Weather:
-    """EPW (``.epw``) or TMY3 (``.csv``), by extension."""
+    """EPW (``.epw``) or TMY3 (``.csv``), by extension. A file read before and not changed since
+    (same size and modification time) is not parsed again."""
     p = Path(path)
+    try:
+        st = p.stat()
+        key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is not None and key in _READ:
+        return _READ[key]
+    w = _read_weather(p)
+    if key is not None:
+        _READ.clear()  # one file kept: a study reads one weather file at a time
+        _READ[key] = w
+    return w
+
+
+def _read_weather(p: Path) -> Weather:
     if p.suffix.lower() == ".epw":
         return read_epw(p)
     if p.suffix.lower() == ".csv":
