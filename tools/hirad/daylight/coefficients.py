@@ -57,17 +57,25 @@ class HitStencil:
         self.vertex = np.asarray(faces)[safe].reshape(len(patch), -1)   # (S, m * 4)
         self.weight = w.reshape(len(patch), -1)
         self.rays = m
+        self._matrix = None
 
-    def apply(self, vertex_values: np.ndarray, chunk: int = 64) -> np.ndarray:
+    def matrix(self, vertices: int):
+        """The read-out as a sparse (S, vertices) matrix (repeated vertices summed)."""
+        from scipy import sparse
+
+        if self._matrix is None or self._matrix.shape[1] != vertices:
+            rows = np.repeat(np.arange(len(self.vertex)), self.vertex.shape[1])
+            self._matrix = sparse.csr_matrix((self.weight.ravel(), (rows, self.vertex.ravel())),
+                                             shape=(len(self.vertex), vertices))
+        return self._matrix
+
+    def apply(self, vertex_values: np.ndarray) -> np.ndarray:
         """(S, G) from vertex values (V, G) (or (V,) -> (S,))."""
         vals = np.asarray(vertex_values, dtype=np.float64)
         flat = vals.ndim == 1
         if flat:
             vals = vals[:, None]
-        out = np.empty((len(self.vertex), vals.shape[1]))
-        for a in range(0, len(self.vertex), chunk):
-            b = min(a + chunk, len(self.vertex))
-            out[a:b] = np.einsum("sj,sjg->sg", self.weight[a:b], vals[self.vertex[a:b]])
+        out = np.asarray(self.matrix(len(vals)) @ vals)
         return out[:, 0] if flat else out
 
 
