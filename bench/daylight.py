@@ -125,6 +125,23 @@ def oconv(files: list[Path], octree: Path, env: dict, cwd: Path) -> None:
         run(["oconv", "-f", *map(str, files)], env, cwd, stdout=f)
 
 
+def rtrace_irradiance(env: dict, tmp: Path, octree: str, opts: list[str], stdin: bytes, count: int,
+                      processes: int) -> tuple[np.ndarray, float]:
+    """`rtrace -I+` with `opts` and a fresh ambient file tmp/df.amb shared by `processes`: the (count, 3)
+    RGB irradiance at the points of `stdin`, and the wall time."""
+    amb = tmp / "df.amb"
+    if amb.exists():
+        amb.unlink()
+    t0 = time.perf_counter()
+    raw = run(["rtrace", "-h", "-I+", "-fad", *opts, "-af", str(amb), "-n", str(processes), str(tmp / octree)],
+              env, tmp, stdin=stdin)
+    seconds = time.perf_counter() - t0
+    rgb = np.frombuffer(raw, dtype=np.float64).reshape(-1, 3)
+    if len(rgb) != count:
+        raise SystemExit(f"rtrace returned {len(rgb)} values for {count} points")
+    return rgb, seconds
+
+
 def points_text(pts: np.ndarray) -> bytes:
     return "".join(f"{x:.9g} {y:.9g} {z:.9g} 0 0 1\n" for x, y, z in pts).encode()
 
@@ -205,17 +222,8 @@ def daylight_factor(args, env: dict, tmp: Path, room: Path) -> None:
 
     opts = ["-ab", str(args.ab), "-ad", str(args.ad), "-as", str(args.as_), "-aa", f"{args.aa:g}",
             "-ar", str(args.ar), "-lw", f"{args.lw_rtrace:g}", "-lr", "-12", "-dj", "0", "-st", "0"]
-    amb = tmp / "df.amb"
-    if amb.exists():
-        amb.unlink()
     ld = load()
-    t0 = time.perf_counter()
-    raw = run(["rtrace", "-h", "-I+", "-fad", *opts, "-af", str(amb), "-n", str(args.processes),
-               str(tmp / "df.oct")], env, tmp, stdin=points_text(pts))
-    t_rtrace = time.perf_counter() - t0
-    rgb = np.frombuffer(raw, dtype=np.float64).reshape(-1, 3)
-    if len(rgb) != len(pts):
-        raise SystemExit(f"rtrace returned {len(rgb)} values for {len(pts)} points")
+    rgb, t_rtrace = rtrace_irradiance(env, tmp, "df.oct", opts, points_text(pts), len(pts), args.processes)
     e_r = EFFICACY * rgb @ RAD_RGB
     df_r = 100.0 * e_r / eh_r
     df_r709 = 100.0 * EFFICACY * (rgb @ REC709) / (EFFICACY * float(e_out @ REC709))

@@ -113,8 +113,8 @@ def classroom_df(a) -> None:
     import time
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from daylight import (EFFICACY, RAD_RGB, REC709, hirad_bake, oconv, points_text, read_csv, run,  # noqa: E402
-                          write_room)
+    from daylight import (EFFICACY, RAD_RGB, REC709, hirad_bake, oconv, points_text, read_csv,  # noqa: E402
+                          rtrace_irradiance, run, write_room)
     from radiance import radiance_env  # noqa: E402
 
     from hirad import usd
@@ -216,17 +216,8 @@ def classroom_df(a) -> None:
 
         opts = ["-ab", str(a.ab), "-ad", str(a.ad), "-as", str(a.as_), "-aa", f"{a.aa:g}", "-ar", str(a.ar),
                 "-lw", f"{a.lw:g}", "-lr", "-12", "-dj", "0", "-st", "0"]
-        amb = tmp / "df.amb"
-        if amb.exists():
-            amb.unlink()
         ld_r = load()
-        t0 = time.perf_counter()
-        raw = run(["rtrace", "-h", "-I+", "-fad", *opts, "-af", str(amb), "-n", str(a.processes),
-                   str(tmp / "df.oct")], env, tmp, stdin=points_text(zpts))
-        t_rtrace = time.perf_counter() - t0
-        rgb = np.frombuffer(raw, dtype=np.float64).reshape(-1, 3)
-        if len(rgb) != len(pts):
-            raise SystemExit(f"rtrace returned {len(rgb)} values for {len(pts)} points")
+        rgb, t_rtrace = rtrace_irradiance(env, tmp, "df.oct", opts, points_text(zpts), len(pts), a.processes)
         df_r = 100.0 * EFFICACY * (rgb @ RAD_RGB) / eh_r
         df_r709 = 100.0 * (rgb @ REC709) / float(e_out @ REC709)
         # the sky component: every surface black, one bounce (the glow), no cache
