@@ -79,16 +79,6 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f) {
 
 namespace {
 
-uint64_t limited(const std::vector<double>& scale) {
-    uint64_t count = 0;
-    for (double s : scale) count += s < 1.0;
-    return count;
-}
-
-}  // namespace
-
-namespace {
-
 // The element root above element i.
 uint32_t side_root(const Hierarchy& h, uint32_t i) {
     while (h.nodes[i].parent != kNoNode && !h.nodes[h.nodes[i].parent].cluster) i = h.nodes[i].parent;
@@ -121,6 +111,12 @@ LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale) {
         }
     }
     return t;
+}
+
+uint64_t LeafTerms::limited() const {
+    uint64_t count = 0;
+    for (double s : scale) count += s < 1.0;
+    return count;
 }
 
 RGB LeafTerms::mean(size_t side, const std::vector<RGB>& irradiance) const {
@@ -168,7 +164,7 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
     std::vector<RGB> gathered(n), irradiance(n), unused(n);
     for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
     push_pull(h, gathered, irradiance, unused, terms);
-    sol.limited_leaves = limited(terms.scale);
+    sol.limited_leaves = terms.limited();
     std::vector<double> own(n, 0.0);
     for (const Link& l : links) own[l.source] += double(l.coupling) / h.nodes[l.source].area;
     sol.outgoing.assign(n, 0.0);

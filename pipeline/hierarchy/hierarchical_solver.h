@@ -62,6 +62,7 @@ struct LeafTerms {
     std::vector<Side> sides;       // pair k: 2k its front, 2k + 1 its back
     std::vector<int32_t> side_of;  // per node: the side its element tree is, or -1 (empty: none)
     RGB mean(size_t side, const std::vector<RGB>& irradiance) const;
+    uint64_t limited() const;      // leaves the gain limit scales
 };
 // The terms of a hierarchy whose leaves do not change until the solve ends.
 LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale);

@@ -398,7 +398,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     stats.rounds = round;
     sol.iterations = round;
-    for (double f : terms.scale) sol.limited_leaves += f < 1.0;
+    sol.limited_leaves = terms.limited();
     // Fraction of each node's power carried by its own and its ancestors' links.
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)
