@@ -57,17 +57,18 @@ void bind_options(nb::module_& m) {
     const HierarchyOptions ho;
     nb::class_<HierarchyOptions>(m, "HierarchyOptions", "Hierarchical radiosity with clustering.")
         .def("__init__",
-             [](HierarchyOptions* o, double eps, double min_area, int samples, uint64_t seed, int rounds) {
-                 new (o) HierarchyOptions{eps, min_area, samples, seed, rounds};
-             },
+             [](HierarchyOptions* o, double eps, double min_area, int samples, uint64_t seed, int rounds,
+                double relative) { new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative}; },
              "epsilon"_a = ho.epsilon, "min_area"_a = ho.min_area, "samples"_a = ho.samples, "seed"_a = ho.seed,
-             "max_rounds"_a = ho.max_rounds)
+             "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative)
         .def_rw("epsilon", &HierarchyOptions::epsilon,
                 "A link may carry at most epsilon x the scene's emitted power (W) before it is split.")
         .def_rw("min_area", &HierarchyOptions::min_area, "Elements are not split below this area, m^2.")
         .def_rw("samples", &HierarchyOptions::samples, "Point pairs per link estimate.")
         .def_rw("seed", &HierarchyOptions::seed, "Random seed of the link estimates.")
-        .def_rw("max_rounds", &HierarchyOptions::max_rounds, "Refine -> solve rounds at most (>= 1).");
+        .def_rw("max_rounds", &HierarchyOptions::max_rounds, "Refine -> solve rounds at most (>= 1).")
+        .def_rw("relative", &HierarchyOptions::relative,
+                "After round 1, links are also split above this fraction of their receiver's light (0: off).");
 
     const OutOfCoreOptions oc;
     nb::class_<OutOfCoreOptions>(m, "OutOfCoreOptions",

@@ -560,9 +560,23 @@ uint64_t Engine::rays_cast() const { return visibility_ ? visibility_->rays_cast
 
 // ---- hierarchical ------------------------------------------------------------------------
 
+namespace {
+// The refiner's options: epsilon scaled by the emitted power to watts.
+RefineOptions refine_options(const HierarchyOptions& o, double emitted) {
+    RefineOptions r;
+    r.epsilon = o.epsilon * emitted;
+    r.min_area = o.min_area;
+    r.samples = o.samples;
+    r.seed = o.seed;
+    r.relative = o.relative;
+    return r;
+}
+}  // namespace
+
 std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& o, double& emitted) {
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     if (!(o.epsilon >= 0) || !(o.min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
+    if (!(o.relative >= 0 && o.relative < 1)) throw std::invalid_argument("relative must be in [0, 1)");
     if (o.max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
     links_.reset();
     solved_.reset();
@@ -587,7 +601,7 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
                                                              "southwell, not '" + s.method + "'");
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
-    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    const RefineOptions ropt = refine_options(o, emitted);
     SolverOptions so;
     so.tolerance = s.tolerance;
     so.max_iterations = s.max_iterations;
@@ -617,7 +631,7 @@ SpillLog Engine::refine_groups(const HierarchyOptions& o, const OutOfCoreOptions
                                uint32_t end) {
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
-    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    const RefineOptions ropt = refine_options(o, emitted);
     const SourceGroups groups = SourceGroups::cut(state->hierarchy, c.group_faces);
     const RunStore store = run_store(o, c, groups.count());
     if (!store.on_disk()) throw std::invalid_argument("refine_groups: out_of_core.store must name the link store");
@@ -638,7 +652,7 @@ RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c,
         }
     return RunStore(c.store,
                     StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
-                                          light),
+                                          light, o.relative),
                     groups);
 }
 
@@ -648,7 +662,7 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
     Hierarchy& h = state->hierarchy;
-    const RefineOptions ropt{o.epsilon * emitted, o.min_area, o.samples, o.seed};
+    const RefineOptions ropt = refine_options(o, emitted);
     StreamingOptions so;
     so.tolerance = s.tolerance;
     so.max_rounds = s.max_iterations;

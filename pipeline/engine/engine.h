@@ -105,6 +105,8 @@ struct HierarchyOptions {
     int samples = 16;               // point pairs per link estimate
     uint64_t seed = 1;
     int max_rounds = 6;             // refine -> solve rounds at most (>= 1)
+    double relative = 0;            // after round 1, also split links above this fraction of
+                                    // their receiver's light (refine.h; 0: off)
 };
 
 // The hierarchical method out of core: links streamed through a link store.

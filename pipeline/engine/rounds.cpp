@@ -129,7 +129,7 @@ public:
         if (remote_) {
             refine_remote(next);
         } else {
-            refiner_.set_radiosity(b);
+            refiner_.set_radiosity(b, next > 1);
             for (uint32_t g = 0; g < ng_; ++g) {
                 // Kept links leave for the store a part at a time, as refinement makes them; what
                 // refinement holds is bounded by kChunkLinks per level of depth.
@@ -370,7 +370,7 @@ SpillLog refine_range(Hierarchy& h, const Visibility& vis, const RefineOptions& 
     if (fs::exists(dir + "/log")) return store.read_spill_log(dir, round);  // another attempt finished it
     ResumePoint at = store.round_start(h, round);
     Refiner refiner(h, vis, refine);
-    refiner.set_radiosity(round == 1 ? node_emission(h) : at.solution.radiosity);
+    refiner.set_radiosity(round == 1 ? node_emission(h) : at.solution.radiosity, round > 1);
     std::unique_ptr<StoreChunks> previous;
     if (round > 1) previous = std::make_unique<StoreChunks>(store.round_dir(round - 1), groups.count());
     SpillLog log;

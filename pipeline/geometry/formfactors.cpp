@@ -24,6 +24,81 @@ int clip_above(const Vec3& x, const Vec3& n, const Vec3* in, int count, Vec3* ou
 
 }  // namespace
 
+namespace {
+
+// Solid angle of the spherical triangle of unit vectors a, b, c (Van Oosterom and Strackee 1983).
+double spherical_triangle_area(const Vec3& a, const Vec3& b, const Vec3& c) {
+    const double num = std::abs(dot(a, cross(b, c)));
+    const double den = 1 + dot(a, b) + dot(b, c) + dot(c, a);
+    return 2 * std::atan2(num, den);
+}
+
+// The angle at vertex p of the spherical triangle p, q, r: between the great circles p-q and p-r.
+double spherical_angle(const Vec3& p, const Vec3& q, const Vec3& r) {
+    const Vec3 a = normalize(cross(p, q)), b = normalize(cross(p, r));
+    return std::acos(std::clamp(dot(a, b), -1.0, 1.0));
+}
+
+// A direction uniform over the spherical triangle a, b, c of solid angle `area` (Arvo 1995:
+// the sub-triangle a, b, c' of area u1 x area, then a point along the arc b-c' with z = cos of
+// its arc from b drawn so that the density is uniform).
+Vec3 sample_spherical_triangle(const Vec3& a, const Vec3& b, const Vec3& c, double area, double u1, double u2) {
+    const double alpha = spherical_angle(a, b, c);
+    const double cos_c = dot(a, b);
+    const double sub = u1 * area;
+    const double s = std::sin(sub - alpha), t = std::cos(sub - alpha);
+    const double uu = t - std::cos(alpha), v = s + std::sin(alpha) * cos_c;
+    const double den = (v * s + uu * t) * std::sin(alpha);
+    const double q = den != 0 ? std::clamp(((v * t - uu * s) * std::cos(alpha) - v) / den, -1.0, 1.0) : 1.0;
+    const Vec3 cp = a * q + normalize(c - a * dot(c, a)) * std::sqrt(std::max(0.0, 1 - q * q));
+    const double z = 1 - u2 * (1 - dot(cp, b));
+    const Vec3 w = cp - b * dot(cp, b);
+    const double wl = length(w);
+    if (!(wl > 0)) return b;
+    return b * z + w * (std::sqrt(std::max(0.0, 1 - z * z)) / wl);
+}
+
+}  // namespace
+
+bool sample_polygon_by_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal,
+                                   Rng& rng, Vec3& y, int tries) {
+    if (dot(x - poly[0], poly_normal) <= 0) return false;  // behind the emitting side
+    Vec3 clipped[8];
+    const int m = clip_above(x, n, poly, nv, clipped);
+    if (m < 3) return false;
+    // The clipped polygon as a fan of spherical triangles seen from x, drawn by solid angle.
+    Vec3 dir[8];
+    for (int k = 0; k < m; ++k) {
+        const Vec3 e = clipped[k] - x;
+        const double l = length(e);
+        if (!(l > 0)) return false;
+        dir[k] = e / l;
+    }
+    double cdf[8], total = 0;
+    for (int k = 1; k + 1 < m; ++k) {
+        total += spherical_triangle_area(dir[0], dir[k], dir[k + 1]);
+        cdf[k] = total;
+    }
+    if (!(total > 1e-12)) return false;
+    const double denom = dot(poly_normal, poly[0] - x);
+    for (int i = 0; i < tries; ++i) {
+        const double u0 = rng.uniform(), u1 = rng.uniform(), u2 = rng.uniform();
+        const double pick = u0 * total;
+        int k = 1;
+        while (k + 2 < m && cdf[k] < pick) ++k;
+        const double lo = k > 1 ? cdf[k - 1] : 0.0, area = cdf[k] - lo;
+        if (!(area > 0)) continue;
+        const Vec3 w = sample_spherical_triangle(dir[0], dir[k], dir[k + 1], area, std::clamp((pick - lo) / area, 0.0, 1.0), u1);
+        const double cos_x = dot(w, n);
+        if (!(u2 < cos_x)) continue;  // kept with probability cos theta_x
+        const double along = dot(poly_normal, w);
+        if (!(along < 0)) continue;
+        y = x + w * (denom / along);
+        return true;
+    }
+    return false;
+}
+
 double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal) {
     if (dot(x - poly[0], poly_normal) <= 0) return 0;  // behind the emitting side
     Vec3 clipped[8];

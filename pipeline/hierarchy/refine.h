@@ -13,6 +13,16 @@
 // children of its larger end. For a partly occluded link the
 // unoccluded transfer is used, so links refine towards shadow boundaries. It starts from the
 // root's self-link and runs level by level, the estimates of each level in parallel.
+//
+// epsilon is one threshold for the whole scene, so a dim room in a bright scene (a classroom on
+// a 220 m ground plane under the sky: the ground takes 99 % of the light) keeps links that each
+// carry a large part of what its surfaces receive, and its interreflected light comes out far
+// too dark. The relative rule bounds a link against its own receiver instead: once a round has
+// been solved, a link (any of whose rays arrived) is also split while its power bound exceeds
+// `relative` x A_R x H_R, H_R = B_R / rho_R the light the receiver gathers (with its direct
+// light), so every receiver is resolved to about the same fraction of its own light, as
+// Radiance's -aa bounds ambient error relative to the local value. Below 1e-3 x epsilon
+// nothing is split for it (near-black corners would otherwise refine to min_area).
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -29,6 +39,7 @@ struct RefineOptions {
     double min_area = 1e-4;    // m^2: elements are not split below this
     int samples = 16;          // point pairs per link estimate
     uint64_t seed = 1;
+    double relative = 0;       // also split a link above this fraction of its receiver's light (0: off)
 };
 
 struct RefineStats {
@@ -51,8 +62,9 @@ public:
 
     // For refinement in pieces (one source group at a time, see outofcore.h): set the
     // radiosity the oracle judges by, then refine each piece's links. New nodes inherit
-    // their parent's bound.
-    void set_radiosity(const std::vector<RGB>& radiosity);
+    // their parent's bound. `solved`: the radiosity is a round's solution (not the emission
+    // alone), which the relative rule needs.
+    void set_radiosity(const std::vector<RGB>& radiosity, bool solved = false);
     std::vector<Link> run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats);
     // The same within bounded memory: the links waiting to be judged are taken `batch` at a
     // time, depth first, and the kept ones are handed to `keep` as soon as `batch` of them are
@@ -71,8 +83,11 @@ private:
     double link_error(const Link& link, const std::vector<double>& peak) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
     bool may_face(uint32_t a, uint32_t b) const;
+    bool close_pair(uint32_t a, uint32_t b) const;
     Hierarchy& h_;
     std::vector<double> peak_;   // per node: the brightest luminance below it
+    std::vector<double> gathered_;  // per node: luminance(B) / luminance(rho), the relative rule's
+                                    // H_R (empty: rule off; infinite: black receivers)
     const Visibility& vis_;
     RefineOptions opt_;
 };

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -120,6 +121,79 @@ TEST(PointPolygon, ClippedToTheTangentPlane) {
     Vec3 tri_upper[4] = {{0, d, 0}, {1, d, 0}, {2, d, 1}, {0, d, 1}};
     EXPECT_NEAR(point_polygon_form_factor(x, n, tri, 3, wn), point_polygon_form_factor(x, n, tri_upper, 4, wn), 1e-12);
     EXPECT_GT(point_polygon_form_factor(x, n, tri, 3, wn), 0.01);
+}
+
+// --- Points drawn by the kernel -----------------------------------------------------------
+
+// Points y drawn by sample_polygon_by_form_factor fall in a part R of the polygon with
+// probability F(x -> R) / F(x -> polygon): the share of the form factor, not of the area.
+// Cases: a 200 m square 3 m above the point with R its 4 x 4 m part overhead (0.04 % of the
+// area, 36 % of the form factor), a triangle, a wall the tangent plane cuts, and a small
+// square far off (where the two shares agree).
+TEST(KernelSampling, PointsFallInEachPartByItsShareOfTheFormFactor) {
+    const Vec3 x{0, 0, 0}, up{0, 0, 1};
+    struct Case {
+        std::vector<Vec3> poly, part;
+        Vec3 normal;
+    };
+    const Case cases[] = {
+        {{{-100, -100, 3}, {-100, 100, 3}, {100, 100, 3}, {100, -100, 3}},
+         {{-2, -2, 3}, {-2, 2, 3}, {2, 2, 3}, {2, -2, 3}}, {0, 0, -1}},
+        {{{-1, -1, 1}, {3, 0, 1}, {0, 2, 1}}, {{-1, -1, 1}, {1, -0.5, 1}, {0, 0.5, 1}}, {0, 0, -1}},
+        {{{-1, 1, -1}, {2, 1, -1}, {2, 1, 2}, {-1, 1, 2}}, {{0, 1, 0}, {2, 1, 0}, {2, 1, 2}, {0, 1, 2}}, {0, -1, 0}},
+        {{{10, 10, 20}, {10, 10.5, 20}, {10.5, 10.5, 20}, {10.5, 10, 20}},
+         {{10, 10, 20}, {10, 10.5, 20}, {10.25, 10.5, 20}, {10.25, 10, 20}}, {0, 0, -1}},
+    };
+    for (const Case& c : cases) {
+        // Orient each polygon as its normal says (corners counter-clockwise seen from the front).
+        auto facing = [&](std::vector<Vec3> p) {
+            Vec3 n;
+            for (size_t k = 0; k < p.size(); ++k) n += cross(p[k], p[(k + 1) % p.size()]);
+            if (dot(n, c.normal) < 0) std::reverse(p.begin(), p.end());
+            return p;
+        };
+        const std::vector<Vec3> poly = facing(c.poly), part = facing(c.part);
+        const double f = point_polygon_form_factor(x, up, poly.data(), int(poly.size()), c.normal);
+        const double f_part = point_polygon_form_factor(x, up, part.data(), int(part.size()), c.normal);
+        ASSERT_GT(f, 0);
+        const double share = f_part / f;
+        // Whether y is in the part: inside its (convex) outline, in the polygon's plane.
+        auto inside = [&](const Vec3& y) {
+            for (size_t k = 0; k < part.size(); ++k) {
+                const Vec3 e = part[(k + 1) % part.size()] - part[k];
+                if (dot(cross(e, y - part[k]), c.normal) < -1e-9) return false;
+            }
+            return true;
+        };
+        Rng rng(7);
+        const int n = 200000;
+        int hits = 0, drawn = 0;
+        for (int i = 0; i < n; ++i) {
+            Vec3 y;
+            if (!sample_polygon_by_form_factor(x, up, poly.data(), int(poly.size()), c.normal, rng, y)) continue;
+            ++drawn;
+            EXPECT_NEAR(dot(y - poly[0], c.normal), 0, 1e-6 * length(y - x));
+            hits += inside(y);
+        }
+        EXPECT_EQ(drawn, n);  // every polygon here is seen from x: a direction is always kept
+        const double p = double(hits) / drawn, sigma = std::sqrt(share * (1 - share) / drawn);
+        EXPECT_NEAR(p, share, 4 * sigma + 1e-4) << "share " << share;
+    }
+    // The first case is the one area-drawn points get wrong: a 0.04 % area share, 36 % of F.
+    EXPECT_GT(point_polygon_form_factor(x, up, std::vector<Vec3>{{-2, -2, 3}, {-2, 2, 3}, {2, 2, 3}, {2, -2, 3}}.data(), 4,
+                                        {0, 0, -1}) /
+                  point_polygon_form_factor(x, up, std::vector<Vec3>{{-100, -100, 3}, {-100, 100, 3}, {100, 100, 3}, {100, -100, 3}}.data(),
+                                            4, {0, 0, -1}),
+              0.3);
+}
+
+TEST(KernelSampling, NothingIsDrawnBehindThePolygonOrBelowTheTangentPlane) {
+    Rng rng(3);
+    Vec3 y;
+    const Vec3 square[4] = {{-1, -1, 1}, {-1, 1, 1}, {1, 1, 1}, {1, -1, 1}};  // facing down
+    EXPECT_FALSE(sample_polygon_by_form_factor({0, 0, 2}, {0, 0, -1}, square, 4, {0, 0, -1}, rng, y));  // behind it
+    const Vec3 below[4] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1}};  // facing up at x, under its tangent plane
+    EXPECT_FALSE(sample_polygon_by_form_factor({0, 0, 0}, {0, 0, 1}, below, 4, {0, 0, 1}, rng, y));
 }
 
 // --- The ray-cast estimator -------------------------------------------------------------

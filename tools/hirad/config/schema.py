@@ -356,6 +356,17 @@ class HierarchyConfig(BaseModel):
         le=100,
         description="Most refine-solve rounds; rounds stop earlier once no link wants to split.",
     )
+    relative_epsilon: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction of the receiver's light"},
+        default=0.0,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "From the second round on, a link is also split while it could carry more than this"
+            " fraction of the light its receiver gathers, so dim rooms in bright scenes (a"
+            " classroom on a large sunlit ground) are resolved like the rest (0: off)."
+        ),
+    )
 
     @field_validator("min_area")
     @classmethod
