@@ -226,7 +226,7 @@ class SolveOptions:
 class HierarchyOptions:
     """Hierarchical radiosity with clustering."""
 
-    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6) -> None: ...
+    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0) -> None: ...
 
     @property
     def epsilon(self) -> float:
@@ -264,6 +264,15 @@ class HierarchyOptions:
 
     @max_rounds.setter
     def max_rounds(self, arg: int, /) -> None: ...
+
+    @property
+    def relative(self) -> float:
+        """
+        After round 1, links are also split above this fraction of their receiver's light (0: off).
+        """
+
+    @relative.setter
+    def relative(self, arg: float, /) -> None: ...
 
 class OutOfCoreOptions:
     """The hierarchical method with links streamed through a link store."""
