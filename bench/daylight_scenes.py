@@ -9,7 +9,7 @@ Each bake runs in a child process (wait4 gives its peak RSS). The scenes are not
 project (they are CC BY data in ../shared/data): the bench says so and stops when they are
 absent.
 
-    python bench/daylight_scenes.py --df [--epsilon 1e-5 --min-area 0.02 --patches reinhart2
+    python bench/daylight_scenes.py --df [--epsilon 1e-5 --min-area 0.02 --relative 0 --rounds 3 --patches reinhart2
         --subdivisions 2] [--height 0.8 --spacing 0.5] [--ab 8 --ad 4096 --as 1024 --aa 0.1
         --ar 2048 --lw 1e-4] [--sky-ad 65536] [--fine-sky reinhart8] [--processes 2] [--keep DIR]
 
@@ -65,8 +65,9 @@ SCENES = {"classroom": DATA / "classroom" / "usd" / "classroom.usdc",
 CLASSROOM_FLOOR = [[-4.20, 0.0, -5.93], [3.94, 0.0, -5.93], [3.94, 0.0, 5.93], [-4.20, 0.0, 5.93]]
 
 
-def hierarchy_settings(epsilon: float, min_area: float = 0.02) -> dict:
-    return {"hierarchy": {"epsilon": epsilon, "min_area": min_area, "samples": 4, "max_rounds": 3},
+def hierarchy_settings(epsilon: float, min_area: float = 0.02, relative: float = 0.0, rounds: int = 3) -> dict:
+    return {"hierarchy": {"epsilon": epsilon, "min_area": min_area, "samples": 4, "max_rounds": rounds,
+                          "relative_epsilon": relative},
             "solver": {"method": "jacobi", "tolerance": 1e-3}}
 
 
@@ -94,7 +95,7 @@ def bake(scene: Path, epsilon: float, tmp: Path) -> dict:
 
 
 def df_config(a) -> dict:
-    return {"scene": str(SCENES["classroom"]), "method": "hierarchical", **hierarchy_settings(a.epsilon, a.min_area),
+    return {"scene": str(SCENES["classroom"]), "method": "hierarchical", **hierarchy_settings(a.epsilon, a.min_area, a.relative, a.rounds),
             "daylight": {"sky": {"model": "cie_overcast", "horizontal_illuminance": 10000.0},
                          "sun": {"enabled": False}, "patches": a.patches, "subdivisions": a.subdivisions,
                          "daylight_factor": True},
@@ -153,7 +154,8 @@ def classroom_df(a) -> None:
         print(f"hirad bake: {t_bake:.1f} s wall ({ld_h}; report: total {st.get('total', 0):.1f} s, hierarchical "
               f"solve {st.get('hierarchical solve', 0):.1f} s (refine {h['refine_seconds']}, solve "
               f"{h['solve_seconds']}), grids {st.get('grids', 0):.1f} s); {h['elements']} elements, {c['links']} "
-              f"links; epsilon {a.epsilon:g}, min_area {a.min_area:g}, {a.patches} x {a.subdivisions}^2 directions; "
+              f"links; epsilon {a.epsilon:g}, min_area {a.min_area:g}, relative_epsilon {a.relative:g}, "
+              f"{a.rounds} rounds at most, {a.patches} x {a.subdivisions}^2 directions; "
               f"{len(pts)} points at {a.height:g} m, spacing {a.spacing:g} m; E_h,out {eh_h:.1f} lx")
         # hirad's own split at the same points: direct (the sky component) and the rest. The
         # sky's distant lights are made again from the config (the stored solution keeps only
@@ -311,6 +313,8 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--df", action="store_true", help="the classroom's daylight factor against Radiance rtrace")
     ap.add_argument("--min-area", type=float, default=0.02, help="--df: hierarchy.min_area")
+    ap.add_argument("--relative", type=float, default=0.0, help="--df: hierarchy.relative_epsilon")
+    ap.add_argument("--rounds", type=int, default=3, help="--df: hierarchy.max_rounds")
     ap.add_argument("--patches", default="reinhart2", help="--df: daylight.patches")
     ap.add_argument("--subdivisions", type=int, default=2, help="--df: daylight.subdivisions")
     ap.add_argument("--height", type=float, default=0.8, help="--df: work plane height over the floor (m)")
