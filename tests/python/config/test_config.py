@@ -223,6 +223,8 @@ def test_missing_key_in_tuple_reports_parent_line(tmp_path: Path) -> None:
         ("scene: scene.usda\noutputs:\n  lightmaps:\n    max_size: 32\n", 4, "outputs.lightmaps.max_size"),
         ("scene: scene.usda\noutputs:\n  preview:\n    camera: World/Camera\n", 4, "outputs.preview.camera"),
         ("scene: scene.usda\nsolver:\n  method: conjugate_gradient\n", 3, "solver.method"),
+        ("scene: scene.usda\nhierarchy:\n  relative_epsilon: 1.0\n", 3, "hierarchy.relative_epsilon"),
+        ("scene: scene.usda\nhierarchy:\n  relative_epsilon: -0.1\n", 3, "hierarchy.relative_epsilon"),
     ],
 )
 def test_out_of_range(tmp_path: Path, text: str, line: int, key: str) -> None:

@@ -62,9 +62,9 @@ def reference():
     return out
 
 
-def _solve(epsilon):
+def _solve(epsilon, relative=0.0, with_links=False):
     m = _model()
-    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=0.01, samples=4),
+    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=0.01, samples=4, relative=relative),
                              _engine.SolveOptions(method="jacobi", tolerance=1e-8))
     m.use_leaves_as_patches()
     pa = m.patch_arrays()
@@ -73,7 +73,7 @@ def _solve(epsilon):
     ceiling = pa.face == 1
     floor = (pa.face == 0) & (c[:, 0] > 0) & (c[:, 0] < W) & (c[:, 1] > 0) & (c[:, 1] < D)
     mean = lambda mask: float(B[mask] @ pa.area[mask]) / float(pa.area[mask].sum()) / math.pi  # noqa: E731
-    return mean(ceiling), mean(floor)
+    return (mean(ceiling), mean(floor), r.links) if with_links else (mean(ceiling), mean(floor))
 
 
 @pytest.mark.parametrize("epsilon, ceiling_within, floor_within", [(1e-2, 0.20, 0.10), (1e-4, 0.06, 0.02)])
@@ -85,3 +85,14 @@ def test_a_room_on_a_ground_plane_much_larger_than_it_is_lit_like_the_path_trace
     ceiling, floor = _solve(epsilon)
     assert ceiling == pytest.approx(reference["ceiling"], rel=ceiling_within)
     assert floor == pytest.approx(reference["floor"], rel=floor_within)
+
+
+def test_the_relative_rule_splits_more_and_moves_the_coarse_solution_towards_the_path_tracer(reference):
+    # epsilon 1e-2 is 1 W here; the ceiling gathers about 21 W, so its links stay coarse.
+    # relative_epsilon 0.1 also splits, from round 2 on, every link that could carry more than
+    # a tenth of its receiver's light: more links, and the ceiling no further from the oracle.
+    c0, f0, n0 = _solve(1e-2, 0.0, with_links=True)
+    c1, f1, n1 = _solve(1e-2, 0.1, with_links=True)
+    assert n1 > 2 * n0
+    assert abs(c1 / reference["ceiling"] - 1) <= abs(c0 / reference["ceiling"] - 1)
+    assert c1 == pytest.approx(reference["ceiling"], rel=0.20)
