@@ -58,14 +58,10 @@ Vec3 sample_spherical_triangle(const Vec3& a, const Vec3& b, const Vec3& c, doub
     return b * z + w * (std::sqrt(std::max(0.0, 1 - z * z)) / wl);
 }
 
-}  // namespace
-
-bool sample_polygon_by_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal,
-                                   Rng& rng, Vec3& y, int tries) {
-    if (dot(x - poly[0], poly_normal) <= 0) return false;  // behind the emitting side
-    Vec3 clipped[8];
-    const int m = clip_above(x, n, poly, nv, clipped);
-    if (m < 3) return false;
+// sample_polygon_by_form_factor on the polygon already clipped to x's tangent plane (m >= 3
+// corners), `p0` a corner of the unclipped polygon (its plane).
+bool sample_clipped(const Vec3& x, const Vec3& n, const Vec3* clipped, int m, const Vec3& p0, const Vec3& poly_normal,
+                    Rng& rng, Vec3& y, int tries) {
     // The clipped polygon as a fan of spherical triangles seen from x, drawn by solid angle.
     Vec3 dir[8];
     for (int k = 0; k < m; ++k) {
@@ -80,7 +76,7 @@ bool sample_polygon_by_form_factor(const Vec3& x, const Vec3& n, const Vec3* pol
         cdf[k] = total;
     }
     if (!(total > 1e-12)) return false;
-    const double denom = dot(poly_normal, poly[0] - x);
+    const double denom = dot(poly_normal, p0 - x);
     for (int i = 0; i < tries; ++i) {
         const double u0 = rng.uniform(), u1 = rng.uniform(), u2 = rng.uniform();
         const double pick = u0 * total;
@@ -99,11 +95,8 @@ bool sample_polygon_by_form_factor(const Vec3& x, const Vec3& n, const Vec3* pol
     return false;
 }
 
-double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal) {
-    if (dot(x - poly[0], poly_normal) <= 0) return 0;  // behind the emitting side
-    Vec3 clipped[8];
-    int m = clip_above(x, n, poly, nv, clipped);
-    if (m < 3) return 0;
+// Lambert's contour sum over the polygon already clipped to x's tangent plane.
+double clipped_form_factor(const Vec3& x, const Vec3& n, const Vec3* clipped, int m) {
     double sum = 0;
     for (int k = 0; k < m; ++k) {
         Vec3 a = clipped[k] - x, b = clipped[(k + 1) % m] - x;
@@ -114,6 +107,38 @@ double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly,
         sum += gamma * dot(n, c) / lc;
     }
     return std::fabs(sum) / (2 * kPi);
+}
+
+}  // namespace
+
+bool sample_polygon_by_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal,
+                                   Rng& rng, Vec3& y, int tries) {
+    if (dot(x - poly[0], poly_normal) <= 0) return false;  // behind the emitting side
+    Vec3 clipped[8];
+    const int m = clip_above(x, n, poly, nv, clipped);
+    if (m < 3) return false;
+    return sample_clipped(x, n, clipped, m, poly[0], poly_normal, rng, y, tries);
+}
+
+double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv, const Vec3& poly_normal) {
+    if (dot(x - poly[0], poly_normal) <= 0) return 0;  // behind the emitting side
+    Vec3 clipped[8];
+    const int m = clip_above(x, n, poly, nv, clipped);
+    if (m < 3) return 0;
+    return clipped_form_factor(x, n, clipped, m);
+}
+
+double point_polygon_form_factor_and_point(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
+                                           const Vec3& poly_normal, Rng& rng, Vec3& y, bool& drawn) {
+    drawn = false;
+    if (dot(x - poly[0], poly_normal) <= 0) return 0;
+    Vec3 clipped[8];
+    const int m = clip_above(x, n, poly, nv, clipped);
+    if (m < 3) return 0;
+    const double f = clipped_form_factor(x, n, clipped, m);
+    if (f <= 0) return f;
+    drawn = sample_clipped(x, n, clipped, m, poly[0], poly_normal, rng, y, 32);
+    return f;
 }
 
 double parallel_rectangles_form_factor(double a, double b, double c) {

@@ -101,16 +101,17 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
         h_.sample(sampled, rng.uniform(), s0, t0, x, nx);
         const double s1 = rng.uniform(), t1 = rng.uniform();
         if (polygon_source || polygon_receiver) {
-            double f = point_polygon_form_factor(x, nx, target.shape.p.data(), target.shape.nv, target.shape.normal);
-            if (f <= 0) continue;
-            double w = f * area / n;
-            unoccluded += w;
-            from.push_back(x + nx * lift);
             // y drawn by the kernel, not by area (formfactors.h): V(x, y) then estimates the
             // visible share of F, however large the polygon is next to x.
             Vec3 y;
-            if (!sample_polygon_by_form_factor(x, nx, target.shape.p.data(), target.shape.nv, target.shape.normal, rng, y))
-                y = target.shape.point(s1, t1);
+            bool drawn = false;
+            const double f = point_polygon_form_factor_and_point(x, nx, target.shape.p.data(), target.shape.nv,
+                                                                 target.shape.normal, rng, y, drawn);
+            if (f <= 0) continue;
+            const double w = f * area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            if (!drawn) y = target.shape.point(s1, t1);
             to.push_back(y + target.shape.normal * lift);
             weight.push_back(w);
         } else {
@@ -182,21 +183,22 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
     }
     // Partly visible links refine towards the shadow boundary, and a link none of whose rays
     // arrived is only dropped when even its unoccluded transfer is negligible.
-    double error = link_error(link, peak);
+    const double error = link_error(link, peak);
     // Close pairs: a few points drawn by area on an end that is large next to the gap between
     // the two (a 200 m ground plane 3 m under a lamp) all land where the kernel is small, and
     // the estimate, bound included, comes out near zero while G is up to min(A_R, A_S) (F <= 1
     // and reciprocity). Such links are judged by that bound, so the large end is split until it
     // is no larger than about twice the gap, where a few points do sample the kernel.
-    if (close_pair(link.receiver, link.source))
-        error = std::max(error, peak[link.source] * std::min(h_.nodes[link.receiver].area, h_.nodes[link.source].area));
+    const double bounded =
+        close_pair(link.receiver, link.source)
+            ? std::max(error, peak[link.source] * std::min(h_.nodes[link.receiver].area, h_.nodes[link.source].area))
+            : error;
     // Kept whatever its own rays saw: dropping the links none of whose oracle rays arrived
     // would bias the transport dark.
     if (!receiver_splits && !source_splits) return Action::Keep;
-    if (error > opt_.epsilon) return split_larger();
-    error = link_error(link, peak);  // the relative rule judges the estimate, not the bound
-    // The relative rule (see refine.h); links none of whose rays arrived carry nothing to
-    // compare, and are left to the absolute rule.
+    if (bounded > opt_.epsilon) return split_larger();
+    // The relative rule (see refine.h) judges the estimate, not the close-pair bound; links none
+    // of whose rays arrived carry nothing to compare, and are left to the absolute rule.
     if (!gathered_.empty() && link.visibility > 0 && error > 1e-3 * opt_.epsilon &&
         error > opt_.relative * h_.nodes[link.receiver].area * gathered_[link.receiver])
         return split_larger();
