@@ -58,9 +58,11 @@ void bind_options(nb::module_& m) {
     nb::class_<HierarchyOptions>(m, "HierarchyOptions", "Hierarchical radiosity with clustering.")
         .def("__init__",
              [](HierarchyOptions* o, double eps, double min_area, int samples, uint64_t seed, int rounds,
-                double relative) { new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative}; },
+                double relative, double spread) {
+                 new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative, spread};
+             },
              "epsilon"_a = ho.epsilon, "min_area"_a = ho.min_area, "samples"_a = ho.samples, "seed"_a = ho.seed,
-             "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative)
+             "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative, "spread"_a = ho.spread)
         .def_rw("epsilon", &HierarchyOptions::epsilon,
                 "A link may carry at most epsilon x the scene's emitted power (W) before it is split.")
         .def_rw("min_area", &HierarchyOptions::min_area, "Elements are not split below this area, m^2.")
@@ -68,7 +70,10 @@ void bind_options(nb::module_& m) {
         .def_rw("seed", &HierarchyOptions::seed, "Random seed of the link estimates.")
         .def_rw("max_rounds", &HierarchyOptions::max_rounds, "Refine -> solve rounds at most (>= 1).")
         .def_rw("relative", &HierarchyOptions::relative,
-                "After round 1, links are also split above this fraction of their receiver's light (0: off).");
+                "After round 1, links are also split above this fraction of their receiver's light (0: off).")
+        .def_rw("spread", &HierarchyOptions::spread,
+                "Close or partly visible links whose source's radiosity range could bias them by more than "
+                "spread x epsilon's power are split at the source (0: off).");
 
     const OutOfCoreOptions oc;
     nb::class_<OutOfCoreOptions>(m, "OutOfCoreOptions",

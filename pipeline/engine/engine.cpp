@@ -569,6 +569,7 @@ RefineOptions refine_options(const HierarchyOptions& o, double emitted) {
     r.samples = o.samples;
     r.seed = o.seed;
     r.relative = o.relative;
+    r.spread = o.spread * r.epsilon;
     return r;
 }
 }  // namespace
@@ -577,6 +578,7 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     if (!(o.epsilon >= 0) || !(o.min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
     if (!(o.relative >= 0 && o.relative < 1)) throw std::invalid_argument("relative must be in [0, 1)");
+    if (!(o.spread >= 0 && o.spread <= 1)) throw std::invalid_argument("spread must be in [0, 1]");
     if (o.max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
     links_.reset();
     solved_.reset();
@@ -652,7 +654,7 @@ RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c,
         }
     return RunStore(c.store,
                     StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
-                                          light, o.relative),
+                                          light, o.relative, o.spread),
                     groups);
 }
 

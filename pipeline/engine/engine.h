@@ -107,6 +107,8 @@ struct HierarchyOptions {
     int max_rounds = 6;             // refine -> solve rounds at most (>= 1)
     double relative = 0;            // after round 1, also split links above this fraction of
                                     // their receiver's light (refine.h; 0: off)
+    double spread = 1e-3;           // close or partly visible links of uneven sources are split
+                                    // at the source above spread x epsilon (refine.h; 0: off)
 };
 
 // The hierarchical method out of core: links streamed through a link store.

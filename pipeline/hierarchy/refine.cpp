@@ -189,14 +189,19 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
     // the estimate, bound included, comes out near zero while G is up to min(A_R, A_S) (F <= 1
     // and reciprocity). Such links are judged by that bound, so the large end is split until it
     // is no larger than about twice the gap, where a few points do sample the kernel.
+    const bool close = close_pair(link.receiver, link.source);
     const double bounded =
-        close_pair(link.receiver, link.source)
-            ? std::max(error, peak[link.source] * std::min(h_.nodes[link.receiver].area, h_.nodes[link.source].area))
-            : error;
+        close ? std::max(error, peak[link.source] * std::min(h_.nodes[link.receiver].area, h_.nodes[link.source].area))
+              : error;
     // Kept whatever its own rays saw: dropping the links none of whose oracle rays arrived
     // would bias the transport dark.
     if (!receiver_splits && !source_splits) return Action::Keep;
     if (bounded > opt_.epsilon) return split_larger();
+    // Uneven sources seen in part (see refine.h): split at the source, whose hidden and visible
+    // parts then become links of their own.
+    if (opt_.spread > 0 && source_splits && !h_.nodes[link.source].cluster && (close || link.visibility < 1) &&
+        (peak[link.source] - trough_[link.source]) * link.unoccluded > opt_.spread)
+        return Action::SplitSource;
     // The relative rule (see refine.h) judges the estimate, not the close-pair bound; links none
     // of whose rays arrived carry nothing to compare, and are left to the absolute rule.
     if (!gathered_.empty() && link.visibility > 0 && error > 1e-3 * opt_.epsilon &&
@@ -222,11 +227,16 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity, bool solved) {
     // Children come after their parents: one backward sweep.
     if (radiosity.size() != h_.nodes.size()) throw std::invalid_argument("refine: one radiosity per node needed");
     peak_.assign(h_.nodes.size(), 0.0);
+    trough_.assign(h_.nodes.size(), 0.0);
     for (size_t i = h_.nodes.size(); i-- > 0;) {
         const Node& node = h_.nodes[i];
-        double b = std::max(0.0, luminance(radiosity[i]));
-        for (uint32_t c = 0; c < node.child_count; ++c) b = std::max(b, peak_[node.first_child + c]);
+        double b = std::max(0.0, luminance(radiosity[i])), lo = b;
+        for (uint32_t c = 0; c < node.child_count; ++c) {
+            b = std::max(b, peak_[node.first_child + c]);
+            lo = c == 0 ? trough_[node.first_child] : std::min(lo, trough_[node.first_child + c]);
+        }
         peak_[i] = b;
+        trough_[i] = lo;
     }
     gathered_.clear();
     if (!solved || !(opt_.relative > 0)) return;
@@ -342,6 +352,7 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
         }
         // New nodes inherit their parent's bound for the oracle.
         for (size_t i = peak.size(); i < h_.nodes.size(); ++i) peak.push_back(peak[h_.nodes[i].parent]);
+        for (size_t i = trough_.size(); i < h_.nodes.size(); ++i) trough_.push_back(trough_[h_.nodes[i].parent]);
         if (!gathered_.empty())
             for (size_t i = gathered_.size(); i < h_.nodes.size(); ++i)
                 gathered_.push_back(gathered_[h_.nodes[i].parent]);

@@ -23,6 +23,19 @@
 // light), so every receiver is resolved to about the same fraction of its own light, as
 // Radiance's -aa bounds ambient error relative to the local value. Below 1e-3 x epsilon
 // nothing is split for it (near-black corners would otherwise refine to min_area).
+//
+// Uneven sources seen in part. A link carries its source's mean radiosity, B_S times G, where
+// the light that arrives is the integral of B(y) dG(y) over S. The two differ when both B and
+// the kernel vary over S: where S is partly hidden from R, or close to R (the kernel then
+// weights S's near part far above its far part). The difference is at most
+// (B_max(S) - B_min(S)) G, and it has one sign over many links: a ground plane that is the
+// room's floor inside and sunlit outside brings its outside mean into the room through every
+// ceiling element's link to it. Each such link may carry far less than epsilon, but their
+// errors add up (the classroom's daylight factor came out 1.9x Radiance's). So a link that is
+// close (close_pair) or partly visible is also split at its source while (B_max - B_min) x G_u
+// exceeds `spread` (W, the configured fraction of epsilon's power): its hidden or far parts
+// then become links of their own, each with its own mean. Sources of even radiosity are never
+// split by this, whatever their size.
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -40,6 +53,7 @@ struct RefineOptions {
     int samples = 16;          // point pairs per link estimate
     uint64_t seed = 1;
     double relative = 0;       // also split a link above this fraction of its receiver's light (0: off)
+    double spread = 0;         // W: close or partly visible links of uneven sources split above this (0: off)
 };
 
 struct RefineStats {
@@ -86,6 +100,7 @@ private:
     bool close_pair(uint32_t a, uint32_t b) const;
     Hierarchy& h_;
     std::vector<double> peak_;   // per node: the brightest luminance below it
+    std::vector<double> trough_; // per node: the darkest luminance below it
     std::vector<double> gathered_;  // per node: luminance(B) / luminance(rho), the relative rule's
                                     // H_R (empty: rule off; infinite: black receivers)
     const Visibility& vis_;

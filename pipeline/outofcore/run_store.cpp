@@ -106,7 +106,7 @@ bool store_committed(const std::string& dir) {
 
 StoreFingerprints StoreFingerprints::of(const Scene& scene, double epsilon, double min_area, int samples,
                                         uint64_t seed, int max_rounds, uint32_t group_faces, uint64_t luminaires,
-                                        double relative) {
+                                        double relative, double spread) {
     // Geometry (what the links depend on) and the materials (what the oracle's radiosity,
     // hence the refinement, also depends on).
     StoreFingerprints fp;
@@ -122,6 +122,7 @@ StoreFingerprints StoreFingerprints::of(const Scene& scene, double epsilon, doub
     for (uint64_t v : {bits(epsilon), bits(min_area), uint64_t(samples), seed, uint64_t(max_rounds), uint64_t(group_faces)})
         settings = hash_pair(settings, v, 5);
     if (relative > 0) settings = hash_pair(settings, bits(relative), 9);  // off: as before
+    if (spread > 0) settings = hash_pair(settings, bits(spread), 10);
     if (luminaires) {
         geo = hash_pair(geo, luminaires, 6);
         mat = hash_pair(mat, luminaires, 7);

@@ -40,14 +40,15 @@ namespace hirad {
 // What the stored links and solutions depend on, each as a 64-bit hash.
 struct StoreFingerprints {
     uint64_t geometry = 0;   // every face's corners and mesh
-    uint64_t settings = 0;   // refinement settings: epsilon, min_area, samples, seed, rounds, groups, relative
+    uint64_t settings = 0;   // refinement settings: epsilon, min_area, samples, seed, rounds, groups, relative, spread
     uint64_t materials = 0;  // every face's reflectance and emission
 
     // `epsilon` is the relative threshold as configured (not yet scaled by the emitted power).
     // `luminaires` (luminaires_fingerprint, 0 for none) enters the geometry too: the
     // hierarchy is split for the luminaires' light before any link is made.
     static StoreFingerprints of(const Scene& scene, double epsilon, double min_area, int samples, uint64_t seed,
-                                int max_rounds, uint32_t group_faces, uint64_t luminaires = 0, double relative = 0);
+                                int max_rounds, uint32_t group_faces, uint64_t luminaires = 0, double relative = 0,
+                                double spread = 0);
 };
 
 // Where a run starts: round 0 (fresh) or a stored round whose refinement was replayed into

@@ -39,6 +39,10 @@ visibility points on an element by the form-factor kernel instead of by area
 (sample_polygon_by_form_factor) and refinement began to judge close pairs by the bound
 min(A_R, A_S) (stop 24: a room on a 200 m ground plane came out 49 % dark); the estimates draw
 other samples and the links split differently near contacts.
+It was written again for the two hierarchical configs when close or partly visible links of
+uneven sources began to be split at the source (hierarchy.spread_epsilon, default 1e-3, stop
+25: links carried their sources' mean radiosity into the classroom, +91 % daylight factor); the
+Cornell box's links near the boxes' shadows and the walls' contacts split further.
 Rewrite it only for a change of the physics, and say which in the commit.
 """
 

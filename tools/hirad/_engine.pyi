@@ -226,7 +226,7 @@ class SolveOptions:
 class HierarchyOptions:
     """Hierarchical radiosity with clustering."""
 
-    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0) -> None: ...
+    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0, spread: float = 0.001) -> None: ...
 
     @property
     def epsilon(self) -> float:
@@ -273,6 +273,15 @@ class HierarchyOptions:
 
     @relative.setter
     def relative(self, arg: float, /) -> None: ...
+
+    @property
+    def spread(self) -> float:
+        """
+        Partly visible links whose source's radiosity spread could bias them by more than spread x epsilon are split at the source (0: off).
+        """
+
+    @spread.setter
+    def spread(self, arg: float, /) -> None: ...
 
 class OutOfCoreOptions:
     """The hierarchical method with links streamed through a link store."""

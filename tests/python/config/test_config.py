@@ -225,6 +225,8 @@ def test_missing_key_in_tuple_reports_parent_line(tmp_path: Path) -> None:
         ("scene: scene.usda\nsolver:\n  method: conjugate_gradient\n", 3, "solver.method"),
         ("scene: scene.usda\nhierarchy:\n  relative_epsilon: 1.0\n", 3, "hierarchy.relative_epsilon"),
         ("scene: scene.usda\nhierarchy:\n  relative_epsilon: -0.1\n", 3, "hierarchy.relative_epsilon"),
+        ("scene: scene.usda\nhierarchy:\n  spread_epsilon: 1.5\n", 3, "hierarchy.spread_epsilon"),
+        ("scene: scene.usda\nhierarchy:\n  spread_epsilon: -1.0e-3\n", 3, "hierarchy.spread_epsilon"),
     ],
 )
 def test_out_of_range(tmp_path: Path, text: str, line: int, key: str) -> None:

@@ -367,6 +367,20 @@ class HierarchyConfig(BaseModel):
             " classroom on a large sunlit ground) are resolved like the rest (0: off)."
         ),
     )
+    spread_epsilon: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction of epsilon"},
+        default=1e-3,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "A link carries its source's mean radiosity. Where the source is partly hidden from the"
+            " receiver, or close to it, the part the receiver sees can be far brighter or darker"
+            " than that mean (a ground plane that is the room's floor inside and sunlit outside),"
+            " and the error has one sign over many links. Such a link is split at its source while"
+            " the source's radiosity range times the link's unoccluded transfer exceeds this"
+            " fraction of epsilon's power (0: off)."
+        ),
+    )
 
     @field_validator("min_area")
     @classmethod
