@@ -277,7 +277,7 @@ class HierarchyOptions:
     @property
     def spread(self) -> float:
         """
-        Partly visible links whose source's radiosity spread could bias them by more than spread x epsilon are split at the source (0: off).
+        Close or partly visible links whose source's radiosity range could bias them by more than spread x epsilon's power are split at the source (0: off).
         """
 
     @spread.setter
