@@ -6,6 +6,7 @@ Figures are printed, not asserted. Subcommands (each also runs alone):
     python bench/hierarchy.py family   [--epsilon E --min-area A]   # 2. generated scenes, 1x .. 10x input faces
     python bench/hierarchy.py accuracy [--points 400]     # 3. error vs wall time, flat and hierarchical, Cornell box
     python bench/hierarchy.py hall     [--points 200]     # 4. Modern Hall: error and wall time, hierarchical
+    python bench/hierarchy.py spread   [--spreads 0,1e-3] # 5. hierarchy.spread_epsilon's cost, Cornell box
     python bench/hierarchy.py all
 
 The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
@@ -503,9 +504,49 @@ def cmd_hall(args) -> None:
     print(f"target: under 300 s and under 5 % RMS -> {'met' if wall < 300 and rms < 0.05 else 'missed'}")
 
 
+def cmd_spread(a) -> None:
+    """What splitting uneven sources costs on the Cornell box: links, link estimates, the solve,
+    each leaf's chain of links (its own and its ancestors': what the final gather visits at a
+    point) and the final gather of `--points` leaf points, per spread_epsilon, in one process."""
+    from hirad import _engine
+    from hirad.bake import read_inputs
+    from hirad.config import load_config
+    from hirad.engine import build_engine
+
+    cfg = load_config(ROOT / "configs" / "cornell_hierarchical.yaml")
+    scene, _ = read_inputs(cfg)
+    hc = cfg.hierarchy
+    print(f"Cornell box, epsilon {hc.epsilon:g}, min_area {hc.min_area:g}, {hc.samples} samples; "
+          f"final gather at {a.points} leaf points")
+    print(f"  {'spread':>8}{'links':>10}{'estimates':>11}{'solve s':>9}{'chain mean':>11}{'chain max':>10}"
+          f"{'gather s':>10}")
+    for spread in (float(x) for x in a.spreads.split(",")):
+        m = build_engine(scene, with_uv=False)
+        t0 = time.perf_counter()
+        r = m.solve_hierarchical(
+            _engine.HierarchyOptions(epsilon=hc.epsilon, min_area=hc.min_area, samples=hc.samples,
+                                     max_rounds=hc.max_rounds, spread=spread),
+            _engine.SolveOptions(method="jacobi", tolerance=cfg.solver.tolerance))
+        solve = time.perf_counter() - t0
+        m.use_leaves_as_patches()
+        pa = m.patch_arrays()
+        pick = np.random.default_rng(1).choice(len(pa.area), a.points)
+        n = np.asarray(pa.normal)[pick]
+        t0 = time.perf_counter()
+        m.gather(np.asarray(pa.centroid)[pick] + 1e-4 * n, n)
+        gather = time.perf_counter() - t0
+        chain = np.bincount(np.asarray(r.link_receiver), minlength=r.nodes).astype(float)
+        parent = np.asarray(r.node_parent)
+        for i in range(1, r.nodes):   # parents come before their children
+            chain[i] += chain[parent[i]]
+        leaf = chain[np.asarray(r.leaf_node)]
+        print(f"  {spread:>8g}{r.links:>10,}{r.link_estimates:>11,}{solve:>9.1f}{leaf.mean():>11.0f}{leaf.max():>10.0f}"
+              f"{gather:>10.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "all"])
+    ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "all"])
     ap.add_argument("--hall", type=Path, default=HALL)
     ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
     ap.add_argument("--min-area", type=float, default=None,
@@ -516,14 +557,16 @@ def main() -> None:
     ap.add_argument("--hall-max-se", type=float, default=0.03, help="Hall: drop points with a noisier reference")
     ap.add_argument("--samples", type=int, default=16, help="hall: hierarchy.samples")
     ap.add_argument("--max-paths", type=int, default=262144, help="most paths per reference point")
+    ap.add_argument("--spreads", default="0,1e-3", help="spread: hierarchy.spread_epsilon values, comma-separated")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
     for part in parts:
         a = argparse.Namespace(**vars(args))
         a.min_area = args.min_area if args.min_area is not None else (2e-4 if part == "accuracy" else 1e-3)
-        a.points = args.points if args.points is not None else (400 if part == "accuracy" else 200)
+        a.points = args.points if args.points is not None else {"accuracy": 400, "spread": 20000}.get(part, 200)
         print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
-        {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall}[part](a)
+        {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall,
+         "spread": cmd_spread}[part](a)
         print()
 
 
