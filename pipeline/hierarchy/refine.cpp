@@ -230,10 +230,13 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity, bool solved) {
     trough_.assign(h_.nodes.size(), 0.0);
     for (size_t i = h_.nodes.size(); i-- > 0;) {
         const Node& node = h_.nodes[i];
-        double b = std::max(0.0, luminance(radiosity[i])), lo = b;
+        // The brightest below a node counts its own value too; the darkest is its leaves' (a
+        // parent's own value is their mean, never below the darkest of them).
+        double b = std::max(0.0, luminance(radiosity[i]));
+        double lo = node.child_count ? std::numeric_limits<double>::infinity() : b;
         for (uint32_t c = 0; c < node.child_count; ++c) {
             b = std::max(b, peak_[node.first_child + c]);
-            lo = c == 0 ? trough_[node.first_child] : std::min(lo, trough_[node.first_child + c]);
+            lo = std::min(lo, trough_[node.first_child + c]);
         }
         peak_[i] = b;
         trough_[i] = lo;
@@ -350,12 +353,13 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
                 }
             }
         }
-        // New nodes inherit their parent's bound for the oracle.
-        for (size_t i = peak.size(); i < h_.nodes.size(); ++i) peak.push_back(peak[h_.nodes[i].parent]);
-        for (size_t i = trough_.size(); i < h_.nodes.size(); ++i) trough_.push_back(trough_[h_.nodes[i].parent]);
-        if (!gathered_.empty())
-            for (size_t i = gathered_.size(); i < h_.nodes.size(); ++i)
-                gathered_.push_back(gathered_[h_.nodes[i].parent]);
+        // New nodes inherit their parent's bounds (and light, for the relative rule) for the oracle.
+        for (size_t i = peak.size(); i < h_.nodes.size(); ++i) {
+            const uint32_t parent = h_.nodes[i].parent;
+            peak.push_back(peak[parent]);
+            trough_.push_back(trough_[parent]);
+            if (!gathered_.empty()) gathered_.push_back(gathered_[parent]);
+        }
         // The children's links, cut into batches, the first on top: depth first.
         for (size_t end = next.size(); end > 0;) {
             const size_t begin = end > batch ? ((end - 1) / batch) * batch : 0;
