@@ -106,6 +106,17 @@ void bind_fields(nb::module_& m) {
                     for (int c = 0; c < 3; ++c) flat[9 * q + 3 * a + c] = v.s1[q][a][c];
             return to_numpy(std::move(flat), {v.s1.size(), 3, 3});
         }, kOwned, "(n, 3, 3) [q, a, c]: integral of L w_a in channel c.")
+        .def_prop_ro("sh2", [](const VolumeProbes& v) {
+            std::vector<double> flat(v.sh2.size() * 27);
+            for (size_t q = 0; q < v.sh2.size(); ++q)
+                for (int k = 0; k < 9; ++k)
+                    for (int c = 0; c < 3; ++c) flat[27 * q + 3 * k + c] = v.sh2[q][k][c];
+            return to_numpy(std::move(flat), {v.sh2.size(), 9, 3});
+        }, kOwned,
+                     "(n, 9, 3) [q, k, c]: integral of L Y_k in channel c, Y_k the real orthonormal L2 "
+                     "spherical harmonics (Ramamoorthi & Hanrahan 2001 order and signs: 1, y, z, x, xy, yz, "
+                     "3z^2-1, xz, x^2-y^2 times 0.282095, 0.488603 (x3), 1.092548, 1.092548, 0.315392, "
+                     "1.092548, 0.546274), world axes.")
         .def_prop_ro("back_fraction", arr(&VolumeProbes::back_fraction), kOwned, "(n) rays that hit a back face.")
         .def_prop_ro("hit_fraction", arr(&VolumeProbes::hit_fraction), kOwned, "(n) rays that hit anything.")
         .def_prop_ro("nearest", arr(&VolumeProbes::nearest), kOwned, "(n) closest hit, m (-1: none).");

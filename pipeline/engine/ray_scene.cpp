@@ -94,11 +94,38 @@ VolumeProbes RayScene::volume_probes(const std::vector<Vec3>& points, int rays, 
             m[q].s0 += s0[q];
             for (int a = 0; a < 3; ++a) m[q].s1[a] += s1[q][a];
         }
+        // The L2 part: a luminaire reaches a probe as a few deltas of radiance (one per point of
+        // the luminaire, or per direction of a distant light), so its SH projection is the sum of
+        // each delta's irradiance-free contribution v times Y_k(its direction). The summed
+        // moments above cannot give Y's quadratic terms, so each point goes on its own: a copy of
+        // the luminaire with that one point (weight 1, its tint) gives v / w_k at every probe,
+        // with the same shadow rays and transmittance as the moments.
+        for (const Luminaire& l : luminaires_)
+            for (size_t k = 0; k < l.points.size(); ++k) {
+                if (!(l.weights[k] > 0)) continue;
+                Luminaire one = l;
+                one.points = {l.points[k]};
+                one.weights = {1.0};
+                if (!l.tints.empty()) one.tints = {l.tints[k]};
+                one.interleave = false;
+                std::vector<RGB> e(m.size());
+                std::vector<std::array<RGB, 3>> unused(m.size());
+                luminaire_moments({one}, visibility_.get(), points.data(), points.size(), e.data(), unused.data());
+                for (size_t q = 0; q < m.size(); ++q) {
+                    if (e[q].x == 0 && e[q].y == 0 && e[q].z == 0) continue;
+                    const Vec3 d = l.distant ? normalize(l.points[k]) : normalize(l.points[k] - points[q]);
+                    double y[9];
+                    sh2_basis(d, y);
+                    const RGB v = e[q] * l.weights[k];
+                    for (int b = 0; b < 9; ++b) m[q].sh2[b] += v * y[b];
+                }
+            }
     }
     VolumeProbes v;
     for (const ProbeMoments& p : m) {
         v.s0.push_back(p.s0);
         v.s1.push_back(p.s1);
+        v.sh2.push_back(p.sh2);
         v.back_fraction.push_back(p.back_fraction);
         v.hit_fraction.push_back(p.hit_fraction);
         v.nearest.push_back(p.nearest);

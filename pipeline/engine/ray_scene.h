@@ -51,6 +51,7 @@ struct LiftResult {
 struct VolumeProbes {
     std::vector<RGB> s0;                    // integral of L over the sphere
     std::vector<std::array<RGB, 3>> s1;     // [a]: integral of L w_a
+    std::vector<std::array<RGB, 9>> sh2;    // [k]: integral of L Y_k, the real L2 SH (volume.h)
     std::vector<double> back_fraction;      // rays that hit a back face
     std::vector<double> hit_fraction;       // rays that hit anything
     std::vector<double> nearest;            // closest hit distance, m (-1: nothing hit)

@@ -17,6 +17,24 @@ void tangents(const Vec3& n, Vec3& t1, Vec3& t2) {
 
 }  // namespace
 
+void sh2_basis(const Vec3& d, double y[9]) {
+    // Exact constants of the real, orthonormal SH (volume.h): 1/2 sqrt(1/pi), 1/2 sqrt(3/pi),
+    // 1/2 sqrt(15/pi), 1/4 sqrt(5/pi), 1/4 sqrt(15/pi).
+    static const double k0 = 0.5 * std::sqrt(1 / kPi), k1 = 0.5 * std::sqrt(3 / kPi),
+                        k2 = 0.5 * std::sqrt(15 / kPi), k3 = 0.25 * std::sqrt(5 / kPi),
+                        k4 = 0.25 * std::sqrt(15 / kPi);
+    const double x = d.x, yy = d.y, z = d.z;
+    y[0] = k0;
+    y[1] = k1 * yy;
+    y[2] = k1 * z;
+    y[3] = k1 * x;
+    y[4] = k2 * x * yy;
+    y[5] = k2 * yy * z;
+    y[6] = k3 * (3 * z * z - 1);
+    y[7] = k2 * x * z;
+    y[8] = k4 * (x * x - yy * yy);
+}
+
 std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const Visibility& visibility,
                                         const std::vector<std::array<RGB, 4>>& corner_radiance,
                                         const std::vector<Vec3>& points, int rays, uint64_t seed) {
@@ -49,6 +67,9 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
                 m.s1[0] += l * d.x;
                 m.s1[1] += l * d.y;
                 m.s1[2] += l * d.z;
+                double y[9];
+                sh2_basis(d, y);
+                for (int b = 0; b < 9; ++b) m.sh2[b] += l * y[b];
             }
         m.back_fraction = static_cast<double>(back) / n;
         m.hit_fraction = static_cast<double>(hits) / n;

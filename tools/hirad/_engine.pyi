@@ -1111,6 +1111,12 @@ class VolumeProbes:
         """(n, 3, 3) [q, a, c]: integral of L w_a in channel c."""
 
     @property
+    def sh2(self) -> NDArray[numpy.float64]:
+        """
+        (n, 9, 3) [q, k, c]: integral of L Y_k in channel c, Y_k the real orthonormal L2 spherical harmonics (Ramamoorthi & Hanrahan 2001 order and signs: 1, y, z, x, xy, yz, 3z^2-1, xz, x^2-y^2 times 0.282095, 0.488603 (x3), 1.092548, 1.092548, 0.315392, 1.092548, 0.546274), world axes.
+        """
+
+    @property
     def back_fraction(self) -> NDArray[numpy.float64]:
         """(n) rays that hit a back face."""
 
