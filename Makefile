@@ -53,8 +53,24 @@ build/cpp/hirad_tests: .stamp-apt $(CPP_SRC) $(CPP_TESTS)
 cpp-test: build/cpp/hirad_tests
 	cd build/cpp && ctest --output-on-failure -j $(JOBS)
 
-py-test: engine
+py-test: engine .stamp-web
 	$(PY) -m pytest -q tests/python
+
+# The glTF export's real renderer and validator (tests/python/outputs/test_gltf.py): Debian's
+# Chromium (headless, WebGL on its SwiftShader) and, from npm, three.js, the Khronos glTF
+# Validator and playwright-core, pinned by tests/web/package-lock.json. Node.js comes from the
+# machine; Debian's nodejs and npm are installed only when there is no node at all.
+WEB_PACKAGES := chromium fonts-dejavu-core
+.stamp-web: Makefile tests/web/package.json tests/web/package-lock.json
+	@if dpkg-query -W -f='$${Status}\n' $(WEB_PACKAGES) 2>/dev/null | grep -vq "install ok installed" \
+	    || [ $$(dpkg-query -W -f='$${Status}\n' $(WEB_PACKAGES) 2>/dev/null | wc -l) -lt $(words $(WEB_PACKAGES)) ] \
+	    || ! command -v npm > /dev/null; then \
+	  pkgs="$(WEB_PACKAGES)"; command -v node > /dev/null || pkgs="$$pkgs nodejs"; command -v npm > /dev/null || pkgs="$$pkgs npm"; \
+	  echo "installing Debian packages: $$pkgs"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$pkgs; \
+	fi
+	cd tests/web && npm ci --no-audit --no-fund --loglevel=error
+	@touch $@
 
 bench: engine
 	$(PY) bench/run.py

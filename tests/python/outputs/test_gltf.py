@@ -1,0 +1,223 @@
+"""glTF export (hirad.outputs.gltf.write_glb): the GLB of the original meshes with their
+lightmaps passes the Khronos glTF Validator, and three.js in headless Chromium, lit only by the
+lightmaps, shows what the physics says it must.
+
+The render test builds its own stage: one 1 x 1 quad of albedo rho facing a pinhole camera,
+whose lightmap UVs (st1) map it onto a quarter of a synthetic 32 x 32 page through a
+scale/offset; that quarter holds four quadrants of known incident radiance L_q = H/pi, the rest
+of the page a decoy colour. For a Lambertian surface the exitant radiance is rho * H / pi =
+rho * L_q, so the pixel whose camera ray meets the quad at (u, v) must show rho * L_q(u, v),
+with (u, v) from the pinhole's closed form (no renderer involved). A wrong V flip swaps the
+quadrants top for bottom, a wrong rectangle shows the decoy, a wrong intensity scales all."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+from gltf_helpers import glb_json, render, validate
+from hirad import _engine
+from hirad.outputs import gltf
+
+ALBEDO = np.array([0.8, 0.6, 0.4])
+# incident radiance H/pi (W/(m^2 sr)) of the four quadrants of the quad, (qu, qv) -> RGB
+QUAD_L = {(0, 0): (0.9, 0.7, 0.5), (1, 0): (1.5, 1.0, 0.5), (0, 1): (0.2, 0.3, 0.25), (1, 1): (3.0, 2.5, 2.0)}
+DECOY = (4.0, 0.0, 4.0)
+SCALE_OFFSET = (0.5, 0.5, 0.5, 0.0)   # USD order: page_uv = st1 * xy + zw (bottom-right quarter)
+PAGE = 32
+DIST = 4.0            # camera distance, stage units
+TAN_HALF = 0.2        # vertical aperture 20 mm / (2 x focal 50 mm)
+
+
+def _page() -> np.ndarray:
+    """The page image, row 0 = top (v = 1)."""
+    img = np.tile(np.asarray(DECOY, np.float32), (PAGE, PAGE, 1))
+    half, q = PAGE // 2, PAGE // 4
+    for (qu, qv), val in QUAD_L.items():
+        # page u in [0.5 + qu/4, 0.5 + (qu+1)/4) -> columns; page v in [qv/4, (qv+1)/4) -> rows from the bottom
+        c0 = half + qu * q
+        r1 = PAGE - qv * q
+        img[r1 - q:r1, c0:c0 + q] = val
+    return img
+
+
+def _stage(tmp_path, up_axis="Z", mpu=0.5) -> "Path":
+    """input.usda (a quad, a camera, a material) and OUT/solution.usda over it with the
+    lightmap contract's primvars:st1 and hirad:lightmap:* attributes, plus the page EXR."""
+    out = tmp_path / "out"
+    (out / "lightmaps" / "pages").mkdir(parents=True)
+    stage = Usd.Stage.CreateNew(str(tmp_path / "input.usda"))
+    UsdGeom.SetStageUpAxis(stage, up_axis)
+    UsdGeom.SetStageMetersPerUnit(stage, mpu)
+    UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+    up = np.array([0, 0, 1.0]) if up_axis == "Z" else np.array([0, 1.0, 0])
+    depth = np.array([0, 1.0, 0]) if up_axis == "Z" else np.array([0, 0, -1.0])   # away from the camera
+    right = np.cross(depth, up)
+    assert np.allclose(right, [1, 0, 0])
+    corners = [np.zeros(3), right, right + up, up]        # counter-clockwise seen from -depth
+    mesh = UsdGeom.Mesh.Define(stage, "/World/quad")
+    mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, c)) for c in corners]))
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    mat = UsdShade.Material.Define(stage, "/World/Looks/paint")
+    sh = UsdShade.Shader.Define(stage, "/World/Looks/paint/surface")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*ALBEDO))
+    sh.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(1.0)
+    sh.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateFocalLengthAttr(50.0)
+    cam.CreateVerticalApertureAttr(20.0)
+    cam.CreateHorizontalApertureAttr(20.0)
+    eye = 0.5 * right + 0.5 * up - DIST * depth
+    m = Gf.Matrix4d(*right, 0, *up, 0, *(-depth), 0, *eye, 1)   # rows: local X, Y, Z, origin
+    cam.AddTransformOp().Set(m)
+    stage.GetRootLayer().Save()
+
+    layer = Sdf.Layer.CreateNew(str(out / "solution.usda"))
+    layer.subLayerPaths.append("../input.usda")
+    sol = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(sol, up_axis)          # as hirad's solution layer: the input's metadata
+    UsdGeom.SetStageMetersPerUnit(sol, mpu)
+    over = sol.OverridePrim("/World/quad")
+    pv = UsdGeom.PrimvarsAPI(over).CreatePrimvar("st1", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    pv.Set(Vt.Vec2fArray([Gf.Vec2f(0, 0), Gf.Vec2f(1, 0), Gf.Vec2f(1, 1), Gf.Vec2f(0, 1)]))
+    over.CreateAttribute("hirad:lightmap:page", Sdf.ValueTypeNames.Int, True).Set(0)
+    over.CreateAttribute("hirad:lightmap:file", Sdf.ValueTypeNames.Asset, True).Set(
+        Sdf.AssetPath("./lightmaps/pages/page0.exr"))
+    over.CreateAttribute("hirad:lightmap:scaleOffset", Sdf.ValueTypeNames.Float4, True).Set(Gf.Vec4f(*SCALE_OFFSET))
+    layer.Save()
+    _engine.write_exr(str(out / "lightmaps" / "pages" / "page0.exr"), np.ascontiguousarray(_page()), [])
+    return out
+
+
+def _expected(width: int, height: int, margin: float):
+    """Pinhole closed form: the quad's (u, v) under each pixel centre, the expected radiance
+    rho * L_q, and a mask of the pixels at least `margin` (in u, v) from the quad's edges and
+    from the quadrant lines (where bilinear filtering mixes two texels)."""
+    j, i = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    x_ndc, y_ndc = 2 * j / width - 1, 1 - 2 * i / height
+    u = 0.5 + x_ndc * TAN_HALF * (width / height) * DIST
+    v = 0.5 + y_ndc * TAN_HALF * DIST
+    inside = (u > 0) & (u < 1) & (v > 0) & (v < 1)
+    clear = inside & (np.minimum.reduce([u, 1 - u, v, 1 - v, abs(u - 0.5), abs(v - 0.5)]) > margin)
+    expect = np.zeros((height, width, 3))
+    for (qu, qv), val in QUAD_L.items():
+        sel = inside & ((u >= 0.5) == bool(qu)) & ((v >= 0.5) == bool(qv))
+        expect[sel] = ALBEDO * np.asarray(val)
+    return expect, inside, clear
+
+
+def test_rgbm_round_trip_error_bound():
+    """value = rgb/255 * a/255 * range with a the smallest code covering the texel's largest
+    component: the rounding error of rgb is at most half a step, a * range / 255^2 / 2, which is
+    at most 1/255 of the largest component when a >= 2, and range/(2 * 255^2) below that."""
+    rng = np.random.default_rng(7)
+    v = 10.0 ** rng.uniform(-4, 1, size=(64, 64, 3))
+    img, top = gltf.encode_rgbm(v)
+    assert top == pytest.approx(v.max())
+    back = gltf.decode_rgbm(img, top)
+    a = img[..., 3].astype(np.float64)
+    bound = 0.5 * a * top / 255.0 ** 2 * (1 + 1e-9)
+    assert (np.abs(back - v) <= bound[..., None]).all()
+    big = v.max(axis=2) > 2 * top / 255
+    assert (np.abs(back - v).max(axis=2)[big] <= v.max(axis=2)[big] / 255).all()
+
+
+@pytest.mark.parametrize("up_axis", ["Z", "Y"])
+def test_glb_structure_and_validator(tmp_path, up_axis):
+    out = _stage(tmp_path, up_axis=up_axis)
+    path = gltf.write_glb(out)
+    assert path == out / "scene.glb" and not list(out.glob(".*partial*"))
+    doc = glb_json(path)
+    report = validate(path)
+    assert report["numErrors"] == 0, report["messages"]
+    (mesh_node,) = [n for n in doc["nodes"] if "mesh" in n]
+    prim = doc["meshes"][mesh_node["mesh"]]["primitives"][0]
+    assert {"POSITION", "NORMAL", "TEXCOORD_0", "TEXCOORD_1"} <= set(prim["attributes"])
+    pos = doc["accessors"][prim["attributes"]["POSITION"]]
+    # metres (metersPerUnit 0.5: the unit quad is 0.5 m a side), +Y up in glTF whatever the stage's axis
+    assert np.allclose(pos["min"], [0, 0, 0], atol=1e-6) and np.allclose(pos["max"], [0.5, 0.5, 0], atol=1e-6)
+    lm = mesh_node["extras"]["hirad_lightmap"]
+    # the rectangle for glTF's top-left UVs: (sx, sy, ox, 1 - sy - oy)
+    assert lm["scaleOffset"] == pytest.approx([0.5, 0.5, 0.5, 0.5]) and lm["texCoord"] == 1
+    assert lm["scaleOffsetUsd"] == pytest.approx(SCALE_OFFSET) and lm["encoding"] == "RGBM"
+    assert lm["range"] == pytest.approx(max(DECOY))
+    mat = doc["materials"][prim["material"]]
+    assert mat["pbrMetallicRoughness"]["baseColorFactor"][:3] == pytest.approx(ALBEDO, rel=1e-6)
+    assert mat["emissiveTexture"]["texCoord"] == 1
+    assert mat["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] == pytest.approx(max(DECOY))
+    (cam,) = doc["cameras"]
+    assert cam["perspective"]["yfov"] == pytest.approx(2 * math.atan(TAN_HALF))
+
+
+def test_faceVarying_corners_are_split_and_merged(tmp_path):
+    """A cube of 8 points with flat (computed) normals is 24 glTF vertices (each point appears
+    on three faces with three normals), 12 triangles; with smooth vertex normals and no
+    faceVarying data it stays 8 vertices; a faceVarying st splits a point where its faces give
+    it different UVs, and only there."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "input.usda"))
+    UsdGeom.SetStageUpAxis(stage, "Y")
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    pts = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    for name, smooth, st in (("flat", False, False), ("smooth", True, False), ("smooth_st", True, True)):
+        m = UsdGeom.Mesh.Define(stage, f"/{name}")
+        m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts])
+        m.CreateFaceVertexCountsAttr([4] * 6)
+        m.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
+        if smooth:
+            m.CreateNormalsAttr([Gf.Vec3f(*(np.subtract(p, 0.5) / np.linalg.norm(np.subtract(p, 0.5)))) for p in pts])
+            m.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        if st:
+            UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying).Set(
+                [Gf.Vec2f(*c) for _ in faces for c in ((0, 0), (1, 0), (1, 1), (0, 1))])
+    stage.GetRootLayer().Save()
+    out = tmp_path / "out"
+    out.mkdir()
+    layer = Sdf.Layer.CreateNew(str(out / "solution.usda"))
+    layer.subLayerPaths.append("../input.usda")
+    layer.Save()
+    path = gltf.write_glb(out)
+    doc = glb_json(path)
+    counts = {}
+    for node in doc["nodes"]:
+        p = doc["meshes"][node["mesh"]]["primitives"][0]
+        counts[node["name"]] = (doc["accessors"][p["attributes"]["POSITION"]]["count"],
+                                doc["accessors"][p["indices"]]["count"] // 3)
+    # the per-face st pattern puts the same st on some point from two of its faces: those
+    # corners are one vertex; count the distinct (point, st) pairs independently
+    st_corners = [(i, c) for f in faces for i, c in zip(f, ((0, 0), (1, 0), (1, 1), (0, 1)))]
+    distinct = len(set(st_corners))
+    assert 8 < distinct < 24
+    assert counts == {"/flat": (24, 12), "/smooth": (8, 12), "/smooth_st": (distinct, 12)}
+    report = validate(path)
+    assert report["numErrors"] == 0, report["messages"]
+
+
+@pytest.mark.parametrize("mode,tol", [("lightmap", 0.01), ("emissive", 0.02)])
+def test_threejs_render_of_the_lightmap_matches_the_closed_form(tmp_path, mode, tol):
+    """lightmap: RGBM decoded, three.js lightMap on TEXCOORD_1, lightMapIntensity = pi (RGBM
+    and half-float rounding < 0.4 %); emissive: the GLB as loaded, no script (8-bit sRGB
+    rounding of value/4: < 1.6 % at the darkest quadrant, 0.05 of the page maximum)."""
+    out = _stage(tmp_path)
+    path = gltf.write_glb(out)
+    w = h = 64
+    img, stats = render(path, tmp_path / "r.json", w, h, mode=mode, camera="/World/Camera")
+    expect, inside, clear = _expected(w, h, margin=1.5 / 16)
+    assert clear.sum() > 0.1 * w * h   # the quad covers 62.5 % of the width and height
+    # nothing but the quad: black around it
+    ring = ~inside
+    assert np.abs(img[ring]).max() < 1e-6
+    rel = np.abs(img[clear] / expect[clear] - 1)
+    assert rel.max() < tol, (rel.max(), stats)
+    # every quadrant is seen (a swapped V flip would put qv=0's light on top)
+    for (qu, qv), val in QUAD_L.items():
+        j, i = int(w * (0.5 + (qu - 0.5) * 0.3)), int(h * (0.5 - (qv - 0.5) * 0.3))
+        assert img[i, j] == pytest.approx(ALBEDO * np.asarray(val), rel=tol)
