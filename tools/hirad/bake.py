@@ -144,7 +144,9 @@ def read_inputs(cfg: Config):
     scene = usd.read_scene(cfg.scene, default_reflectance=tuple(cfg.materials.default_reflectance),
                            uv_primvars=tuple(cfg.materials.uv_primvars),
                            require_emission=not cfg.lights and not sky_model,
-                           ies_mode=cfg.photometry.ies_mode, daylight=True)
+                           ies_mode=cfg.photometry.ies_mode, daylight=True,
+                           lightmap_uv_primvars=tuple(cfg.outputs.lightmaps.uv_primvars)
+                           if cfg.outputs.lightmaps.enabled else ())
     return scene, with_config_lights(scene, cfg)
 
 
@@ -345,7 +347,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             from .studies.usdgrids import save_stored_daylight  # glazing, sun and sky, for `hirad grid`
             meta.update(save_stored_daylight(staging, day_lights, result.transmittance, result.corners, result.nv,
                                              mesh_faces, groups=light_groups, n_specs=len(specs)))
-            usd.write_solution_layer(cfg.scene, path, scene, meshes, meta)
+            usd.write_solution_layer(cfg.scene, path, scene, meshes, meta, view=cfg.outputs.usd_view)
             outputs["usd"] = "solution.usda"
     if cfg.outputs.preview.enabled:
         with rep.stage("preview"):

@@ -86,7 +86,8 @@ def Sdf_tex2():
     return Sdf.ValueTypeNames.TexCoord2fArray
 
 
-LIGHTMAPS = {"texels_per_metre": TPM, "padding": PADDING, "max_size": 128, "supersample": 2}
+# the ground's `st` is its lightmap set here: the config names it (never by default)
+LIGHTMAPS = {"texels_per_metre": TPM, "padding": PADDING, "max_size": 128, "supersample": 2, "uv_primvars": ["st"]}
 MESHING = {"max_patch_area": 0.0625, "max_edge_length": 0.25}
 
 

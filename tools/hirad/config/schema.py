@@ -529,9 +529,13 @@ class ReconstructionConfig(BaseModel):
 class LightmapOutputConfig(BaseModel):
     """Baked lightmap textures: incident radiance H/pi on a UV atlas of pages.
 
-    A mesh keeps its own lightmap UV set when it has one (``materials.uv_primvars``), else
-    xatlas charts it; every mesh is packed onto pages of at most ``max_size`` texels a side
-    at ``texels_per_metre`` with ``padding`` empty texels between charts.
+    Lightmaps are baked on the source meshes (the input's own faces, not hirad's patches). A
+    mesh keeps its own lightmap UV set when it has one under a name in ``uv_primvars`` (never
+    the texture set ``st`` unless that list names it, and never when its islands overlap: then
+    it is charted), else xatlas charts it; every mesh is packed onto pages of at most
+    ``max_size`` texels a side at ``texels_per_metre`` with ``padding`` empty texels between
+    charts. The output layer writes each mesh's lightmap UVs as the ``uv_set`` primvar on the
+    original mesh prim, beside its page and Unity-order scale/offset.
     """
 
     model_config = _MODEL_CONFIG
@@ -604,6 +608,21 @@ class LightmapOutputConfig(BaseModel):
         description=(
             "Meshes with their own lightmap UVs: 'keep' the author's layout (scaled to the"
             " density; lightmapScaleOffset maps it to the page) or 'repack' its islands."
+        ),
+    )
+    uv_set: StrictStr = Field(
+        default="st1",
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description=(
+            "Name of the lightmap UV primvar written on the original mesh prims (texCoord2f[],"
+            " faceVarying; the mesh's own [0, 1] layout, scaleOffset maps it to its page)."
+        ),
+    )
+    uv_primvars: list[StrictStr] = Field(
+        default_factory=lambda: ["st1", "lightmapUV", "uv2", "map2"],
+        description=(
+            "Primvars read as a mesh's own lightmap UV set, first found wins. The texture set"
+            " (st) is used only when listed here."
         ),
     )
     mesh_files: StrictBool = Field(
@@ -693,6 +712,15 @@ class OutputsConfig(BaseModel):
 
     usd: StrictBool = Field(
         default=True, description="Write a USD layer with radiosity as vertex primvars."
+    )
+    usd_view: Literal["solution", "source"] = Field(
+        default="solution",
+        description=(
+            "What the USD layer shows: 'solution' hides the input's meshes and shows hirad's solved"
+            " meshes (radiance primvars, the lightmaps through hirad:lightmapUV); 'source' keeps the"
+            " input's meshes visible with their own materials (and the lightmap UV set an engine"
+            " reads) and keeps the solved meshes as a hidden debug scope."
+        ),
     )
     lightmaps: LightmapOutputConfig = Field(
         default_factory=LightmapOutputConfig, description="Lightmap texture settings."

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+import math
 import time
 from pathlib import Path
 
@@ -10,7 +12,7 @@ import numpy as np
 from .. import __version__, _engine
 from ..report import scene_fingerprint
 from ..errors import BakeError
-from .meshes import corner_uv, lightmap_units_label, triangulate
+from .meshes import lightmap_units_label
 
 
 def _default_density(lm, patches) -> float:
@@ -75,17 +77,125 @@ def _bake_page(atlas, page: int, evaluate, supersample: int):
     return A.dilate(image, mask, max(int(atlas.padding), 1)), mask
 
 
+def _source_triangles(scene) -> dict:
+    """The input's own faces as triangle fans, for all meshes at once: per triangle its mesh,
+    its scene face and its three corners (indices into scene.face_vertex_indices, so into the
+    mesh's corners as read). A face (c0, c1, ..., cn) -> (c0, ck, ck+1)."""
+    counts = np.asarray(scene.face_vertex_counts, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    ntri = np.maximum(counts - 2, 0)
+    face = np.repeat(np.arange(len(counts)), ntri)
+    first_tri = np.concatenate([[0], np.cumsum(ntri)[:-1]]).astype(np.int64)
+    k = np.arange(int(ntri.sum()), dtype=np.int64) - np.repeat(first_tri, ntri) + 1
+    s0 = starts[face]
+    corners = np.stack([s0, s0 + k, s0 + k + 1], axis=1)
+    return {"face": face, "corner": corners, "mesh": np.asarray(scene.face_mesh)[face],
+            "first": first_tri, "count": ntri}
+
+
+def _locate_in_faces(points: np.ndarray, faces: np.ndarray, fan: dict, tri_xyz: np.ndarray,
+                     tri_uv: np.ndarray) -> np.ndarray:
+    """UV at points lying on given source faces: each point is located in the face's fan
+    triangle that contains it (the largest least barycentric coordinate, so a point on a
+    shared diagonal or a hair outside after float noise still finds one) and the triangle's
+    corner UVs are interpolated. Exact for planar faces (the patches subdivide the faces)."""
+    first, count = fan["first"][faces], np.maximum(fan["count"][faces], 1)
+    best = np.full(len(points), -np.inf)
+    out = np.zeros((len(points), 2))
+    for k in range(int(count.max()) if len(points) else 0):
+        t = first + np.minimum(k, count - 1)
+        a, b, c = tri_xyz[t, 0], tri_xyz[t, 1], tri_xyz[t, 2]
+        e1, e2, d = b - a, c - a, points - a
+        d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+        d1, d2 = (d * e1).sum(1), (d * e2).sum(1)
+        den = d11 * d22 - d12 * d12
+        den = np.where(np.abs(den) > 0, den, 1.0)
+        v = (d22 * d1 - d12 * d2) / den
+        w = (d11 * d2 - d12 * d1) / den
+        u = 1.0 - v - w
+        score = np.minimum(np.minimum(u, v), w)
+        better = score > best
+        uv = tri_uv[t, 0] * u[:, None] + tri_uv[t, 1] * v[:, None] + tri_uv[t, 2] * w[:, None]
+        out[better] = uv[better]
+        best = np.where(better, score, best)
+    return out
+
+
+def _uv_overlap(uv: np.ndarray, cells: int = 0) -> float:
+    """The fraction of a UV layout's area covered twice or more: triangles (M, 3, 2) are
+    sampled at the centres of a grid over their bounding box (about 16 samples per triangle,
+    64 to 2048 a side); a centre strictly inside two triangles is overlapped. Islands that
+    merely touch along an edge do not count (centres on an edge are inside neither). Used to
+    refuse an author's set that stacks islands (texture UVs, mirrored halves)."""
+    t = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    if not len(t):
+        return 0.0
+    lo, hi = t.reshape(-1, 2).min(axis=0), t.reshape(-1, 2).max(axis=0)
+    n = cells or int(np.clip(math.sqrt(16 * len(t)), 64, 2048))
+    span = np.maximum(hi - lo, 1e-12)
+    g = (t - lo) / span * n  # grid units
+    x0 = np.clip(np.floor(g[..., 0].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+    x1 = np.clip(np.ceil(g[..., 0].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+    y0 = np.clip(np.floor(g[..., 1].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+    y1 = np.clip(np.ceil(g[..., 1].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+    nx, ny = x1 - x0 + 1, y1 - y0 + 1
+    count = np.zeros(n * n, dtype=np.int32)
+    inside_total = 0
+    for chunk in np.array_split(np.arange(len(t)), max(1, int((nx * ny).sum()) // 4_000_000 + 1)):
+        k = nx[chunk] * ny[chunk]
+        tri = np.repeat(chunk, k)
+        off = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+        cx = x0[tri] + off % nx[tri]
+        cy = y0[tri] + off // nx[tri]
+        px, py = cx + 0.5, cy + 0.5
+        a, b, c = g[tri, 0], g[tri, 1], g[tri, 2]
+        d = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        sgn = np.sign(d)
+        e0 = ((b[:, 0] - a[:, 0]) * (py - a[:, 1]) - (b[:, 1] - a[:, 1]) * (px - a[:, 0])) * sgn
+        e1 = ((c[:, 0] - b[:, 0]) * (py - b[:, 1]) - (c[:, 1] - b[:, 1]) * (px - b[:, 0])) * sgn
+        e2 = ((a[:, 0] - c[:, 0]) * (py - c[:, 1]) - (a[:, 1] - c[:, 1]) * (px - c[:, 0])) * sgn
+        tol = 1e-9 * np.abs(d)
+        inside = (e0 > tol) & (e1 > tol) & (e2 > tol) & (sgn != 0)
+        np.add.at(count, (cy * n + cx)[inside], 1)
+        inside_total += int(inside.sum())
+    covered = int((count > 0).sum())
+    return float((count > 1).sum()) / covered if covered else 0.0
+
+
+def _local_layout(layout, size) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """A mesh's own lightmap UVs (per triangle corner, [0, 1]) and the Unity-order
+    scaleOffset that maps them to its page: page_uv = local * (sx, sy) + (ox, oy). An author's
+    kept layout keeps its UVs (the atlas's scale_offset); generated and repacked charts are
+    expressed in the mesh's block, so each mesh (each instance) owns a rectangle."""
+    local = getattr(layout, "local_uvs", None)
+    if local is not None:
+        return np.asarray(local, dtype=np.float64), tuple(float(v) for v in layout.scale_offset)
+    if layout.source == "existing":
+        sx, sy, ox, oy = (float(v) for v in layout.scale_offset)
+        return (layout.uvs - [ox, oy]) / [sx, sy], (sx, sy, ox, oy)
+    w, h = size
+    bx, by, bw, bh = (float(v) for v in layout.block)
+    so = (bw / w, bh / h, bx / w, by / h)
+    return (layout.uvs - [so[2], so[3]]) / [so[0], so[1]], so
+
+
 def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
                      staging: Path, result=None, warn=None) -> tuple[list[str], dict]:
-    """Lightmaps on an atlas: every mesh's display faces (what the USD layer shows) go into
-    one atlas of pages (hirad.atlas): the mesh's own lightmap UVs when it has them, else
-    xatlas charts, at outputs.lightmaps.texels_per_metre with `padding`. Each texel holds
-    the incident radiance H/pi at its supersampled surface points (after leak-preventing
-    lifting, see _lift), from the display mesh's vertex irradiance ('interpolate') or a
-    final gather from the hierarchy ('final_gather'); seams are stitched and the padding
-    dilated. Writes lightmaps/pages/page<k>.exr (half float), optional RGBM PNGs,
+    """Lightmaps baked on the source meshes: every input mesh's own faces (triangle fans of
+    the authored polygons, in world metres) go into one atlas of pages (hirad.atlas): the
+    mesh's own lightmap UV set when it has one (outputs.lightmaps.uv_primvars), else xatlas
+    charts, at outputs.lightmaps.texels_per_metre with `padding`. Each texel holds the
+    incident radiance H/pi at its supersampled surface points (after leak-preventing
+    lifting, see _lift), from the solution's vertex irradiance ('interpolate') or a final
+    gather from the hierarchy ('final_gather'); seams are stitched and the page dilated.
+    Writes lightmaps/pages/page<k>.exr (half float), optional RGBM PNGs,
     lightmaps/manifest.json, and (mesh_files) lightmaps/<mesh>.exr cut out of the pages.
-    Each PatchMeshData gets its page file and faceVarying lightmap UVs for the USD layer.
+
+    Each PatchMeshData gets (a) `source_lightmap`: the mesh's own UVs per authored corner
+    (faceVarying on the original prim, outputs.lightmaps.uv_set), its page and scaleOffset,
+    and (b) `lightmap_uv`: page UVs at its display corners, found by locating each display
+    corner in its source face (the solution meshes subdivide the source faces), so the
+    solution layer's meshes show the same pages.
     Returns (per-mesh files or pages, atlas summary for the report)."""
     from .. import atlas as A
 
@@ -98,46 +208,91 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     lm_dir = staging / "lightmaps"
     (lm_dir / "pages").mkdir(parents=True)
     density = _default_density(lm, patches)
-    nv_all = patches["nv"]
 
-    geometry, existing, names, tri_info, pms = [], [], [], [], []
-    for pm, fids in zip(meshes, mesh_faces):
-        info = scene.meshes[pm.mesh_index]
-        counts = np.asarray(pm.face_vertex_counts)
-        tris, face_of, slots = triangulate(counts, np.asarray(pm.face_vertex_indices))
-        geometry.append((np.asarray(pm.points, dtype=np.float64), tris))
-        if info.has_uv:
-            # the mesh's own UV set, carried through the patches to the display corners
-            corner = np.array([
-                corner_uv(patches["uv"][display["face_patch"][f]], int(nv_all[display["face_patch"][f]]),
-                           int(display["face_code"][f][c]))
-                for f in fids for c in range(display["face_nv"][f])]).reshape(-1, 2)
-            existing.append(corner[slots])
-        else:
-            existing.append(None)
+    fan = _source_triangles(scene)
+    tri_order = np.argsort(fan["mesh"], kind="stable")
+    tri_bounds = np.searchsorted(fan["mesh"][tri_order], np.arange(len(scene.meshes) + 1))
+    corner_start = np.concatenate([[0], np.cumsum(scene.face_vertex_counts)]).astype(np.int64)
+    face_start = np.concatenate([[0], np.cumsum([np.count_nonzero(scene.face_mesh == m)
+                                                 for m in range(len(scene.meshes))])]).astype(np.int64)
+    fvi = np.asarray(scene.face_vertex_indices, dtype=np.int64)
+
+    geometry, existing, names, prototypes, tri_ids, pms = [], [], [], [], [], []
+    rep_warnings: list[str] = []
+    for pm in meshes:
+        m = pm.mesh_index
+        info = scene.meshes[m]
+        tris = tri_order[tri_bounds[m]:tri_bounds[m + 1]]
+        corners = fan["corner"][tris]  # global corner slots
+        used, local = np.unique(fvi[corners].reshape(-1), return_inverse=True)
+        geometry.append((scene.points[used], local.reshape(-1, 3)))
+        own = None
+        if info.lightmap_uv is not None:
+            first_corner = corner_start[face_start[m]]
+            own = np.asarray(info.lightmap_uv)[corners - first_corner]
+            overlap = _uv_overlap(own)
+            if overlap > 0:
+                rep_warnings.append(f"{info.path}: its UV set {info.lightmap_uv_name} overlaps itself "
+                                    f"({100 * overlap:.3g} % of its area is covered twice): not usable as "
+                                    "lightmap UVs, charts generated instead")
+                own = None
+        existing.append(own)
         names.append(info.name)
-        tri_info.append((face_of, slots, int(counts.sum())))
+        prototypes.append(info.prototype)
+        tri_ids.append(tris)
         pms.append(pm)
 
+    kwargs = {}
+    if any(p is not None for p in prototypes) and "prototypes" in inspect.signature(A.build_atlas).parameters:
+        kwargs["prototypes"] = prototypes
     atlas = A.build_atlas(geometry, density, lm.padding, lm.max_size, existing_uvs=existing, names=names,
-                          existing_layout=lm.existing_layout)
-    rep_warnings = list(atlas.warnings)
+                          existing_layout=lm.existing_layout, **kwargs)
+    rep_warnings += list(atlas.warnings)
 
-    # faceVarying lightmap UVs per display face corner, from the triangles' corners
+    # Page UVs of every source triangle, for the display corners; the mesh's own UVs per
+    # authored corner, for the original prim.
+    tri_xyz = np.asarray(scene.points)[fvi[fan["corner"]]]
+    tri_uv = np.zeros((len(fan["face"]), 3, 2))
     for k, (pm, layout) in enumerate(zip(pms, atlas.meshes)):
-        face_of, slots, n_corners = tri_info[k]
-        uv = np.zeros((n_corners, 2))
-        if len(layout.uvs):
-            flat_slots = slots.reshape(-1)
-            flat_uv = layout.uvs.reshape(-1, 2)
-            uv[flat_slots] = flat_uv  # a corner shared by two triangles of a quad: same chart, same UV
-            again = np.zeros_like(uv)
-            again[flat_slots[::-1]] = flat_uv[::-1]
-            w, h = atlas.page_sizes[layout.page]
-            if np.abs((again - uv) * [w, h]).max() > 1e-3:
-                rep_warnings.append(f"{names[k]}: a quad's triangles were charted apart; its lightmap UVs "
-                                    "follow the first triangle")
-        pm.lightmap_uv = uv
+        info = scene.meshes[pm.mesh_index]
+        pm.source_lightmap = None
+        if layout.page < 0 or not len(layout.uvs):
+            continue
+        tri_uv[tri_ids[k]] = layout.uvs
+        local, so = _local_layout(layout, atlas.page_sizes[layout.page])
+        first_corner = corner_start[face_start[pm.mesh_index]]
+        slots = (fan["corner"][tri_ids[k]] - first_corner).reshape(-1)
+        n_read = int(corner_start[face_start[pm.mesh_index + 1]] - first_corner)
+        per_corner = np.zeros((n_read, 2))
+        per_corner[slots] = local.reshape(-1, 2)
+        again = np.zeros_like(per_corner)
+        again[slots[::-1]] = local.reshape(-1, 2)[::-1]
+        w, h = atlas.page_sizes[layout.page]
+        if np.abs((again - per_corner) * [w * so[0], h * so[1]]).max() > 1e-3:
+            rep_warnings.append(f"{info.path}: a polygon's triangles were charted apart; its lightmap UVs "
+                                "follow its first triangle")
+        authored = None
+        if info.corner_source is not None:
+            authored = np.zeros((info.authored_corners, 2))
+            authored[info.corner_source] = per_corner
+        pm.source_lightmap = {"uv": authored, "page": int(layout.page), "scale_offset": so,
+                              "author_path": info.author_path, "prim": info.path, "prototype": info.prototype,
+                              "source": layout.source}
+
+    # faceVarying page UVs per display corner: each corner located in its source face (the
+    # scene face of the patch's mesh and authored face)
+    scene_key = np.asarray(scene.face_mesh, np.int64) << 32 | np.asarray(scene.face_source, np.int64)
+    key_order = np.argsort(scene_key, kind="stable")
+    patch_key = np.asarray(patches["mesh"], np.int64) << 32 | np.asarray(patches["source_face"], np.int64)
+    patch_face = key_order[np.clip(np.searchsorted(scene_key[key_order], patch_key), 0, len(key_order) - 1)]
+    for k, (pm, fids, layout) in enumerate(zip(pms, mesh_faces, atlas.meshes)):
+        if layout.page < 0 or not len(layout.uvs):
+            pm.lightmap_uv = None
+            continue
+        counts = np.asarray(pm.face_vertex_counts)
+        src_face = np.repeat(patch_face[display["face_patch"][fids]], counts)
+        pts = np.asarray(pm.points)[np.asarray(pm.face_vertex_indices)]
+        pm.lightmap_uv = _locate_in_faces(pts, src_face, fan, tri_xyz, tri_uv)
 
     mode = lm.mode
     field = result.field if result is not None else None
@@ -190,6 +345,8 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             pm.lightmap_uv = None
             continue
         pm.lightmap_path = f"lightmaps/{page_files[layout.page]}"
+        if pm.source_lightmap is not None:
+            pm.source_lightmap.update(file=pm.lightmap_path, uv_set=lm.uv_set)
         of_mesh = patches["mesh"] == pm.mesh_index
         area = patches["area"][of_mesh][:, None]
         if area.sum() > 0:
@@ -225,14 +382,28 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         "texels_per_second": round(covered / elapsed, 1) if elapsed > 0 else None,
         "warnings": rep_warnings,
     }
-    extra = {"hirad:version": __version__, "units": lightmap_units, "sceneFingerprint": fingerprint,
+    instances = []
+    for pm, layout in zip(pms, atlas.meshes):
+        sl = getattr(pm, "source_lightmap", None)
+        if sl is None:
+            continue
+        instances.append({"prim": sl["prim"], "mesh": sl["author_path"], "prototype": sl["prototype"],
+                          "page": sl["page"], "file": page_files[sl["page"]],
+                          "scaleOffset": [float(v) for v in sl["scale_offset"]], "uvSet": lm.uv_set,
+                          "uvSource": sl["source"], "texelsPerMetre": float(layout.texels_per_metre)})
+    extra = {"version": 2, "hirad:version": __version__, "units": lightmap_units, "sceneFingerprint": fingerprint,
              "mode": mode, "supersample": lm.supersample,
-             "uvPrimvar": "hirad:lightmapUV (texCoord2f, faceVarying, on the <defaultPrim>/HiradSolution meshes)"}
-    if png_files:
-        extra["rgbm"] = {"pages": png_files, "decode": "linear = rgb/255 * a/255 * rgbm_range"}
-    if lm.mesh_files:
-        extra["meshFiles"] = {scene.meshes[pm.mesh_index].name: f"{scene.meshes[pm.mesh_index].name}.exr"
-                              for pm, layout in zip(pms, atlas.meshes) if layout.page >= 0}
+             "value": "incident radiance H/pi per texel (linear); a Lambertian surface shows albedo x value",
+             "uvSet": lm.uv_set,
+             "uvPrimvar": (f"primvars:{lm.uv_set} (texCoord2f, faceVarying) on each original mesh prim: the "
+                           "mesh's own [0, 1] lightmap UVs; page_uv = uv * scaleOffset.xy + scaleOffset.zw. "
+                           "The solution meshes carry page UVs as hirad:lightmapUV."),
+             "uvOrigin": "bottom-left (USD texCoord2f, v up); image row 0 is the top of the page",
+             "engines": {"unity": {"flipV": False, "scaleOffset": "lightmapScaleOffset as is"},
+                         "godot": {"flipV": True, "rule": "v' = 1 - v (top-left origin)"},
+                         "unreal": {"flipV": True, "rule": "v' = 1 - v (top-left origin)"},
+                         "gltf": {"flipV": True, "rule": "v' = 1 - v (top-left origin)"}},
+             "instances": instances, "warnings": rep_warnings}
     A.write_manifest(lm_dir / "manifest.json", atlas, page_files, extra)
     if warn is not None:
         for w in rep_warnings:

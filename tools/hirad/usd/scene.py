@@ -61,6 +61,21 @@ class MeshInfo:
     hide_path: str  # prim to make invisible in the solution layer
     is_light: bool = False
     has_uv: bool = False
+    # The source topology, for lightmap UVs written back onto the original prim: per corner
+    # of the mesh's faces as read (SceneArrays order), the index of that corner in the prim's
+    # authored faceVertexIndices (a faceVarying primvar's slot); the authored corner count.
+    corner_source: np.ndarray | None = None
+    authored_corners: int = 0
+    # The mesh's own lightmap UV set (a primvar named in outputs.lightmaps.uv_primvars), per
+    # corner as read; None when it has none. Never the texture set unless the config names it.
+    lightmap_uv: np.ndarray | None = None
+    lightmap_uv_name: str | None = None
+    # Meshes that are copies of one prototype (instance proxies of one prototype prim, one
+    # PointInstancer prototype mesh) share this key: they share one lightmap UV layout.
+    prototype: str | None = None
+    # Where a lightmap UV set can be authored in a layer over the input: the prim itself, the
+    # PointInstancer prototype mesh, or None (inside a native instance: proxies are read-only).
+    author_path: str | None = None
 
 
 @dataclass
@@ -185,6 +200,7 @@ class _Builder:
         self.default_reflectance = _checked_reflectance(_vec3(default_reflectance), "materials.default_reflectance",
                                                         warnings)
         self.uv_primvars = tuple(uv_primvars)
+        self.lightmap_uv_primvars: tuple[str, ...] = ()
         self.time = time
         self.warnings = warnings
         self.materials = _MaterialResolver(time, warnings)
@@ -237,9 +253,10 @@ class _Builder:
         self.n_points += len(pts)
         return k
 
-    def corner_uv(self, prim: Usd.Prim, counts, indices, n_points) -> np.ndarray | None:
+    def corner_uv(self, prim: Usd.Prim, counts, indices, n_points, names=None) -> np.ndarray | None:
         api = UsdGeom.PrimvarsAPI(prim)
-        for name in self.uv_primvars:
+        self.uv_name = None
+        for name in (self.uv_primvars if names is None else names):
             pv = api.GetPrimvar(name)
             if not pv or not pv.HasAuthoredValue():
                 continue
@@ -256,6 +273,7 @@ class _Builder:
                 continue
             arr = arr[:, :2]
             interp = pv.GetInterpolation()
+            self.uv_name = name
             if interp == UsdGeom.Tokens.faceVarying and len(arr) >= len(indices):
                 return arr[: len(indices)]
             if interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying) and len(arr) >= n_points:
@@ -265,13 +283,15 @@ class _Builder:
                 return np.repeat(arr[: len(counts)], counts, axis=0)
             if interp == UsdGeom.Tokens.constant:
                 return np.repeat(arr[:1], len(indices), axis=0)
+            self.uv_name = None
             self.warnings.append(
                 f"{prim.GetPath()}: primvar {name} has {len(arr)} values, too few for "
                 f"{interp} interpolation; ignored"
             )
         return None
 
-    def add_mesh(self, prim: Usd.Prim, world: np.ndarray, mpu: float, path: str, hide_path: str):
+    def add_mesh(self, prim: Usd.Prim, world: np.ndarray, mpu: float, path: str, hide_path: str,
+                 prototype: str | None = None, author_path: str | None = None):
         mesh = UsdGeom.Mesh(prim)
         t = self.time
         pts = _typed(mesh.GetPointsAttr(), t, _POINT_ARRAYS, "point3f[]", path)
@@ -345,8 +365,17 @@ class _Builder:
         uv_all = self.corner_uv(prim, counts, indices, n_pts) if len(indices) >= total else None
         uv = uv_all[corner_src] if uv_all is not None else None
 
+        lm_uv, lm_name = None, None
+        if self.lightmap_uv_primvars and len(indices) >= total and not is_light:
+            lm_all = self.corner_uv(prim, counts, indices, n_pts, self.lightmap_uv_primvars)
+            if lm_all is not None:
+                lm_uv, lm_name = lm_all[corner_src], self.uv_name
+
         name = self.names.make(path)
-        info = MeshInfo(path=path, name=name, hide_path=hide_path, is_light=is_light, has_uv=uv is not None)
+        info = MeshInfo(path=path, name=name, hide_path=hide_path, is_light=is_light, has_uv=uv is not None,
+                        corner_source=corner_src.astype(np.int32), authored_corners=int(len(indices)),
+                        lightmap_uv=lm_uv, lightmap_uv_name=lm_name, prototype=prototype,
+                        author_path=author_path)
         self._append(info, world_pts, kept_counts, new_indices, kept_faces, refl, emis, uv, tau)
 
     def _face_materials(self, prim, path, n_faces, counts, indices, total, n_points):
@@ -1015,6 +1044,7 @@ def read_scene(
     require_emission: bool = False,
     ies_mode: str = "absolute",
     daylight: bool = False,
+    lightmap_uv_primvars: Sequence[str] = (),
 ) -> SceneArrays:
     """Flatten a USD stage into :class:`SceneArrays` (see module docstring for conventions).
 
@@ -1072,6 +1102,7 @@ def read_scene(
     try:
         b = _Builder(default_reflectance, uv_primvars, time, warnings, ies_mode=ies_mode, daylight=daylight,
                      up_axis=up_axis)
+        b.lightmap_uv_primvars = tuple(lightmap_uv_primvars)
         it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
         for prim in it:
             if _skip_imageable(prim, time):
@@ -1086,8 +1117,11 @@ def read_scene(
                 continue
             if prim.IsA(UsdGeom.Mesh):
                 world = _mat(xfc.GetLocalToWorldTransform(prim))
-                hide = _nearest_instance_root(prim) if prim.IsInstanceProxy() else prim
-                b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()))
+                proxy = prim.IsInstanceProxy()
+                hide = _nearest_instance_root(prim) if proxy else prim
+                b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()),
+                           prototype=str(prim.GetPrimInPrototype().GetPath()) if proxy else None,
+                           author_path=None if proxy else str(prim.GetPath()))
             elif _is_light_prim(prim):
                 b.add_light(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, light_segments)
             elif prim.IsA(UsdLux.LightFilter):
@@ -1179,4 +1213,5 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
             continue
         inst = _mat(xforms[k]) @ inst_world
         for p, rel, relpath in proto_meshes.get(int(j), []):
-            b.add_mesh(p, rel @ inst, mpu, f"{path}/instance_{k}/{relpath}", path)
+            b.add_mesh(p, rel @ inst, mpu, f"{path}/instance_{k}/{relpath}", path, prototype=str(p.GetPath()),
+                       author_path=None if p.IsInstanceProxy() else str(p.GetPath()))

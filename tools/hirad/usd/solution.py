@@ -51,6 +51,11 @@ class PatchMeshData:
     # light groups (lights.groups): name -> (vertex radiance (P,3), vertex irradiance (P,3)) of
     # that group's solution alone, written as primvars:hirad:group:<name>:radiance / :irradiance
     group_values: dict | None = None
+    # the lightmap on the original mesh prim (hirad.outputs.lightmaps): "uv" (authored corners,
+    # 2) the mesh's own lightmap UVs or None, "uv_set" the primvar name, "page", "file" (asset
+    # path relative to the layer), "scale_offset" (Unity order), "author_path" the prim that can
+    # carry the UVs (None inside a native instance), "prim" the mesh's path, "prototype"
+    source_lightmap: dict | None = None
 
 
 @dataclass
@@ -244,6 +249,38 @@ def _author_patch_mesh(stage: Usd.Stage, mesh_path: Sdf.Path, pm: PatchMeshData,
     return mesh
 
 
+def _author_source_lightmaps(stage: Usd.Stage, patch_meshes: Sequence[PatchMeshData]) -> None:
+    """The lightmap on the input's own mesh prims, as overs in this layer (the input file is
+    never touched): the mesh's lightmap UVs as primvars:<uv_set> (texCoord2f[], faceVarying, one
+    per authored faceVertexIndices entry, in the mesh's own [0, 1] layout), and its page
+    (hirad:lightmap:page, hirad:lightmap:file) and Unity-order scale/offset
+    (hirad:lightmap:scaleOffset: page_uv = uv * xy + zw). Copies of one prototype (the meshes
+    of a PointInstancer prototype) share one UV set on the prototype mesh; each copy's page
+    and rectangle are in lightmaps/manifest.json ("instances"), as a prim cannot hold one per
+    copy. Meshes inside native instances (instance proxies) cannot be authored over: they are
+    only in the manifest."""
+    by_path: dict[str, list[dict]] = {}
+    for pm in patch_meshes:
+        sl = pm.source_lightmap
+        if sl is None or sl.get("uv") is None or not sl.get("author_path") or "file" not in sl:
+            continue
+        by_path.setdefault(sl["author_path"], []).append(sl)
+    for path, copies in by_path.items():
+        over = stage.OverridePrim(path)
+        first = copies[0]
+        pv = UsdGeom.PrimvarsAPI(over).CreatePrimvar(first["uv_set"], Sdf.ValueTypeNames.TexCoord2fArray,
+                                                     UsdGeom.Tokens.faceVarying)
+        pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(first["uv"], dtype=np.float32)))
+        if len(copies) > 1 or first.get("prototype") is not None:
+            over.CreateAttribute("hirad:lightmap:copies", Sdf.ValueTypeNames.Int, True).Set(len(copies))
+            continue
+        over.CreateAttribute("hirad:lightmap:page", Sdf.ValueTypeNames.Int, True).Set(int(first["page"]))
+        over.CreateAttribute("hirad:lightmap:file", Sdf.ValueTypeNames.Asset, True).Set(
+            Sdf.AssetPath("./" + first["file"]))
+        over.CreateAttribute("hirad:lightmap:scaleOffset", Sdf.ValueTypeNames.Float4, True).Set(
+            Gf.Vec4f(*(float(v) for v in first["scale_offset"])))
+
+
 def _solution_parent(input_path: Path, hidden: set[str]) -> tuple[str | None, np.ndarray | None]:
     """The input's defaultPrim path the solution can sit under, and the matrix taking world
     coordinates (stage units, row vectors) into that prim's frame (None when it is the
@@ -283,8 +320,13 @@ def write_solution_layer(
     scene: SceneArrays,
     patch_meshes: Sequence[PatchMeshData],
     metadata: dict | None = None,
+    view: str = "solution",
 ) -> Path:
-    """Write the solution layer atomically to ``output_path``; the input file is never modified."""
+    """Write the solution layer atomically to ``output_path``; the input file is never modified.
+    `view` "solution" hides the input's meshes and shows the solved ones; "source" leaves the
+    input's meshes visible and hides the solved scope (kept for hirad's own read-back)."""
+    if view not in ("solution", "source"):
+        raise ValueError(f"view must be 'solution' or 'source', not {view!r}")
     input_path = Path(input_path)
     output_path = Path(output_path)
     if output_path.resolve() == input_path.resolve():
@@ -306,6 +348,8 @@ def write_solution_layer(
 
     hidden: set[str] = set()
     for info in scene.meshes:
+        if view == "source":  # the input shows as it is, lights included
+            break
         if info.hide_path in hidden or not info.hide_path:
             continue
         hidden.add(info.hide_path)
@@ -328,6 +372,8 @@ def write_solution_layer(
         layer.defaultPrim = Sdf.Path(parent).name
     scope = UsdGeom.Scope.Define(stage, root)
     Usd.ColorSpaceAPI.Apply(scope.GetPrim()).CreateColorSpaceNameAttr(COLOR_SPACE)
+    if view == "source":
+        scope.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
     used: set[str] = {_LOOKS_NAME}
     for pm in patch_meshes:
         info = scene.meshes[pm.mesh_index]
@@ -337,6 +383,8 @@ def write_solution_layer(
             k += 1
         used.add(name)
         _author_patch_mesh(stage, root.AppendChild(name), pm, info, mpu, world_to_parent)
+
+    _author_source_lightmaps(stage, patch_meshes)
 
     md = {"hirad:metersPerUnit": mpu, "hirad:input": sub, "hirad:solutionRoot": str(root),
           "hirad:colorSpace": f"{COLOR_SPACE}: linear Rec.709 primaries, D65, scene referred; every colour "

@@ -1,0 +1,308 @@
+"""Lightmaps on the artist's meshes (issue 14): every input mesh gets a lightmap UV set of its own,
+written as primvars:st1 (faceVarying, authored corner order) on the ORIGINAL prim in the output
+layer, with its page and Unity-order scaleOffset; the input file is never touched.
+
+Everything here is read back from the outputs (solution.usda composed over the input, the page
+EXRs, the manifest) and checked against the bake's own final gather evaluated at 3D points that
+the test finds itself from st1: a texel's value must be the light at the surface point the
+artist's mesh puts at that texel.
+
+The scene: a room-sized floor of two quads whose texture set `st` maps both quads onto the same
+square (overlapping: never usable as lightmap UVs), a box with a pentagon face (fans of n-gons),
+a left-handed mesh (reversed corner order), a wall carrying its own `st1` (kept as authored), and
+an emitter overhead."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("xatlas")
+from hirad_e2e_helpers import add_material, add_mesh, new_stage, write_config  # noqa: E402
+from pxr import Sdf, Usd, UsdGeom  # noqa: E402
+
+from hirad.bake import bake  # noqa: E402
+
+TPM = 24.0
+
+
+def _tex2():
+    return Sdf.ValueTypeNames.TexCoord2fArray
+
+
+def build_scene(path: Path) -> Path:
+    stage = new_stage(path)
+    grey = add_material(stage, "/World/Looks/grey", (0.6, 0.6, 0.6))
+    red = add_material(stage, "/World/Looks/red", (0.6, 0.2, 0.2))
+    lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
+    # floor: two quads, facing +Y; `st` maps both onto the unit square (they overlap)
+    f = np.array([[-1.5, 0, -1.5], [-1.5, 0, 1.5], [0, 0, 1.5], [0, 0, -1.5], [1.5, 0, 1.5], [1.5, 0, -1.5]], float)
+    floor = add_mesh(stage, "/World/floor", f, [4, 4], [0, 1, 2, 3, 3, 2, 4, 5], grey)
+    st = UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", _tex2(), UsdGeom.Tokens.faceVarying)
+    st.Set([(0, 0), (0, 1), (1, 1), (1, 0)] * 2)
+    # box 0.6 m, its top a pentagon (one corner cut off the top square: a 5-gon and a triangle)
+    c, h = np.array([0.6, 0.0, 0.4]), 0.3
+    p = [c + [x * h, (y + 1) * h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    p += [c + [h, 2 * h, 0.0], c + [0.0, 2 * h, h]]  # 8, 9: on the top's edges at the +x+z corner
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [0, 2, 6, 4], [1, 5, 7, 3],  # -x, +x, -y, -z, +z
+             [2, 3, 9, 8, 6], [9, 7, 8]]  # top: pentagon + corner triangle (both +y)
+    fixed = []
+    for q in faces:
+        a, b, cc = (np.asarray(p[i]) for i in q[:3])
+        n = np.cross(b - a, cc - a)
+        if np.dot(n, np.asarray(p)[q].mean(axis=0) - (c + [0, h, 0])) < 0:
+            q = q[::-1]
+        fixed.append(q)
+    add_mesh(stage, "/World/box", p, [len(q) for q in fixed], [k for q in fixed for k in q], red)
+    # a left-handed plinth (corners authored clockwise: USD flips them)
+    lh = np.array([[-0.9, 0, -0.3], [-0.3, 0, -0.3], [-0.3, 0.2, -0.3], [-0.9, 0.2, -0.3]], float)
+    # corners 0, 3, 2, 1 wind clockwise seen from +z; left-handed, the face looks towards +z
+    m = add_mesh(stage, "/World/plinth", lh, [4], [0, 3, 2, 1], grey)
+    m.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
+    # back wall with its own lightmap UVs (st1), kept as authored
+    w = np.array([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 2.0, -1.5], [-1.5, 2.0, -1.5]], float)
+    wall = add_mesh(stage, "/World/wall", w, [4], [0, 1, 2, 3], grey)
+    st1 = UsdGeom.PrimvarsAPI(wall).CreatePrimvar("st1", _tex2(), UsdGeom.Tokens.faceVarying)
+    st1.Set([(0.1, 0.1), (0.9, 0.1), (0.9, 0.7), (0.1, 0.7)])
+    # emitter overhead, facing down
+    e = np.array([[-0.4, 2.2, -0.4], [0.4, 2.2, -0.4], [0.4, 2.2, 0.4], [-0.4, 2.2, 0.4]])
+    add_mesh(stage, "/World/lamp", e, [4], [0, 1, 2, 3], lamp)
+    stage.GetRootLayer().Save()
+    return path
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    root = tmp_path_factory.mktemp("source_lightmaps")
+    scene = build_scene(root / "scene.usda")
+    before = hashlib.sha256(scene.read_bytes()).hexdigest()
+    cfg = write_config(root / "bake.yaml", scene, root / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-4, "min_area": 0.005, "samples": 8, "max_rounds": 4},
+                       solver={"method": "jacobi", "tolerance": 1e-4},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {"texels_per_metre": TPM, "padding": 2, "max_size": 512,
+                                              "supersample": 2, "mode": "final_gather", "gather_rays": 16,
+                                              "uv_primvars": ["st1", "st"]}})
+    result = bake(cfg)
+    return root, scene, before, result, root / "out"
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        ch = f.channels()
+        if "RGB" in ch:
+            return np.asarray(ch["RGB"].pixels, dtype=np.float64)
+        return np.stack([np.asarray(ch[c].pixels, dtype=np.float64) for c in "RGB"], axis=-1)
+
+
+def _nearest_texel(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    h, w = image.shape[:2]
+    x = np.clip(np.floor(uv[:, 0] * w).astype(int), 0, w - 1)
+    y = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(int), 0, h - 1)
+    return image[y, x]
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    h, w = image.shape[:2]
+    x = np.clip(uv[:, 0] * w - 0.5, 0, w - 1)
+    y = np.clip((1.0 - uv[:, 1]) * h - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return ((image[y0, x0] * (1 - fx) + image[y0, x1] * fx) * (1 - fy)
+            + (image[y1, x0] * (1 - fx) + image[y1, x1] * fx) * fy)
+
+
+def _originals(out: Path) -> dict:
+    """Per original mesh prim of the composed output: world points, authored faces, st1, page file and
+    scaleOffset, all as a game-engine importer would read them."""
+    stage = Usd.Stage.Open(str(out / "solution.usda"))
+    xfc = UsdGeom.XformCache()
+    found = {}
+    for name in ("floor", "box", "plinth", "wall", "lamp"):
+        prim = stage.GetPrimAtPath(f"/World/{name}")
+        mesh = UsdGeom.Mesh(prim)
+        m = np.array(xfc.GetLocalToWorldTransform(prim), dtype=np.float64)
+        pts = np.array(mesh.GetPointsAttr().Get(), dtype=np.float64)
+        pts = pts @ m[:3, :3] + m[3, :3]
+        counts = np.array(mesh.GetFaceVertexCountsAttr().Get())
+        idx = np.array(mesh.GetFaceVertexIndicesAttr().Get())
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st1")
+        entry = {"points": pts, "counts": counts, "indices": idx, "prim": prim, "stage": stage,
+                 "left": mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded}
+        if pv and pv.HasAuthoredValue():
+            entry.update(st1=np.array(pv.Get(), dtype=np.float64), interp=pv.GetInterpolation(),
+                         type=str(pv.GetTypeName()), page=prim.GetAttribute("hirad:lightmap:page").Get(),
+                         file=prim.GetAttribute("hirad:lightmap:file").Get(),
+                         so=np.array(prim.GetAttribute("hirad:lightmap:scaleOffset").Get(), dtype=np.float64))
+        found[name] = entry
+    return found
+
+
+def _corner_points(entry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fan triangles of the authored faces: (3D corners (T,3,3), page UVs (T,3,2), normal (T,3)) with
+    the normal the side the mesh shows (orientation honoured)."""
+    counts, idx, pts = entry["counts"], entry["indices"], entry["points"]
+    uv = entry["st1"] * entry["so"][:2] + entry["so"][2:]
+    tris_p, tris_uv, normals = [], [], []
+    s = 0
+    for c in counts:
+        for k in range(1, c - 1):
+            slots = [s, s + k, s + k + 1]
+            tp = pts[idx[slots]]
+            n = np.cross(tp[1] - tp[0], tp[2] - tp[0])
+            n = -n if entry["left"] else n
+            tris_p.append(tp)
+            tris_uv.append(uv[slots])
+            normals.append(n / np.linalg.norm(n))
+        s += c
+    return np.array(tris_p), np.array(tris_uv), np.array(normals)
+
+
+def test_st1_is_written_on_the_original_prims_and_the_input_is_untouched(baked):
+    root, scene, before, result, out = baked
+    assert hashlib.sha256(scene.read_bytes()).hexdigest() == before
+    orig = _originals(out)
+    src = Usd.Stage.Open(str(scene))
+    for name, e in orig.items():
+        if name == "lamp":
+            continue  # an emitter: baked too, checked below with the others' manifest entries
+        assert "st1" in e, f"{name}: no st1 on the original prim"
+        assert e["interp"] == UsdGeom.Tokens.faceVarying and e["type"] == "texCoord2f[]"
+        assert len(e["st1"]) == len(e["indices"]), name
+        assert (e["st1"] >= -1e-6).all() and (e["st1"] <= 1 + 1e-6).all(), name
+        assert (out / e["file"].path).is_file(), e["file"]
+        # the original geometry, texture UVs and orientation compose unchanged
+        sp = UsdGeom.Mesh(src.GetPrimAtPath(f"/World/{name}"))
+        assert np.array_equal(np.array(sp.GetFaceVertexIndicesAttr().Get()), e["indices"])
+        assert np.array_equal(np.array(sp.GetPointsAttr().Get()),
+                              np.array(UsdGeom.Mesh(e["prim"]).GetPointsAttr().Get()))
+    st = UsdGeom.PrimvarsAPI(orig["floor"]["prim"]).GetPrimvar("st")
+    assert np.array_equal(np.array(st.Get()), np.array([(0, 0), (0, 1), (1, 1), (1, 0)] * 2, dtype=np.float32))
+    # the layer adds only st1, the lightmap attributes and (already before) visibility to them
+    layer = Sdf.Layer.FindOrOpen(str(out / "solution.usda"))
+    for name in ("floor", "box", "plinth", "wall"):
+        spec = layer.GetPrimAtPath(f"/World/{name}")
+        assert spec.specifier == Sdf.SpecifierOver
+        added = set(spec.properties.keys())
+        assert added <= {"primvars:st1", "hirad:lightmap:page", "hirad:lightmap:file",
+                         "hirad:lightmap:scaleOffset", "visibility"}, added
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    assert manifest["version"] == 2 and manifest["uvSet"] == "st1"
+    by_prim = {i["prim"]: i for i in manifest["instances"]}
+    for name in ("floor", "box", "plinth", "wall"):
+        i = by_prim[f"/World/{name}"]
+        assert i["page"] == orig[name]["page"]
+        assert np.allclose(i["scaleOffset"], orig[name]["so"], rtol=1e-6, atol=1e-7)
+
+
+def test_texture_set_that_overlaps_is_charted_and_an_authored_st1_is_kept(baked):
+    root, scene, before, result, out = baked
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    by_prim = {i["prim"]: i for i in manifest["instances"]}
+    # st is listed in uv_primvars for this bake, but both floor quads map onto one square
+    assert by_prim["/World/floor"]["uvSource"] == "generated"
+    assert any("floor" in w for w in manifest["warnings"]), manifest["warnings"]
+    assert by_prim["/World/wall"]["uvSource"] == "existing"
+    wall = _originals(out)["wall"]
+    assert np.allclose(wall["st1"], [(0.1, 0.1), (0.9, 0.1), (0.9, 0.7), (0.1, 0.7)], atol=1e-6)
+
+
+def test_texels_at_chart_centres_match_the_final_gather(baked):
+    """Through st1 and scaleOffset, as an engine reads them: the texel under each triangle's
+    centroid holds the light the final gather finds at that texel's centre on the surface."""
+    root, scene, before, result, out = baked
+    orig = _originals(out)
+    rel_errors = []
+    for name in ("floor", "box", "plinth", "wall"):
+        e = orig[name]
+        page = _read_exr(out / e["file"].path)
+        h, w = page.shape[:2]
+        tp, tuv, tn = _corner_points(e)
+        cuv = tuv.mean(axis=1)
+        # the texel containing the centroid, and its centre mapped back onto the triangle
+        tx = np.floor(cuv[:, 0] * w) + 0.5
+        ty = np.floor(cuv[:, 1] * h) + 0.5
+        centre_uv = np.stack([tx / w, ty / h], axis=1)
+        a, b, c = tuv[:, 0], tuv[:, 1], tuv[:, 2]
+        m = np.stack([b - a, c - a], axis=2)  # (T, 2, 2)
+        lam = np.linalg.solve(m, (centre_uv - a)[..., None])[..., 0]
+        inside = (lam >= 0.05).all(axis=1) & (lam.sum(axis=1) <= 0.95)
+        x = tp[:, 0] + lam[:, :1] * (tp[:, 1] - tp[:, 0]) + lam[:, 1:] * (tp[:, 2] - tp[:, 0])
+        x, n, cu = x[inside], tn[inside], centre_uv[inside]
+        assert len(x) >= 1, name
+        g = result.gather(x + 1e-4 * n, n, rays=256, seed=7)
+        expect = g["irradiance"] / math.pi
+        got = _nearest_texel(page, cu)
+        lum = np.array([0.2126, 0.7152, 0.0722])
+        dark = expect @ lum <= 0  # faces lying on the floor: nothing reaches them
+        assert (got[dark] @ lum == 0).all(), f"{name}: light in texels of unlit faces"
+        rel = np.abs(got[~dark] @ lum - expect[~dark] @ lum) / (expect[~dark] @ lum)
+        rel_errors.extend(rel.tolist())
+    rel_errors = np.array(rel_errors)
+    assert len(rel_errors) >= 12
+    assert rel_errors.max() < 0.02, f"texel vs gather: max {rel_errors.max():.4f}, mean {rel_errors.mean():.4f}"
+
+
+def test_seams_agree_and_no_texel_is_black(baked):
+    """Where two charts meet along one 3D edge, both sides read the same light (< 2 %), and no
+    texel anywhere on a page is black (the page is dilated outward over all its empty texels)."""
+    root, scene, before, result, out = baked
+    orig = _originals(out)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    diffs = []
+    for name in ("box",):
+        e = orig[name]
+        page = _read_exr(out / e["file"].path)
+        counts, idx = e["counts"], e["indices"]
+        uv = e["st1"] * e["so"][:2] + e["so"][2:]
+        edges: dict = {}
+        s = 0
+        for c in counts:
+            for k in range(c):
+                i, j = idx[s + k], idx[s + (k + 1) % c]
+                key = (min(i, j), max(i, j))
+                ui, uj = uv[s + k], uv[s + (k + 1) % c]
+                edges.setdefault(key, []).append((ui, uj) if i < j else (uj, ui))
+            s += c
+        for key, sides in edges.items():
+            if len(sides) != 2 or np.allclose(sides[0][0], sides[1][0]) and np.allclose(sides[0][1], sides[1][1]):
+                continue
+            t = np.linspace(0.2, 0.8, 5)[:, None]
+            va = _bilinear(page, sides[0][0] + t * (sides[0][1] - sides[0][0])) @ lum
+            vb = _bilinear(page, sides[1][0] + t * (sides[1][1] - sides[1][0])) @ lum
+            diffs.extend((np.abs(va - vb) / np.maximum(0.5 * (va + vb), 1e-12)).tolist())
+    assert len(diffs) >= 10, "the box should have UV seams"
+    assert max(diffs) < 0.02, f"seam difference max {max(diffs):.4f}"
+    for f in sorted((out / "lightmaps" / "pages").glob("page*.exr")):
+        image = _read_exr(f)
+        assert (image.max(axis=-1) > 0).all(), f"{f.name}: {(image.max(axis=-1) <= 0).sum()} black texels"
+
+
+def test_source_view_shows_the_input_meshes_and_keeps_the_solution_for_hirad(tmp_path):
+    """outputs.usd_view: source: the input's meshes stay visible (their materials, their st1), the
+    solved meshes are a hidden scope that hirad itself still reads back."""
+    from hirad import usd as hirad_usd
+
+    scene = build_scene(tmp_path / "scene.usda")
+    cfg = write_config(tmp_path / "bake.yaml", scene, tmp_path / "out",
+                       meshing={"max_patch_area": 0.1, "max_edge_length": 0.5},
+                       outputs={"preview": {"enabled": False}, "usd_view": "source",
+                                "lightmaps": {"texels_per_metre": 8.0, "mode": "interpolate"}})
+    bake(cfg)
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "solution.usda"))
+    for name in ("floor", "box", "plinth", "wall", "lamp"):
+        prim = stage.GetPrimAtPath(f"/World/{name}")
+        assert UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.inherited, name
+        assert UsdGeom.PrimvarsAPI(prim).GetPrimvar("st1").HasAuthoredValue(), name
+    solution = stage.GetPrimAtPath("/World/HiradSolution")
+    assert UsdGeom.Imageable(solution).ComputeVisibility() == UsdGeom.Tokens.invisible
+    data = hirad_usd.read_solution_layer(tmp_path / "out" / "solution.usda")
+    assert {m.source_path for m in data.meshes} >= {f"/World/{n}" for n in ("floor", "box", "plinth", "wall")}
