@@ -14,5 +14,6 @@ __version__ = "0.1.0"
 
 
 from .bake import BakeError, Result, SurfaceSolution, bake, load_solution  # noqa: E402
+from .outputs.probes import read_probes  # noqa: E402
 
-__all__ = ["bake", "load_solution", "Result", "SurfaceSolution", "BakeError", "__version__"]
+__all__ = ["bake", "load_solution", "Result", "SurfaceSolution", "BakeError", "read_probes", "__version__"]
