@@ -306,3 +306,80 @@ def test_source_view_shows_the_input_meshes_and_keeps_the_solution_for_hirad(tmp
     assert UsdGeom.Imageable(solution).ComputeVisibility() == UsdGeom.Tokens.invisible
     data = hirad_usd.read_solution_layer(tmp_path / "out" / "solution.usda")
     assert {m.source_path for m in data.meshes} >= {f"/World/{n}" for n in ("floor", "box", "plinth", "wall")}
+
+
+def _instanced_scene(path: Path) -> Path:
+    """A floor, a lamp, and a PointInstancer with two copies of one cube prototype: one under the
+    lamp, one off in a corner (a different light on each)."""
+    stage = new_stage(path)
+    grey = add_material(stage, "/World/Looks/grey", (0.5, 0.5, 0.5))
+    lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
+    f = np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], float)
+    add_mesh(stage, "/World/floor", f, [4], [0, 1, 2, 3], grey)
+    e = np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]])
+    add_mesh(stage, "/World/lamp", e, [4], [0, 1, 2, 3], lamp)
+    inst = UsdGeom.PointInstancer.Define(stage, "/World/crates")
+    h = 0.2
+    p = [[x * h, y * h + h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    fixed = []
+    for q in quads:
+        a, b, c = (np.asarray(p[i]) for i in q[:3])
+        if np.dot(np.cross(b - a, c - a), np.asarray(p)[q].mean(axis=0) - [0, h, 0]) < 0:
+            q = q[::-1]
+        fixed.append(q)
+    add_mesh(stage, "/World/crates/Prototypes/crate", p, [4] * 6, [k for q in fixed for k in q], grey)
+    inst.CreatePrototypesRel().SetTargets(["/World/crates/Prototypes/crate"])
+    inst.CreateProtoIndicesAttr([0, 0])
+    inst.CreatePositionsAttr([(0.0, 0.0, 0.0), (1.6, 0.0, 1.6)])
+    stage.GetRootLayer().Save()
+    return path
+
+
+def test_instances_share_one_uv_set_and_get_their_own_rectangles(tmp_path):
+    scene = _instanced_scene(tmp_path / "scene.usda")
+    cfg = write_config(tmp_path / "bake.yaml", scene, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-4, "min_area": 0.005, "samples": 8, "max_rounds": 4},
+                       solver={"method": "jacobi", "tolerance": 1e-4},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {"texels_per_metre": 32.0, "padding": 2, "max_size": 512,
+                                              "mode": "final_gather", "gather_rays": 16}})
+    result = bake(cfg)
+    out = tmp_path / "out"
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    copies = [i for i in manifest["instances"] if i["mesh"] == "/World/crates/Prototypes/crate"]
+    assert len(copies) == 2 and copies[0]["prim"] != copies[1]["prim"]
+    # distinct, non-overlapping rectangles on their pages
+    (a, b) = copies
+    ra = np.array(a["scaleOffset"])
+    rb = np.array(b["scaleOffset"])
+    assert not np.allclose(ra, rb)
+    if a["page"] == b["page"]:
+        apart_x = ra[2] + ra[0] <= rb[2] + 1e-9 or rb[2] + rb[0] <= ra[2] + 1e-9
+        apart_y = ra[3] + ra[1] <= rb[3] + 1e-9 or rb[3] + rb[1] <= ra[3] + 1e-9
+        assert apart_x or apart_y, (ra, rb)
+    # one UV set, on the prototype mesh
+    stage = Usd.Stage.Open(str(out / "solution.usda"))
+    proto = stage.GetPrimAtPath("/World/crates/Prototypes/crate")
+    st1 = np.array(UsdGeom.PrimvarsAPI(proto).GetPrimvar("st1").Get(), dtype=np.float64)
+    idx = np.array(UsdGeom.Mesh(proto).GetFaceVertexIndicesAttr().Get())
+    pts = np.array(UsdGeom.Mesh(proto).GetPointsAttr().Get(), dtype=np.float64)
+    assert len(st1) == len(idx) and (st1 >= 0).all() and (st1 <= 1).all()
+    # the top face (+y) of each copy, through its own rectangle: different light, each right
+    offsets = np.array([(0.0, 0.0, 0.0), (1.6, 0.0, 1.6)])
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    got, expect = [], []
+    for copy, off in zip(copies, offsets):
+        k = int(copy["prim"].split("instance_")[1].split("/")[0])
+        page = _read_exr(out / "lightmaps" / copy["file"])
+        so = np.array(copy["scaleOffset"])
+        face = next(f for f in range(6) if np.allclose(pts[idx[4 * f:4 * f + 4], 1], 2 * 0.2))
+        corners = slice(4 * face, 4 * face + 4)
+        uv = st1[corners].mean(axis=0) * so[:2] + so[2:]
+        x = pts[idx[corners]].mean(axis=0) + offsets[k]
+        g = result.gather((x + [0, 1e-4, 0])[None], np.array([[0.0, 1.0, 0.0]]), rays=256, seed=3)
+        got.append(float(_bilinear(page, uv[None])[0] @ lum))
+        expect.append(float(g["irradiance"][0] @ lum / math.pi))
+    got, expect = np.array(got), np.array(expect)
+    assert expect[0] > 1.5 * expect[1]  # the lamp is right above the first copy
+    assert np.all(np.abs(got - expect) / expect < 0.02), (got, expect)
