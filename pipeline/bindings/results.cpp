@@ -189,7 +189,19 @@ void bind_results(nb::module_& m) {
     nb::class_<PointValues>(m, "PointValues", "Values at query points on the surfaces.")
         .def_prop_ro("patch", arr(&PointValues::patch), kOwned, "(n) the patch of each point (-1: none within reach).")
         .def_prop_ro("irradiance", rgb(&PointValues::irradiance), kOwned, "(n, 3) W/m^2.")
-        .def_prop_ro("radiance", rgb(&PointValues::radiance), kOwned, "(n, 3) exitant, W/(m^2 sr).");
+        .def_prop_ro("radiance", rgb(&PointValues::radiance), kOwned, "(n, 3) exitant, W/(m^2 sr).")
+        .def_prop_ro("l0", rgb(&PointValues::l0), kOwned,
+                     "(n, 3) with GatherOptions(directional=True), else (0, 3): integral of the arriving radiance "
+                     "over the hemisphere, W/m^2 per channel.")
+        .def_prop_ro("l1", [](const PointValues& v) {
+            std::vector<double> flat(v.l1.size() * 9);
+            for (size_t q = 0; q < v.l1.size(); ++q)
+                for (int c = 0; c < 3; ++c)
+                    for (int a = 0; a < 3; ++a) flat[9 * q + 3 * c + a] = v.l1[q][a][c];
+            return to_numpy(std::move(flat), {v.l1.size(), 3, 3});
+        }, kOwned, "(n, 3, 3) [q, channel, axis] with GatherOptions(directional=True), else (0, 3, 3): integral of "
+                   "the arriving radiance times the unit direction w (world axes), W/m^2; normal . l1 = irradiance (a little "
+                   "above it where a partly visible source straddles the point's horizon: gather.h).");
 
     nb::class_<ReferenceResult>(m, "ReferenceResult", "The Monte Carlo reference at points.")
         .def_prop_ro("radiance", rgb(&ReferenceResult::radiance), kOwned, "(n, 3) exitant, W/(m^2 sr).")

@@ -897,6 +897,43 @@ std::vector<float> Engine::direct_transmittance(const std::vector<Vec3>& points,
     return out;
 }
 
+namespace {
+
+// The luminaires' part of the gather's directional moments (gather.h): every luminaire point
+// (or distant direction) is a delta of radiance, so its irradiance dE at x arrives from one
+// direction d with cos = n . d > 0, and carries dE / cos of radiance times solid angle:
+// l0 += dE / cos, l1 += dE / cos d. Each point's dE comes from luminaire_irradiance itself on
+// a copy of the light holding that point alone (its weight kept), so shadow rays, glazing
+// transmittance, tints and the intensity table are the irradiance's own; the sum of the
+// copies' dE is the irradiance's luminaire term. Costs the luminaires' rays a second time.
+void add_luminaire_moments(const std::vector<Luminaire>& lums, const Visibility& vis, const std::vector<Vec3>& x,
+                           const std::vector<Vec3>& n, double lift, std::vector<RadianceMoments>& mo) {
+    std::vector<RGB> d(x.size());
+    std::vector<Luminaire> one(1);
+    for (const Luminaire& l : lums)
+        for (size_t p = 0; p < l.points.size(); ++p) {
+            if (!(l.weights[p] > 0)) continue;
+            Luminaire& c = one[0];
+            c = l;
+            c.points.assign(1, l.points[p]);
+            c.weights.assign(1, l.weights[p]);
+            c.interleave = false;  // one direction: nothing to share out
+            if (!l.tints.empty()) c.tints.assign(1, l.tints[p]);
+            luminaire_irradiance(one, &vis, x.data(), n.data(), x.size(), d.data(), lift);
+            for (size_t k = 0; k < x.size(); ++k) {
+                if (d[k].x == 0 && d[k].y == 0 && d[k].z == 0) continue;
+                const Vec3 dir = l.distant ? l.points[p] : normalize(l.points[p] - x[k]);
+                const double cosine = dot(n[k], dir);
+                if (!(cosine > 1e-12)) continue;  // luminaire_irradiance drops cos <= 0: dE is 0 there
+                const RGB radiance_sa = d[k] / cosine;
+                mo[k].l0 += radiance_sa;
+                for (int a = 0; a < 3; ++a) mo[k].l1[a] += radiance_sa * dir[a];
+            }
+        }
+}
+
+}  // namespace
+
 PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const GatherOptions& options, double max_distance, int group) {
     if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
@@ -931,14 +968,25 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     }
     Gatherer g(solved_->hierarchy, solved_->links, radiosity, *solved_->visibility, options);
     std::vector<RGB> e(leaf.size());
-    g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data());
+    std::vector<RadianceMoments> mo(options.directional ? leaf.size() : 0);
+    g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data(), options.directional ? mo.data() : nullptr);
     if (!lums.empty()) {
         std::vector<Vec3> ln(leaf.size());
         for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.nodes[leaf[k]].shape.normal;
         std::vector<RGB> d(x.size());
-        luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(),
-                             1e-5 * solved_->visibility->scene_size());
+        const double lift = 1e-5 * solved_->visibility->scene_size();
+        luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(), lift);
         for (size_t k = 0; k < leaf.size(); ++k) e[k] += d[k];
+        if (options.directional)
+            add_luminaire_moments(lums, *solved_->visibility, x, ln, lift, mo);
+    }
+    if (options.directional) {
+        out.l0.assign(n, RGB{});
+        out.l1.assign(n, std::array<RGB, 3>{});
+        for (size_t k = 0; k < leaf.size(); ++k) {
+            out.l0[slot[k]] = mo[k].l0;
+            out.l1[slot[k]] = mo[k].l1;
+        }
     }
     for (size_t k = 0; k < leaf.size(); ++k) {
         const Patch& s = solved_->hierarchy.nodes[leaf[k]].shape;

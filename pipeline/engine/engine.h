@@ -252,6 +252,13 @@ struct PointValues {
     std::vector<int32_t> patch;       // the patch each point went to (-1: none within reach)
     std::vector<RGB> irradiance;      // W/m^2 (0 where patch is -1)
     std::vector<RGB> radiance;        // exitant, W/(m^2 sr)
+    // With GatherOptions::directional (gather only; empty otherwise): the moments of the
+    // radiance arriving over each point's hemisphere (gather.h), surfaces and luminaires:
+    // l0 = integral L dw and l1[a] = integral L w_a dw (world axis a), W/m^2 per channel;
+    // n . l1 = irradiance (but see gather.h on sources straddling the horizon). Zero where
+    // patch is -1.
+    std::vector<RGB> l0;
+    std::vector<std::array<RGB, 3>> l1;
 };
 
 struct ReferenceResult {

@@ -9,6 +9,65 @@
 
 namespace hirad {
 
+namespace {
+
+// The part of the polygon strictly above the plane through x with normal n (as the form
+// factor clips it, so that n . w1 = pi F to rounding).
+int clip_to_hemisphere(const Vec3& x, const Vec3& n, const Vec3* in, int count, Vec3* out) {
+    int m = 0;
+    for (int k = 0; k < count; ++k) {
+        const Vec3& a = in[k];
+        const Vec3& b = in[(k + 1) % count];
+        const double da = dot(a - x, n), db = dot(b - x, n);
+        if (da > 0) out[m++] = a;
+        if ((da > 0) != (db > 0)) out[m++] = a + (b - a) * (da / (da - db));
+    }
+    return m;
+}
+
+// b Omega / pi and b W / pi added to the moments: the radiance L = b / pi over the solid angle.
+void add_moments(RadianceMoments& mo, const RGB& b, const SolidAngleMoments& g) {
+    const RGB radiance = b / kPi;
+    mo.l0 += radiance * g.omega;
+    for (int a = 0; a < 3; ++a) mo.l1[a] += radiance * g.w1[a];
+}
+
+}  // namespace
+
+SolidAngleMoments polygon_solid_angle_moments(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
+                                              const Vec3& poly_normal) {
+    SolidAngleMoments out;
+    if (dot(x - poly[0], poly_normal) <= 0) return out;  // behind the emitting side
+    Vec3 clipped[8];
+    const int m = clip_to_hemisphere(x, n, poly, nv, clipped);
+    if (m < 3) return out;
+    Vec3 dir[8];
+    for (int k = 0; k < m; ++k) {
+        const double l = length(clipped[k] - x);
+        if (!(l > 0)) return out;  // x on a corner: no direction (the form factor is 0 there too)
+        dir[k] = (clipped[k] - x) / l;
+    }
+    // Solid angle: the clipped polygon is convex (a convex patch cut by a plane), so its fan
+    // from corner 0 covers it once; each spherical triangle by Van Oosterom and Strackee.
+    for (int k = 1; k + 1 < m; ++k) {
+        const Vec3 &a = dir[0], &b = dir[k], &c = dir[k + 1];
+        const double num = std::abs(dot(a, cross(b, c)));
+        const double den = 1 + dot(a, b) + dot(b, c) + dot(c, a);
+        out.omega += 2 * std::atan2(num, den);
+    }
+    // First moment: Stokes' theorem on the sphere, 1/2 sum gamma_k u_k over the edges.
+    Vec3 v;
+    for (int k = 0; k < m; ++k) {
+        const Vec3 a = clipped[k] - x, b = clipped[(k + 1) % m] - x;
+        const Vec3 c = cross(a, b);
+        const double lc = length(c);
+        if (lc <= 0) continue;
+        v += c * (std::atan2(lc, dot(a, b)) / lc);
+    }
+    out.w1 = v * (dot(n, v) >= 0 ? 0.5 : -0.5);
+    return out;
+}
+
 Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, const std::vector<RGB>& radiosity,
                    const Visibility& visibility, const GatherOptions& options)
     : h_(hierarchy), links_(links), radiosity_(radiosity), vis_(visibility), opt_(options) {
@@ -20,7 +79,7 @@ Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, c
         if (links_[k].receiver < links_[k - 1].receiver) throw std::invalid_argument("gather: links must be sorted by receiver");
 }
 
-RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng) const {
+RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     // F(x -> S) exactly, times the mean of V(x, y) B(y) over stratified points y of S, B(y)
     // from the leaf below S that holds y: where S is partly hidden from x and its radiosity
     // uneven (the floor under a block), the mean B_S times the visible fraction would count
@@ -40,7 +99,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
             for (uint32_t c = 0; c < node.child_count; ++c) {
                 Link child = link;
                 child.source = node.first_child + c;
-                sum += element_transfer(child, x, n, rng);
+                sum += element_transfer(child, x, n, rng, mo);
             }
             return sum;
         }
@@ -51,7 +110,12 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     // A link all of whose estimate rays arrived is taken as unoccluded: refinement already
     // split the links whose visibility varies and that carry enough power to matter.
     const bool trace = link.visibility < 1.0f;
-    if (!trace && node.leaf()) return radiosity_[link.source] * f;
+    SolidAngleMoments geo;
+    if (mo) geo = polygon_solid_angle_moments(x, n, s.p.data(), s.nv, s.normal);
+    if (!trace && node.leaf()) {
+        if (mo) add_moments(*mo, radiosity_[link.source], geo);
+        return radiosity_[link.source] * f;
+    }
     const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(opt_.rays))))));
     const int m = g * g;
     const double lift = 1e-5 * vis_.scene_size();
@@ -69,10 +133,25 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     RGB sum;
     for (int k = 0; k < m; ++k)
         if (seen[k]) sum += b[k];
+    if (mo) {
+        // b = mean V B over the points of S above x's horizon only: the moments integrate the
+        // clipped polygon, and a point below the horizon is not part of it (its ray passes
+        // under x's own surface, so it mostly counts as blocked). The irradiance keeps its mean
+        // over all m points, bit for bit; where S straddles the horizon and is partly occluded
+        // the two differ (then n . l1 exceeds E a little, see gather.h).
+        RGB above_sum;
+        int above = 0;
+        for (int k = 0; k < m; ++k)
+            if (dot(to[k] - x, n) > 0) {
+                ++above;
+                if (seen[k]) above_sum += b[k];
+            }
+        add_moments(*mo, above > 0 && above < m ? above_sum / above : sum / m, geo);
+    }
     return sum * (f / m);
 }
 
-RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng) const {
+RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     // Faces drawn with probability A_f / A_S (stratified), each seen through its exact
     // form factor, with the radiosity of the leaf at a point y drawn on it and the visibility
     // of y: sum_f F(x -> f) B_f ~ E[F(x -> f) B(y) V(x, y) A_S / A_f]. The cluster's mean
@@ -83,7 +162,8 @@ RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     const double lo = h_.area_prefix[c.face_begin], hi = h_.area_prefix[c.face_end];
     const double lift = 1e-5 * vis_.scene_size();
     Vec3 from[16], to[16];
-    RGB f[16];
+    RGB f[16], wb[16];
+    SolidAngleMoments geo[16];
     int used = 0;
     RGB sum;
     for (int k = 0; k < m; ++k) {
@@ -97,6 +177,10 @@ RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         const double s0 = rng.uniform(), t0 = rng.uniform();
         if (fk <= 0 || face.area <= 0) continue;
         f[used] = radiosity_[h_.leaf_at(h_.face_node[face_index], s0, t0)] * (fk * c.area / face.area);
+        if (mo) {  // the face's moments with the same weight B A_S / (A_f m) as its irradiance
+            wb[used] = radiosity_[h_.leaf_at(h_.face_node[face_index], s0, t0)] * (c.area / face.area / m);
+            geo[used] = polygon_solid_angle_moments(x, n, face.p.data(), face.nv, face.normal);
+        }
         from[used] = x + n * lift;
         to[used] = face.point(s0, t0) + face.normal * lift;
         ++used;
@@ -106,10 +190,13 @@ RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     vis_.segments_visible(from, to, used, seen);
     for (int k = 0; k < used; ++k)
         if (seen[k]) sum += f[k];
+    if (mo)
+        for (int k = 0; k < used; ++k)
+            if (seen[k]) add_moments(*mo, wb[k], geo[k]);
     return sum / m;
 }
 
-RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key) const {
+RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments* mo) const {
     const Patch& shape = h_.nodes[leaf].shape;
     const Vec3 n = shape.normal;
     // On the leaf's plane, whatever small offset the query point had.
@@ -119,16 +206,20 @@ RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key) const {
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const Link& l = links_[k];
-            h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng) : element_transfer(l, x, n, rng);
+            h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
         }
     return h;
 }
 
-void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {
+void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out,
+                          RadianceMoments* moments) const {
     for (size_t k = 0; k < count; ++k)
         if (leaf[k] >= h_.nodes.size() || h_.nodes[leaf[k]].cluster)
             throw std::invalid_argument("gather: a query point's element is not an element of the hierarchy");
-    tbb::parallel_for(size_t(0), count, [&](size_t k) { out[k] = at(leaf[k], x[k], key[k]); });
+    tbb::parallel_for(size_t(0), count, [&](size_t k) {
+        if (moments) moments[k] = RadianceMoments{};
+        out[k] = at(leaf[k], x[k], key[k], moments ? moments + k : nullptr);
+    });
 }
 
 void Gatherer::radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {

@@ -337,7 +337,7 @@ class OutOfCoreOptions:
 class GatherOptions:
     """The final gather at points after a hierarchical solve."""
 
-    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1) -> None: ...
+    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1, directional: bool = False) -> None: ...
 
     @property
     def rays(self) -> int:
@@ -359,6 +359,15 @@ class GatherOptions:
 
     @seed.setter
     def seed(self, arg: int, /) -> None: ...
+
+    @property
+    def directional(self) -> bool:
+        """
+        Also PointValues.l0 and l1, the moments of the arriving radiance (the irradiance is unchanged).
+        """
+
+    @directional.setter
+    def directional(self, arg: bool, /) -> None: ...
 
 class ReferenceOptions:
     """The Monte Carlo path-traced reference."""
@@ -857,6 +866,18 @@ class PointValues:
     @property
     def radiance(self) -> NDArray[numpy.float64]:
         """(n, 3) exitant, W/(m^2 sr)."""
+
+    @property
+    def l0(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3) with GatherOptions(directional=True), else (0, 3): integral of the arriving radiance over the hemisphere, W/m^2 per channel.
+        """
+
+    @property
+    def l1(self) -> NDArray[numpy.float64]:
+        """
+        (n, 3, 3) [q, channel, axis] with GatherOptions(directional=True), else (0, 3, 3): integral of the arriving radiance times the unit direction w (world axes), W/m^2; normal . l1 = irradiance (a little above it where a partly visible source straddles the point's horizon: gather.h).
+        """
 
 class ReferenceResult:
     """The Monte Carlo reference at points."""
