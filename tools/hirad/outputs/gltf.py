@@ -83,10 +83,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import BakeError
+
 GLB_NAME = "scene.glb"
 
 
-class GltfExportError(Exception):
+class GltfExportError(BakeError):
     """The export cannot go on: the message names the file, the prim and the problem."""
 
 
@@ -144,7 +146,7 @@ class _Material:
     base_texture: Path | None = None
     opacity: float = 1.0
     metallic: float = 0.0
-    roughness: float = 0.5
+    roughness: float = 0.5    # UsdPreviewSurface's default
     emissive: np.ndarray = field(default_factory=lambda: np.zeros(3))
     diffuse_only: bool = False
 
@@ -218,8 +220,6 @@ def _read_material(prim, stage_dir: Path, cache: dict, warn) -> _Material:
             warn(f"{key}: a {name} texture is not converted (its factor is kept at the default)")
         elif v is not None:
             setattr(m, attr, float(v))
-    if "roughness" not in [i.GetBaseName() for i in shader.GetInputs() if i.Get() is not None]:
-        m.roughness = 0.5  # UsdPreviewSurface's default
     v, t = _shader_input(shader, "emissiveColor")
     if t is not None:
         warn(f"{key}: an emissiveColor texture is not converted")
@@ -642,10 +642,10 @@ def write_glb(out_dir: str | Path, *, solution: str = "solution.usda", name: str
         if p.uv0 is not None:
             attrs.TEXCOORD_0 = accessor(p.uv0, g.VEC2)
         if p.uv1 is not None:
-            if p.uv0 is None:
-                # TEXCOORD_1 needs a TEXCOORD_0 (sets are numbered without gaps): the lightmap set again
-                attrs.TEXCOORD_0 = accessor(p.uv1, g.VEC2)
             attrs.TEXCOORD_1 = accessor(p.uv1, g.VEC2)
+            if p.uv0 is None:
+                # sets are numbered without gaps (glTF 3.7.2.1): TEXCOORD_0 is the lightmap set too
+                attrs.TEXCOORD_0 = attrs.TEXCOORD_1
         prim = g.Primitive(attributes=attrs, indices=accessor(p.indices, g.SCALAR, target=g.ELEMENT_ARRAY_BUFFER),
                            material=material_index(p.material, p.lightmap), mode=g.TRIANGLES)
         gltf.meshes.append(g.Mesh(name=p.name, primitives=[prim]))
