@@ -71,7 +71,8 @@ probes.json: {"format": "hirad-probes", "version": 1, "units", "up_axis", "conve
 {...}, "count", "plain": {"positions": [[x, y, z], ...], "sh2": [[[r, g, b] x 9], ...]},
 "unity": {"positions", "coefficients": [[[9] x 3], ...]}, "godot": {"positions",
 "coefficients": [[[r, g, b] x 9], ...]}}. Values are the float32 numbers of probes.bin,
-each written as its exact decimal (float64 repr), so both files read back to the same bits.
+written with 9 significant digits (enough for any float32), so both files read back to the
+same bits.
 
 probes.bin, little-endian throughout:
     offset  size  field
@@ -248,6 +249,17 @@ def _layouts(positions, sh2, up_axis):
             f32(pos @ engine_frame(up_axis, "godot").T), f32(to_godot(c, up_axis))]
 
 
+def _json_array(a: np.ndarray) -> str:
+    """A float32 array as nested JSON lists, each value with 9 significant digits (enough for
+    every float32 to read back exactly)."""
+    if not np.isfinite(a).all():
+        raise ValueError("probe values must be finite")
+    items = list(map("{:.9g}".format, a.ravel().tolist()))
+    for dim in reversed(a.shape[1:]):
+        items = ["[" + ",".join(items[i:i + dim]) + "]" for i in range(0, len(items), dim)]
+    return "[" + ",".join(items) + "]"
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
@@ -274,16 +286,20 @@ def write_probes(directory, positions, sh2, *, units: str, up_axis: str, spacing
                        len(payload), zlib.crc32(payload), 0)
     head = head[:60] + struct.pack("<I", zlib.crc32(head[:60]))
     _atomic_write(directory / "probes.bin", head + payload)
-    # JSON: each float32 as its exact float64 value (repr reads back to the same float32).
-    tolist = lambda a: a.astype(np.float64).tolist()  # noqa: E731
+    # JSON: each float32 with 9 significant digits, which reads back to the same float32.
+    arrays = {("plain", "positions"): blocks[0], ("plain", "sh2"): blocks[1], ("unity", "positions"): blocks[2],
+              ("unity", "coefficients"): blocks[3], ("godot", "positions"): blocks[4],
+              ("godot", "coefficients"): blocks[5]}
     doc = {"format": "hirad-probes", "version": VERSION, "units": units, "up_axis": up, "spacing": float(spacing),
-           "count": n, "conventions": CONVENTIONS,
-           "plain": {"positions": tolist(blocks[0]), "sh2": tolist(blocks[1])},
-           "unity": {"positions": tolist(blocks[2]), "coefficients": tolist(blocks[3])},
-           "godot": {"positions": tolist(blocks[4]), "coefficients": tolist(blocks[5])}}
+           "count": n, "conventions": CONVENTIONS}
     if extra:
         doc["metadata"] = extra
-    _atomic_write(directory / "probes.json", json.dumps(doc, separators=(",", ":")).encode())
+    for layout, key in arrays:
+        doc.setdefault(layout, {})[key] = f"@{layout}.{key}@"
+    text = json.dumps(doc, separators=(",", ":"))
+    for (layout, key), a in arrays.items():
+        text = text.replace(f'"@{layout}.{key}@"', _json_array(a), 1)
+    _atomic_write(directory / "probes.json", text.encode())
     return {"json": "probes.json", "binary": "probes.bin", "probes": n, "binary_bytes": len(head) + len(payload),
             "conventions": CONVENTIONS}
 
