@@ -36,8 +36,8 @@ radiance function are carried over by the same orthogonal matrix M (engine = M w
 the coefficients by the matching 9 x 9 block rotation (rotate_sh2):
   - Godot 4 (and glTF): right-handed, +Y up. A Y-up stage is taken as is; a Z-up stage turns
     by -90 degrees about X: (x, y, z) -> (x, z, -y).
-  - Unity: left-handed, +Y up: Godot's frame with X negated (x -> -x), the mirror that the glTF
-    importers for Unity (glTFast, UnityGLTF) apply. Positions in probes.json "unity" use it too.
+  - Unity: left-handed, +Y up: Godot's frame with X negated (x -> -x), the mirror that UnityGLTF
+    applies to glTF (SchemaExtensions.CoordinateSpaceConversionScale = (-1, 1, 1)). Positions in probes.json "unity" use it too.
 
 Engine layouts
 --------------
@@ -57,8 +57,8 @@ cancel against the R&H basis used here). So
 AddAmbientLight(colour) adding colour to coefficient 0 (uniform radiance colour -> E/pi =
 colour) is the same convention.
 
-Godot 4, LightmapGI probes (LightmapGIData "probe_data" SH, 9 Color per probe): per probe
-[9][rgb], the same order as R&H (l0, l1n1 y, l1n0 z, l1p1 x, l2n2 xy, l2n1 yz, l20, l2p1 xz,
+Godot 4, LightmapGI probes (LightmapGIData's probe_data["sh"], a PackedColorArray of 9 Colors
+per point of probe_data["points"], scene/3d/lightmap_gi.cpp): per probe [9][rgb], the same order as R&H (l0, l1n1 y, l1n0 z, l1p1 x, l2n2 xy, l2n1 yz, l20, l2p1 xz,
 l2p2). Godot's lightmapper (modules/lightmapper_rd, lm_compute.glsl MODE_LIGHT_PROBES)
 accumulates L Y_k over uniform sphere rays times 4 / N, i.e. c_k / pi, and its scene shader
 evaluates c[0] sh0 + c[1] (sh1 y + sh2 z + sh3 x) + c[2] (sh4 xy + sh5 yz + sh7 xz) +
@@ -139,7 +139,8 @@ CONVENTIONS = {
     "godot": "Godot 4 LightmapGI probe SH, 9 Color [k][rgb], same k order, value = c_k / pi (as Godot's "
              "lightmapper stores them; its shader's constants 0.886227, 1.023327, 0.858086, 0.247708, 0.429043 "
              "give E(n)/pi); Godot frame: right-handed, +Y up (as glTF)",
-    "frames": "a Y-up stage maps to Godot/glTF as is; a Z-up stage by (x, y, z) -> (x, z, -y); Unity then negates x",
+    "frames": "a Y-up stage maps to Godot/glTF as is; a Z-up stage by (x, y, z) -> (x, z, -y); Unity then negates x "
+              "(as UnityGLTF does); positions and coefficients of a layout are in that layout's frame",
 }
 
 
