@@ -51,7 +51,7 @@ def sphere_directions(n_side: int, seed: int) -> np.ndarray:
 
 def test_vdb_has_named_grids_and_metadata(cornell_volume):
     result, vdb = cornell_volume
-    assert set(vdb["grids"]) == {"irradiance", "direction", "sh1_x", "sh1_y", "sh1_z"}
+    assert set(vdb["grids"]) == {"irradiance", "direction", "sh1_x", "sh1_y", "sh1_z"} | {f"sh2_{k}" for k in range(9)}
     assert vdb["metadata"]["hirad:version"] == __version__
     assert float(vdb["metadata"]["hirad:spacing"]) == pytest.approx(SPACING)
     assert len(vdb["metadata"]["hirad:sceneFingerprint"]) == 64
