@@ -39,9 +39,13 @@ stitching), `files` (RGBM PNGs and the manifest).
 
 from .base import Atlas, Mesh, MeshLayout, TexelSamples
 from .charts import _isolated, build_atlas, chart_area_bound, uv_islands
-from .files import decode_rgbm, encode_rgbm, manifest_entry, read_rgbm_png, write_manifest, write_rgbm_png
+from .files import (ENCODINGS, decode, decode_rgbm, decode_unity_dldr, decode_unity_rgbm, encode, encode_rgbm,
+                    encode_unity_dldr, encode_unity_rgbm, manifest_entry, read_png, read_rgbm_png, write_manifest,
+                    write_png, write_rgbm_png)
 from .texels import bake_page, dilate, rasterize, resolve, sample_points, seam_pairs, stitch
 
 __all__ = ["Atlas", "Mesh", "MeshLayout", "TexelSamples", "build_atlas", "chart_area_bound", "uv_islands",
-           "decode_rgbm", "encode_rgbm", "manifest_entry", "read_rgbm_png", "write_manifest", "write_rgbm_png",
+           "ENCODINGS", "decode", "decode_rgbm", "decode_unity_dldr", "decode_unity_rgbm", "encode", "encode_rgbm",
+           "encode_unity_dldr", "encode_unity_rgbm", "manifest_entry", "read_png", "read_rgbm_png",
+           "write_manifest", "write_png", "write_rgbm_png",
            "bake_page", "dilate", "rasterize", "resolve", "sample_points", "seam_pairs", "stitch"]

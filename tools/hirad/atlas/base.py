@@ -24,6 +24,12 @@ _COVER_EPS = 1e-6  # texels: overlaps thinner than this count as touching only
 # out denser than asked), but to no more than _CHART_TRIANGLES[1] average triangles and to
 # no fewer than _CHART_TRIANGLES[0].
 _FREE_TRIANGLES = 4096
+# xatlas's ChartOptions.maxCost: how much a chart may cost (its normal deviation, roundness,
+# straightness and seam terms summed) before it stops growing; xatlas's default is 2. With 2
+# the Modern Hall's stepped seating (924 triangles of small planar faces) came out as 378
+# charts whose padding took a third of their footprint (63.7k texels, too many for a 256 page
+# at padding 2); with 4 they are N charts ... (see build_atlas's chart_cost).
+_CHART_COST = 2.0
 _CHART_TEXELS = 16
 _CHART_TRIANGLES = (512, 1024)
 
@@ -36,11 +42,17 @@ _CHART_TRIANGLES = (512, 1024)
 class MeshLayout:
     """Where one mesh went in the atlas.
 
-    `uvs` are final: per triangle corner, in [0, 1] of page `page`. `scale_offset` is
-    Unity's lightmapScaleOffset (scale.x, scale.y, offset.x, offset.y): page_uv =
-    mesh_uv * scale + offset. It is only meaningful when the mesh's own lightmap UVs were
-    kept as one layout (source "existing"); otherwise the UVs were re-laid out and it is
-    the identity (1, 1, 0, 0).
+    `uvs` are final: per triangle corner, in [0, 1] of page `page`. `local_uvs` are the
+    mesh's own lightmap UVs (the UV2 an engine stores on the mesh) and `scale_offset` is
+    Unity's lightmapScaleOffset (scale.x, scale.y, offset.x, offset.y) that maps them onto
+    the page: uvs = local_uvs * (sx, sy) + (ox, oy), exactly.
+
+    - A mesh whose charts were packed among everyone else's (source "generated" without a
+      prototype, "existing-repacked"): local_uvs = uvs and scale_offset = (1, 1, 0, 0).
+    - A mesh placed as one rectangle: an instance of a prototype (`prototype` set; local_uvs
+      are the prototype's layout in [0, 1]^2, shared bit for bit by every instance, and the
+      rectangle is the instance's own), or an authored layout kept as it is (source
+      "existing"; local_uvs are the author's UVs).
     """
 
     page: int
@@ -50,6 +62,8 @@ class MeshLayout:
     source: Literal["generated", "existing", "existing-repacked", "empty"]
     charts: np.ndarray  # (M,) int32 atlas-wide chart id; -1 for triangles with no area
     block: tuple[int, int, int, int]  # x, y (from the bottom), width, height in page texels
+    local_uvs: np.ndarray | None = None  # (M, 3, 2) float64, see above
+    prototype: object = None  # the prototype id given to build_atlas, None for a mesh of its own
 
 
 @dataclass

@@ -6,11 +6,11 @@ import math
 import os
 import pickle
 import signal
-from typing import Literal, Sequence
+from typing import Hashable, Literal, Sequence
 
 import numpy as np
-from .base import Atlas, Mesh, MeshLayout, _Block, _CHART_TEXELS, _CHART_TRIANGLES, _FREE_TRIANGLES, _NO_CHART, _areas2, _areas3, _density, _round_up
-from .pack import _island_gap, _pack_blocks, _pack_islands, _repack_islands
+from .base import Atlas, Mesh, MeshLayout, _Block, _CHART_COST, _CHART_TEXELS, _CHART_TRIANGLES, _FREE_TRIANGLES, _NO_CHART, _areas2, _areas3, _density, _round_up
+from .pack import _island_gap, _pack_islands, _pack_units, _repack_islands, _split_to_fit
 from .texels import _covered_texels
 
 
@@ -22,22 +22,40 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
                 existing_uvs: Sequence[np.ndarray | None] | None = None,
                 names: Sequence[str] | None = None,
                 existing_layout: Literal["keep", "repack"] = "keep",
-                shrink_pages: bool = True) -> Atlas:
-    """Lays every mesh out on pages of at most max_size x max_size texels.
+                shrink_pages: bool = True,
+                prototypes: Sequence[Hashable | None] | None = None,
+                chart_cost: float = _CHART_COST) -> Atlas:
+    """Lays every mesh out on square power-of-two pages of at most max_size texels a side.
 
-    A mesh without UVs gets charts from xatlas at `texels_per_metre`; a mesh with its own
-    lightmap UVs (per triangle corner, (M, 3, 2)) keeps them: its UV islands are scaled by
-    one factor so the mesh has the requested density (3D area over UV area), and either
-    stay where the author put them (`existing_layout="keep"`, then `scale_offset` maps the
-    mesh's UVs to the page, as Unity's lightmapScaleOffset) or are packed again one by one
-    by xatlas (`"repack"`, tighter, and scale/offset is the identity).
+    Charts: a mesh without UVs gets charts from xatlas at `texels_per_metre`; a mesh with
+    its own lightmap UVs (per triangle corner, (M, 3, 2)) keeps them, scaled by one factor
+    to the requested density (3D area over UV area), either where the author put them
+    (`existing_layout="keep"`: the layout is one rectangle on a page and `scale_offset` maps
+    the author's UVs to it, as Unity's lightmapScaleOffset) or island by island
+    (`"repack"`, tighter; scale/offset is the identity).
+
+    Instances: `prototypes` gives each mesh a hashable prototype id or None. Meshes with the
+    same id must have the same triangles (same order, corners and topology) in their own
+    space, their positions differing by a rigid motion and a uniform scale. They share ONE
+    local layout, charted once from the first member (at the density the smallest member
+    needs, so no member's charts are scaled down), and each member gets its own rectangle
+    on a page, scaled by its size relative to the smallest (side ratio
+    s_i / s_min, s_i = sqrt(area_i / area_first)), so every member has the requested
+    density. When the members' sizes differ, the shared layout is charted with one more
+    texel of padding on each side: scaling by s_i / s_min >= 1 moves charts off the texel
+    grid, and a chart's conservative coverage can then grow by one texel on either side
+    (see _instance_units).
+
+    Pages: every mesh's charts go onto pages together (xatlas's bitmap packer: it places
+    every chart in the first free spot of its rasterised footprint, dilated by the padding),
+    a mesh's charts all on one page (a renderer has one lightmap index). Page sizes are
+    powers of two chosen by `_pack_units` so every page but the last is nearly full and the
+    last is small; `shrink_pages=False` makes every page max_size.
 
     `padding` is the least number of empty texels between texels covered by different
     charts, and between different meshes; pages keep ceil(padding/2) texels at their
     borders so the rule also holds across a wrapping edge. Chart growth is bounded on large
     meshes (see _CHART_TEXELS: xatlas's cost is super-quadratic in the faces of one chart).
-    Pages are cropped to what they hold (a multiple of 4 texels) unless `shrink_pages` is
-    False.
     """
     if not texels_per_metre > 0:
         raise ValueError("texels_per_metre must be positive")
@@ -45,7 +63,8 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
         raise ValueError("padding must be a non-negative integer")
     padding = int(padding)
     margin = (padding + 1) // 2
-    limit = int(max_size) - 2 * margin
+    page_max = 1 << int(math.floor(math.log2(max(int(max_size), 1))))  # pages are powers of two
+    limit = page_max - 2 * margin
     if limit < 4:
         raise ValueError(f"max_size {max_size} leaves no room with padding {padding}")
     if existing_uvs is not None and len(existing_uvs) != len(meshes):
@@ -53,53 +72,181 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     names = [f"mesh_{i}" for i in range(len(meshes))] if names is None else list(names)
     if len(names) != len(meshes):
         raise ValueError("names needs one entry per mesh")
+    if prototypes is not None and len(prototypes) != len(meshes):
+        raise ValueError("prototypes needs one entry (an id or None) per mesh")
 
     geometry: list[Mesh] = [(np.asarray(p, dtype=np.float64).reshape(-1, 3),
                              np.asarray(t, dtype=np.int64).reshape(-1, 3)) for p, t in meshes]
-    # Every mesh's charts in one child process (see _isolated): one fork per atlas.
-    blocks, warnings = _isolated(_mesh_blocks, geometry, existing_uvs, names, texels_per_metre, padding, limit,
-                                 existing_layout, max_size)
-
-    placed, pages = _pack_blocks([(b.width, b.height) for b in blocks], int(max_size), padding, margin)
-    sizes = []
-    for k, members in enumerate(pages):
-        if shrink_pages:
-            used_w = max(placed[i][1] + blocks[i].width for i in members) + margin
-            used_h = max(placed[i][2] + blocks[i].height for i in members) + margin
-            sizes.append((min(int(max_size), _round_up(used_w, 4)), min(int(max_size), _round_up(used_h, 4))))
-        else:
-            sizes.append((int(max_size), int(max_size)))
-
-    layouts = []
-    chart_base = 0
-    for i, b in enumerate(blocks):
-        page, bx, by = placed[i]
-        if page < 0:
-            layouts.append(MeshLayout(-1, np.zeros((0, 3, 2)), (1.0, 1.0, 0.0, 0.0), 0.0, "empty",
-                                      np.zeros(0, np.int32), (0, 0, 0, 0)))
-            continue
-        w, h = sizes[page]
-        uvs = (b.uv + np.array([bx, by], float)) / np.array([w, h], float)
-        charts = np.where(b.charts >= 0, b.charts + chart_base, -1).astype(np.int32)
-        chart_base += int(b.charts.max()) + 1 if (b.charts >= 0).any() else 0
-        if b.layout is not None:
-            s, ox, oy = b.layout
-            so = (s / w, s / h, (bx + ox) / w, (by + oy) / h)
-        else:
-            so = (1.0, 1.0, 0.0, 0.0)
-        layouts.append(MeshLayout(page, uvs, so, b.density, b.source, charts, (bx, by, b.width, b.height)))
-
-    atlas = Atlas(sizes, layouts, [], float(texels_per_metre), padding, names, geometry, warnings)
-    for k in range(len(sizes)):
+    groups = _prototype_groups(geometry, prototypes, names)
+    warnings: list[str] = []
+    if page_max != int(max_size):
+        warnings.append(f"max_size {max_size} is not a power of two: pages are at most {page_max}")
+    # Charting and packing in one child process (see _isolated): one fork per atlas.
+    sizes, layouts, more = _isolated(_layout_all, geometry, existing_uvs, names, float(texels_per_metre),
+                                     padding, page_max, existing_layout, groups, bool(shrink_pages),
+                                     float(chart_cost))
+    warnings += more
+    for i, layout in enumerate(layouts):
+        layout.prototype = None if prototypes is None else prototypes[i]
+    atlas = Atlas([(s, s) for s in sizes], layouts, [], float(texels_per_metre), padding, names, geometry,
+                  warnings)
+    for k, s in enumerate(sizes):
         uv, mesh_of, _ = atlas.page_texel_uvs(k)
-        tri, lin = _covered_texels(uv, *sizes[k])
-        atlas.fill.append(len(np.unique(lin)) / float(sizes[k][0] * sizes[k][1]))
+        tri, lin = _covered_texels(uv, s, s)
+        atlas.fill.append(len(np.unique(lin)) / float(s * s))
         for mi in atlas.page_meshes(k):
             mine = mesh_of[tri] == mi
             problem = _overlap_check(uv[mesh_of == mi], layouts[mi].charts, len(np.unique(lin[mine])))
             if problem:
                 warnings.append(f"{names[mi]}: {problem}")
     return atlas
+
+
+def _prototype_groups(geometry, prototypes, names) -> list[tuple[list[int], list[float]]]:
+    """Members of each prototype (first member first) and their linear sizes relative to
+    the first member, s_i = sqrt(area_i / area_first); checks that the members share the
+    first member's triangles."""
+    if prototypes is None:
+        return []
+    order: dict = {}
+    for i, pid in enumerate(prototypes):
+        if pid is not None:
+            order.setdefault(pid, []).append(i)
+    groups = []
+    for pid, members in order.items():
+        first = members[0]
+        a0 = float(_areas3(*geometry[first]).sum())
+        scales = []
+        for i in members:
+            p, t = geometry[i]
+            if not np.array_equal(t, geometry[first][1]) or len(p) != len(geometry[first][0]):
+                raise ValueError(f"{names[i]}: prototype {pid!r} member has triangles other than "
+                                 f"its first member {names[first]}'s")
+            a = float(_areas3(p, t).sum())
+            scales.append(math.sqrt(a / a0) if a0 > 0 else 1.0)
+        groups.append((members, scales))
+    return groups
+
+
+def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_max, existing_layout, groups,
+                shrink_pages, chart_cost=None):
+    """Every mesh's charts, then all of them onto pages: (page sizes, MeshLayouts, warnings).
+    Run through _isolated: xatlas is called here."""
+    margin = (padding + 1) // 2
+    limit = page_max - 2 * margin
+    member_of = {i: (g, k) for g, (members, _) in enumerate(groups) for k, i in enumerate(members)}
+    blocks, warnings = _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit,
+                                    existing_layout, page_max, member_of, groups, chart_cost)
+    units, owners = [], []  # owners: (mesh, kind, data)
+    for i, b in enumerate(blocks):
+        if b is None or b.width == 0:
+            continue
+        if i in member_of:
+            continue
+        if b.source == "generated":
+            tris = [np.nonzero(b.charts == c)[0] for c in np.unique(b.charts[b.charts >= 0])]
+            tris = _split_to_fit(b.uv, tris, padding, margin)
+            units.append(([b.uv[t] for t in tris], False))
+            owners.append((i, "free", tris))
+        else:  # an authored layout, kept or repacked: one rectangle
+            units.append(([_proxy(b.uv[b.charts >= 0] if (b.charts >= 0).any() else b.uv)], True))
+            owners.append((i, "rect", 1.0))
+    for g, (members, scales) in enumerate(groups):
+        b = blocks[members[0]]
+        if b is None or b.width == 0:
+            continue
+        s_min = min(scales)
+        for i, s in zip(members, scales):
+            k = s / s_min
+            lo, ext = _content_box(b)
+            if float((ext * k).max()) > limit - 1:  # the member alone is larger than a page
+                k = (limit - 1) / float(ext.max()) * (1 - 1e-6)
+                warnings.append(f"{names[i]}: scaled down to fit one {page_max} page")
+            units.append(([_proxy(None, ext * k)], True))
+            owners.append((i, "instance", k))
+
+    sizes, unit_page, unit_uv = _pack_units(units, page_max, padding, margin)
+    if not shrink_pages:
+        sizes = [page_max] * len(sizes)  # same placements; charts keep their texel positions
+
+    layouts: list[MeshLayout | None] = [None] * len(geometry)
+    chart_base = 0
+    for u, (i, kind, data) in enumerate(owners):
+        page, size = unit_page[u], sizes[unit_page[u]]
+        b = blocks[i] if kind != "instance" else blocks[groups[member_of[i][0]][0][0]]
+        uv_texels = np.full_like(b.uv, 0.5 + margin)  # triangles without charts: no area
+        chart_ids = b.charts
+        if kind == "free":
+            chart_ids = np.full(len(b.charts), -1, np.int32)  # a cut chart's pieces are charts
+            for c, (t, placed) in enumerate(zip(data, unit_uv[u])):
+                uv_texels[t] = placed
+                chart_ids[t] = c
+            local, so = None, (1.0, 1.0, 0.0, 0.0)
+        else:
+            lo, ext = _content_box(b)
+            corner = unit_uv[u][0].reshape(-1, 2).min(axis=0)
+            origin = np.floor(corner) + 0.5  # xatlas puts the box's corner on a texel centre
+            if np.abs(corner - origin).max() > 1e-2:
+                raise RuntimeError(f"xatlas placed a rectangle off the texel centres ({corner})")
+            if kind == "instance":
+                k = float(data)
+                unit_ext = np.where(ext > 0, ext, 1.0)
+                local = np.where(ext > 0, (b.uv - lo) / unit_ext, 0.0)
+                scale = unit_ext * k
+                uv_texels = local * scale + origin
+                so = (scale[0] / size, scale[1] / size, origin[0] / size, origin[1] / size)
+            elif b.layout is not None:  # kept authored layout: block uv = uv * s + o
+                s, ox, oy = b.layout
+                local = np.asarray(existing_uvs[i], dtype=np.float64)
+                shift = origin - lo
+                uv_texels = local * s + np.array([ox, oy]) + shift
+                so = (s / size, s / size, (ox + shift[0]) / size, (oy + shift[1]) / size)
+            else:  # repacked authored islands: moved as one block
+                uv_texels = b.uv - lo + origin
+                local, so = None, (1.0, 1.0, 0.0, 0.0)
+            uv_texels = np.where((b.charts >= 0)[:, None, None], uv_texels, 0.5 + margin)
+        uvs = uv_texels / float(size)
+        if local is None:
+            local = uvs
+        else:
+            uvs = local * np.array(so[:2]) + np.array(so[2:])  # exactly what the engine computes
+            uvs = np.where((b.charts >= 0)[:, None, None], uvs, (0.5 + margin) / size)
+        charts = np.where(chart_ids >= 0, chart_ids + chart_base, -1).astype(np.int32)
+        chart_base += int(chart_ids.max()) + 1 if (chart_ids >= 0).any() else 0
+        ok = b.charts >= 0
+        if ok.any():
+            lo_t = np.floor(uv_texels[ok].reshape(-1, 2).min(axis=0)).astype(int)
+            hi_t = np.ceil(uv_texels[ok].reshape(-1, 2).max(axis=0)).astype(int)
+            block = (int(lo_t[0]), int(lo_t[1]), int(hi_t[0] - lo_t[0]), int(hi_t[1] - lo_t[1]))
+        else:
+            block = (0, 0, 0, 0)
+        p, t = geometry[i]
+        area3 = _areas3(p, t)
+        density = _density(uvs[ok] * size, area3[ok]) if ok.any() else 0.0
+        layouts[i] = MeshLayout(page, uvs, so, density, b.source, charts, block, local)
+    for i in range(len(geometry)):
+        if layouts[i] is None:
+            layouts[i] = MeshLayout(-1, np.zeros((0, 3, 2)), (1.0, 1.0, 0.0, 0.0), 0.0, "empty",
+                                    np.zeros(0, np.int32), (0, 0, 0, 0), np.zeros((0, 3, 2)))
+    return sizes, layouts, warnings
+
+
+def _content_box(b: _Block) -> tuple[np.ndarray, np.ndarray]:
+    """Lower corner and extent (texels) of a block's charted triangles."""
+    ok = b.charts >= 0
+    pts = (b.uv[ok] if ok.any() else b.uv).reshape(-1, 2)
+    lo = pts.min(axis=0)
+    return lo, pts.max(axis=0) - lo
+
+
+def _proxy(uv: np.ndarray | None, ext: np.ndarray | None = None) -> np.ndarray:
+    """A rectangle as two triangles (texel units) covering the bounding box of `uv`, or of
+    [0, ext]: what the page packer sees of a layout that must move as one piece."""
+    if ext is None:
+        pts = uv.reshape(-1, 2)
+        ext = pts.max(axis=0) - pts.min(axis=0)
+    w, h = max(float(ext[0]), 1e-3), max(float(ext[1]), 1e-3)
+    return np.array([[[0, 0], [w, 0], [w, h]], [[0, 0], [w, h], [0, h]]], float)
 
 
 def _overlap_check(uv: np.ndarray, charts: np.ndarray, covered: int) -> str | None:
@@ -132,25 +279,37 @@ def chart_area_bound(area: np.ndarray, texels_per_metre: float) -> float:
     return float(np.clip(target, mean * _CHART_TRIANGLES[0], mean * _CHART_TRIANGLES[1]))
 
 
-def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size):
-    """Each mesh's block of charts, and the warnings. Run through _isolated: xatlas is called
-    here."""
-    blocks: list[_Block] = []
+def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
+                 member_of=None, groups=(), chart_cost=None):
+    """Each mesh's block of charts, and the warnings; None for a prototype's members after
+    the first (they share its layout). Run through _isolated: xatlas is called here."""
+    member_of = member_of or {}
+    blocks: list[_Block | None] = []
     warnings: list[str] = []
     for i, (p, t) in enumerate(geometry):
         uv = None if existing_uvs is None else existing_uvs[i]
+        density, pad = texels_per_metre, padding
+        if i in member_of:
+            g, k = member_of[i]
+            if k > 0:
+                blocks.append(None)
+                continue
+            scales = groups[g][1]
+            density = texels_per_metre * min(scales)  # the first member's size is 1
+            if max(scales) > min(scales) * (1 + 1e-9):
+                pad = padding + 2  # one texel more each side, see build_atlas
         if len(t) == 0:
             blocks.append(_Block(0, 0, np.zeros((0, 3, 2)), np.zeros(0, np.int32), 0.0, "empty"))
             continue
         block = None
         if uv is not None:
-            block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), texels_per_metre, padding,
+            block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), density, pad,
                                     limit, existing_layout, names[i], warnings)
         if block is None:
-            block = _generated_block(p, t, texels_per_metre, padding, limit, names[i], warnings)
+            block = _generated_block(p, t, density, pad, limit, names[i], warnings, chart_cost)
         if block.scaled:
             warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
-                            f"(asked {texels_per_metre:g}) to fit one {max_size} page")
+                            f"(asked {density:g}) to fit one {max_size} page")
         blocks.append(block)
     return blocks, warnings
 
@@ -230,7 +389,7 @@ def _attempt(fn, args, limit):
     return True, value
 
 
-def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding):
+def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding, max_cost=None):
     """xatlas charts and packs one mesh: (width, height, vertex map, indices, uv, chart of
     each output vertex)."""
     import xatlas
@@ -240,6 +399,7 @@ def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density
     co = xatlas.ChartOptions()
     co.max_chart_area = max_chart_area
     co.max_boundary_length = max_boundary_length
+    co.max_cost = _CHART_COST if max_cost is None else float(max_cost)
     po = xatlas.PackOptions()
     po.texels_per_unit = density
     po.padding = padding
@@ -253,7 +413,7 @@ def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density
 
 
 def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padding: int, limit: int,
-                     name: str, warnings: list[str]) -> _Block:
+                     name: str, warnings: list[str], chart_cost: float | None = None) -> _Block:
     """xatlas charts and packs the mesh into a block of its own at the given density; if the
     block is larger than a page, the density is lowered and it is done again."""
     area3 = _areas3(p, t)
@@ -275,7 +435,7 @@ def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padd
         # length, so a chart's extent (at most half its perimeter) fits a page.
         w, h, vmap, idx, uv, chart_of_vertex = _xatlas_chart(
             centred, faces, chart_area_bound(area3, density),
-            float(2.0 * 0.95 * (limit - 2) / density), float(density), int(pack_padding))
+            float(2.0 * 0.95 * (limit - 2) / density), float(density), int(pack_padding), chart_cost)
         if max(w, h) <= limit:
             break
         density *= (limit - 1) / max(w, h) * 0.99

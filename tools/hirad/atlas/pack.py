@@ -114,37 +114,6 @@ def _island_gap(local, islands, w, h, padding) -> int | None:
     return None
 
 
-def _pack_blocks(sizes: list[tuple[int, int]], max_size: int, padding: int, margin: int):
-    """Puts the mesh blocks on pages: bottom-left skyline packing, tallest first, each block
-    on the first page where it fits. Blocks are separated by `padding` texels and keep
-    `margin` from the page borders; positions are integers, so the texel phase of every
-    chart in a block is kept."""
-    cap = max_size - 2 * margin + padding  # each footprint carries its trailing padding
-    order = sorted(range(len(sizes)), key=lambda i: (-sizes[i][1], -sizes[i][0], i))
-    skylines: list[np.ndarray] = []
-    pages: list[list[int]] = []
-    placed: list[tuple[int, int, int]] = [(-1, 0, 0)] * len(sizes)
-    for i in order:
-        w, h = sizes[i]
-        if w == 0 or h == 0:
-            continue
-        fw, fh = w + padding, h + padding
-        if fw > cap or fh > cap:
-            raise ValueError(f"block {w}x{h} cannot fit a {max_size} page")
-        for k, sky in enumerate(skylines):
-            spot = _skyline_fit(sky, fw, fh, cap)
-            if spot is not None:
-                break
-        else:
-            skylines.append(np.zeros(cap, np.int64))
-            pages.append([])
-            k, spot = len(skylines) - 1, _skyline_fit(skylines[-1], fw, fh, cap)
-        x, y = spot
-        placed[i] = (k, margin + x, margin + y)
-        pages[k].append(i)
-    return placed, pages
-
-
 def _skyline_fit(sky: np.ndarray, fw: int, fh: int, cap: int):
     """Lowest (then leftmost) position of a fw x fh footprint on a column-height skyline."""
     rest = np.lib.stride_tricks.sliding_window_view(sky, fw).max(axis=1)
@@ -155,3 +124,249 @@ def _skyline_fit(sky: np.ndarray, fw: int, fh: int, cap: int):
     y = int(rest[x])
     sky[x:x + fw] = y + fh
     return x, y
+
+
+# ----------------------------------------------------------------------------------------
+# Pages: every island of every mesh packed together by xatlas
+
+
+def _snap_islands(islands: list[np.ndarray]) -> list[np.ndarray]:
+    """Each island moved to the origin with extents that xatlas keeps.
+
+    xatlas's packer rounds every chart's extents up to whole texels (ceil) and stretches the
+    chart to them. Our islands already have whole-texel extents up to float noise (xatlas
+    made them, or we did), and ceil(5.0001) = 6 would stretch a chart by a texel; so an
+    extent within 1e-3 texel of an integer is snapped to it and shrunk by one part in 1e6,
+    which xatlas's ceil and stretch turn back into exactly that integer."""
+    out = []
+    for uv in islands:
+        lo = uv.reshape(-1, 2).min(axis=0)
+        ext = uv.reshape(-1, 2).max(axis=0) - lo
+        near = np.rint(ext)
+        target = np.where((np.abs(ext - near) < 1e-3) & (near >= 1), near, ext)
+        scale = np.where(ext > 0, target / np.where(ext > 0, ext, 1.0), 1.0) * (1 - 1e-6)
+        out.append((uv - lo) * scale)
+    return out
+
+
+def _pot_ceil(n: float) -> int:
+    return 1 << max(0, math.ceil(math.log2(max(float(n), 1.0))))
+
+
+def _pot_floor(n: float) -> int:
+    return 1 << max(0, math.floor(math.log2(max(float(n), 1.0))))
+
+
+# Share of a full page that xatlas's packer fills with footprints (covered texels dilated by
+# its padding, see _footprint). Only used to choose page sizes; what fits is always decided
+# by packing.
+_UTILISATION = 0.9
+_MIN_PAGE = 16
+_FULL = 0.98  # footprints a page is offered, over its area inside the margin
+_GROW_TRIES = 6  # units tried in a settled page's holes
+
+
+def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, padding: int, margin: int):
+    """Packs units onto square power-of-two pages of at most max_page texels.
+
+    A unit is (islands, rigid): a mesh's charts (texel units, v up), which xatlas may place
+    apart from one another but only all on one page (an engine gives a renderer one
+    lightmap index), or, rigid, a rectangle given as one island (an instance's or an
+    authored layout's bounding box) that is only translated.
+
+    xatlas's packer places charts, largest first, each at a free spot of its rasterised
+    footprint dilated by the padding, and opens a new page when a chart fits nowhere; left
+    to itself it spreads a mesh's small charts over every page. So the units are put on
+    pages by us and each page is packed by xatlas alone: a page's size S is the power of two
+    at or below sqrt(remaining footprint / _UTILISATION) (rounded down, so the page
+    overflows and fills up), at least what the largest remaining unit needs; units join it,
+    largest first, while their footprints (_footprint) stay within _FULL of the page; if
+    xatlas spills charts over, the smallest spilled units leave for a later page, until one
+    page holds them. Every page but the last few is nearly full; the last are small.
+    Charts keep ceil(padding/2) texels from the page edges (`margin`), so the padding also
+    holds across a wrapping edge.
+
+    Returns (page size per page, per unit its page, per unit its islands' uv in page
+    texels)."""
+    pp = (padding + 1) // 2
+    snapped = [_snap_islands(isl) for isl, _ in units]
+    feet = [np.array([_footprint(u, pp) for u in isl], float) for isl in snapped]
+    foot = np.array([float(f.sum()) for f in feet])
+    ext = [np.array([u.reshape(-1, 2).max(axis=0) for u in isl]) if isl else np.zeros((0, 2)) for isl in snapped]
+    for e in ext:
+        if len(e) and float(e.max()) > max_page - 2 * margin - 1:
+            raise ValueError(f"a chart of {float(e.max()):.0f} texels cannot fit a {max_page} page")
+    need = np.array([max(_MIN_PAGE, _pot_ceil(float(e.max()) + 2 + 2 * margin) if len(e) else 1,
+                         _pot_ceil(math.sqrt(f / _UTILISATION) + 2 * margin)) for e, f in zip(ext, foot)])
+    need = np.minimum(need, max_page)
+    sizes: list[int] = []
+    unit_page = [-1] * len(units)
+    unit_uv: list[list[np.ndarray] | None] = [None] * len(units)
+    remaining = sorted((i for i in range(len(units)) if len(snapped[i])), key=lambda i: (-need[i], -foot[i], i))
+    while remaining:
+        remaining.sort(key=lambda i: (-need[i], -foot[i], i))
+        total = float(foot[remaining].sum())
+        size = int(min(max_page, max(_pot_floor(math.sqrt(total / _UTILISATION) + 2 * margin),
+                                     int(need[remaining[0]]))))
+        room = (size - 2 * margin) ** 2 * _FULL
+        members, used = [], 0.0
+        for i in remaining:
+            if need[i] <= size and (not members or used + foot[i] <= room):
+                members.append(i)
+                used += foot[i]
+        fits = False
+        while True:  # smallest spilled unit out, one at a time, until one page holds them
+            pages, uvs = _xatlas_pack_pages([snapped[i] for i in members], [units[i][1] for i in members],
+                                            size - 2 * margin, pp)
+            fits = all(max(p) == 0 for p in pages)
+            if fits or len(members) == 1:
+                break
+            spilled = [(foot[i], -i, i) for k, i in enumerate(members) if max(pages[k]) != 0 and k > 0]
+            drop = min(spilled)[2] if spilled else members[-1]  # the first spilled: a companion less
+            members = [i for i in members if i != drop]
+        if not fits:  # the first unit alone needs a larger page
+            if size >= max_page:
+                raise ValueError(f"a mesh's charts do not fit one {max_page} page")
+            need[members[0]] = 2 * size
+            continue
+        left = room - float(foot[members].sum())
+        tries = 0
+        for i in sorted((i for i in remaining if i not in set(members)), key=lambda i: (-foot[i], i)):
+            if tries >= _GROW_TRIES:
+                break
+            if need[i] > size or foot[i] > left:
+                continue
+            tries += 1  # a unit more in the holes, if xatlas finds room
+            more = members + [i]
+            p2, u2 = _xatlas_pack_pages([snapped[j] for j in more], [units[j][1] for j in more],
+                                        size - 2 * margin, pp)
+            if all(max(p) == 0 for p in p2):
+                members, pages, uvs, left = more, p2, u2, left - foot[i]
+        for k, i in enumerate(members):
+            unit_page[i] = len(sizes)
+            unit_uv[i] = [u + margin for u in uvs[k]]
+        sizes.append(size)
+        done = set(members)
+        remaining = [i for i in remaining if i not in done]
+    return sizes, unit_page, unit_uv
+
+
+def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: int) -> list[np.ndarray]:
+    """A mesh's charts (triangle sets `tris` of block uv `uv`, texel units) cut where one
+    chart alone would need a larger page than the whole mesh's footprint does.
+
+    A page holds a mesh whole, so a long chart (a 21 m wall at 16 texels/m is 341 texels)
+    forces a page of the next power of two (512) even when the mesh's texels fill a quarter
+    of it; the page then stays mostly empty or holds everything else at low fill. Any set of
+    a chart's triangles, moved rigidly, is a valid island, so such a chart is halved across
+    its longer side, by triangle centroids, until every piece fits half the page the
+    footprint asks for ((S - 2 margin) / 2 - 2 texels, S = _pot_ceil(sqrt(footprint /
+    _UTILISATION))): pieces of up to a whole page's width could still not share it (two
+    170 x 160 pieces do not fit a 254 x 254 square). The cuts are new seams (stitched like
+    xatlas's); a single triangle is never cut."""
+    pp = (padding + 1) // 2
+    if not tris:
+        return tris
+    foot = sum(_footprint(_snap_islands([uv[t]])[0], pp) for t in tris)
+    size = max(_MIN_PAGE, _pot_ceil(math.sqrt(foot / _UTILISATION) + 2 * margin))
+    longest = max(float(np.ptp(uv[t].reshape(-1, 2), axis=0).max()) for t in tris)
+    if _pot_ceil(longest + 2 + 2 * margin) <= size:  # no chart asks for more than the mesh
+        return tris
+    cap = (size - 2 * margin) // 2 - 2
+    from .charts import uv_islands
+
+    out = []
+    for chart in tris:
+        pieces, work = [], [chart]
+        while work:
+            t = work.pop()
+            pts = uv[t].reshape(-1, 2)
+            ext = np.ptp(pts, axis=0)
+            if float(ext.max()) <= cap:
+                pieces.append(t)
+                continue
+            if len(t) == 1:  # a triangle longer than the cap: the chart stays whole
+                pieces = None
+                break
+            axis = int(np.argmax(ext))
+            centre = uv[t].mean(axis=1)[:, axis]
+            low = centre < pts[:, axis].min() + 0.5 * float(ext[axis])
+            if low.all() or not low.any():
+                order = np.argsort(centre, kind="stable")
+                low = np.zeros(len(t), bool)
+                low[order[:len(t) // 2]] = True
+            work += [t[~low], t[low]]
+        if pieces is None or len(pieces) == 1:
+            out.append(chart)
+            continue
+        for t in pieces:  # xatlas would pack the UV-disconnected parts of a piece apart
+            part = uv_islands(uv[t])
+            out += [t[part == k] for k in range(int(part.max()) + 1)]
+    return sorted(out, key=lambda t: int(t[0]))
+
+
+def _footprint(uv: np.ndarray, pp: int) -> int:
+    """Texels an island takes in xatlas's packer: its covered texels (bounding box starting
+    at a texel centre, as xatlas places it) dilated by pp texels over the 8 neighbours, as
+    xatlas dilates its chart images; the dilated images of two charts never overlap."""
+    from scipy.ndimage import binary_dilation
+
+    ext = uv.reshape(-1, 2).max(axis=0)
+    w, h = (np.ceil(ext).astype(int) + 1 + 2 * pp).tolist()
+    _, lin = _covered_texels(uv + 0.5 + pp, w, h)
+    mask = np.zeros(w * h, bool)
+    mask[lin] = True
+    if pp > 0:
+        mask = binary_dilation(mask.reshape(h, w), np.ones((3, 3), bool), iterations=pp)
+    return int(mask.sum())
+
+
+def _xatlas_pack_pages(units: list[list[np.ndarray]], rigid: list[bool], resolution: int, padding: int):
+    """One xatlas pack of every island of the units (texel units, each at the origin) onto
+    pages of resolution^2 texels: (per unit its islands' pages, per unit its islands' uv in
+    page texels). Charts turn by 90 degrees (xatlas swaps u and v) unless a rigid unit is
+    in the pack: a rectangle's scale/offset cannot express the swap."""
+    import xatlas
+
+    islands = [u for unit in units for u in unit]
+    tri_island = np.concatenate([np.full(len(u), k, np.int64) for k, u in enumerate(islands)])
+    corners = np.concatenate(islands).reshape(-1, 2)
+    # One vertex per (corner uv, island); the island as material keeps islands apart.
+    keys = np.concatenate([corners, np.repeat(tri_island, 3)[:, None].astype(np.float64)], axis=1)
+    verts, inverse = np.unique(keys, axis=0, return_inverse=True)
+    a = xatlas.Atlas()
+    a.add_uv_mesh(verts[:, :2].astype(np.float32), inverse.reshape(-1, 3).astype(np.uint32),
+                  tri_island.astype(np.uint32).reshape(-1, 1))
+    po = xatlas.PackOptions()
+    po.texels_per_unit = 1.0
+    po.padding = int(padding)
+    po.resolution = int(resolution)
+    po.blockAlign = False
+    po.bilinear = False
+    po.rotate_charts = not any(rigid)
+    po.rotate_charts_to_axis = False
+    po.bruteForce = True  # every position tried: a page filled to 0.9 packs where random tries fail
+    a.generate(xatlas.ChartOptions(), po)
+    _, idx, uv = a[0]
+    page_of_vertex, _ = a.get_mesh_vertex_assignment(0)
+    idx = idx.astype(np.int64)
+    if idx.shape != (len(tri_island), 3):
+        raise RuntimeError("xatlas's packer dropped or reordered triangles")
+    w, h = int(a.width), int(a.height)
+    if (w, h) != (resolution, resolution):
+        raise RuntimeError(f"xatlas made {w}x{h} pages for {resolution}")
+    uvt = uv.astype(np.float64)[idx] * float(resolution)
+    page = page_of_vertex.astype(np.int64)[idx[:, 0]]
+    bounds = np.cumsum([0] + [len(u) for u in islands])
+    out_pages, out_uv, k = [], [], 0
+    for unit in units:
+        out_pages.append([int(page[bounds[k + j]]) for j in range(len(unit))])
+        placed = [uvt[bounds[k + j]:bounds[k + j + 1]] for j in range(len(unit))]
+        for j, (src, dst) in enumerate(zip(unit, placed)):  # xatlas only moves (and turns) islands
+            e_in = np.sort(np.ceil(src.reshape(-1, 2).max(axis=0) - 1e-9))
+            e_out = np.sort(np.ptp(dst.reshape(-1, 2), axis=0))
+            if np.abs(e_in - e_out).max() > 1e-2 and (np.ptp(src.reshape(-1, 2), axis=0) > 0).all():
+                raise RuntimeError(f"xatlas resized an island ({e_in} -> {e_out})")
+        out_uv.append(placed)
+        k += len(unit)
+    return out_pages, out_uv

@@ -229,10 +229,19 @@ def resolve(samples: TexelSamples, values: np.ndarray) -> tuple[np.ndarray, np.n
     return image, mask
 
 
-def dilate(image: np.ndarray, mask: np.ndarray, texels: int) -> np.ndarray:
-    """Fills empty texels from their covered 8-neighbours, one ring per pass, `texels`
-    rings: the padding then holds the charts' border values, so bilinear filtering and
-    mipmaps do not pull black into the charts. Covered texels are not changed."""
+def dilate(image: np.ndarray, mask: np.ndarray, texels: int, *, whole_page: bool = True) -> np.ndarray:
+    """Fills the texels no chart covers, so bilinear filtering and every mip level read
+    chart values, never black. Covered texels are not changed.
+
+    First `texels` rings (the padding) grow from the charts one ring per pass, each new
+    texel the mean of its already filled 8-neighbours: the padding continues the charts'
+    border values smoothly. Then, with `whole_page` (the default), every texel still empty
+    takes the value of its nearest filled texel (Euclidean distance between texel centres,
+    scipy.ndimage.distance_transform_edt's feature transform; ties broken by its fixed
+    scan order, so the result is deterministic). Every texel then holds a value some chart
+    texel holds, so a page whose covered texels are all positive has no texel <= 0 anywhere,
+    and neither has any level of its mip pyramid: a box (or any non-negative) filter of
+    positive values is positive. A page with no covered texel is returned as it is."""
     out = np.array(image, dtype=np.float32, copy=True)
     filled = np.array(mask, dtype=bool, copy=True)
     h, w = filled.shape
@@ -254,6 +263,12 @@ def dilate(image: np.ndarray, mask: np.ndarray, texels: int) -> np.ndarray:
             break
         vals[grow] = (total[grow] / count[grow][:, None]).astype(np.float32)
         filled |= grow
+    if whole_page and filled.any() and not filled.all():
+        from scipy.ndimage import distance_transform_edt
+
+        _, (iy, ix) = distance_transform_edt(~filled, return_indices=True)
+        empty = ~filled
+        vals[empty] = vals[iy[empty], ix[empty]]
     return out
 
 
