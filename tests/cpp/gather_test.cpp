@@ -9,6 +9,7 @@
 #include <cmath>
 #include <vector>
 
+#include "pipeline/geometry/formfactors.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
 
@@ -107,6 +108,44 @@ TEST(Gather, RadianceIsEmissionPlusReflectedOverPi) {
     gatherer.radiance(&leaf, &x, &key, 1, &l);
     const double want = (Ef + rho * E * under_rectangle(x.x, x.y, 1.0, 1.0, c)) / kPi;
     EXPECT_NEAR(l.y, want, 1e-9 * want);
+}
+
+// The solid angle of a rectangle a x b seen from a point at distance c below one corner.
+double corner_solid_angle(double a, double b, double c) {
+    return std::atan(a * b / (c * std::sqrt(a * a + b * b + c * c)));
+}
+
+TEST(Gather, PolygonSolidAngleMomentsAreTheClosedForms) {
+    // A rectangle [0, 2] x [0, 1] at height c facing down, seen from points of the plane z = 0
+    // facing up: omega by the corner formula, n . w1 = pi F (Lambert), and w1's tangential part
+    // by symmetry (zero along y from y = 0.5, along x from x = 1).
+    const double c = 0.8;
+    const std::vector<Vec3> poly{{0, 0, c}, {0, 1, c}, {2, 1, c}, {2, 0, c}};
+    const Vec3 down{0, 0, -1}, up{0, 0, 1};
+    for (const Vec3& x : {Vec3{1, 0.5, 0}, Vec3{0.3, 0.2, 0}, Vec3{1, 0.9, 0}}) {
+        const SolidAngleMoments m = polygon_solid_angle_moments(x, up, poly.data(), 4, down);
+        const double omega = corner_solid_angle(x.x, x.y, c) + corner_solid_angle(2 - x.x, x.y, c) +
+                             corner_solid_angle(x.x, 1 - x.y, c) + corner_solid_angle(2 - x.x, 1 - x.y, c);
+        EXPECT_NEAR(m.omega, omega, 1e-12);
+        EXPECT_NEAR(m.w1.z, kPi * under_rectangle(x.x, x.y, 2.0, 1.0, c), 1e-12);
+        if (x.y == 0.5) EXPECT_NEAR(m.w1.y, 0.0, 1e-12);
+        if (x.x == 1.0) EXPECT_NEAR(m.w1.x, 0.0, 1e-12);
+        EXPECT_LE(length(m.w1), m.omega);  // |integral of w| <= integral of 1
+    }
+    // Behind the emitting side: nothing.
+    EXPECT_EQ(polygon_solid_angle_moments({1, 0.5, 2 * c}, down, poly.data(), 4, down).omega, 0.0);
+    // A square so large it fills the hemisphere: omega -> 2 pi, w1 -> pi n.
+    const double big = 1e4;
+    const std::vector<Vec3> sky{{-big, -big, 1}, {-big, big, 1}, {big, big, 1}, {big, -big, 1}};
+    const SolidAngleMoments h = polygon_solid_angle_moments({0, 0, 0}, up, sky.data(), 4, down);
+    EXPECT_NEAR(h.omega, 2 * kPi, 1e-3);
+    EXPECT_NEAR(h.w1.z, kPi, 1e-3);
+    // Clipped by a tilted receiver's horizon: n . w1 = pi F on the clipped part, as the form factor.
+    const Vec3 tilted = normalize(Vec3{0.6, 0.0, 0.8});
+    const Vec3 x{1.9, 0.5, 0.5};  // the plane through x with this normal cuts the rectangle
+    const SolidAngleMoments t = polygon_solid_angle_moments(x, tilted, poly.data(), 4, down);
+    EXPECT_GT(t.omega, 0.0);
+    EXPECT_NEAR(dot(t.w1, tilted), kPi * point_polygon_form_factor(x, tilted, poly.data(), 4, down), 1e-12);
 }
 
 }  // namespace
