@@ -157,6 +157,17 @@ def test_instances_share_local_uvs_and_get_their_own_rectangles():
         A.build_atlas([cube, quad()], T, padding, 256, prototypes=["x", "x"])
 
 
+def test_same_inputs_same_bits():
+    cube = unit_cube()
+    meshes = [cube, moved(cube, 90, 1.5, (5, 0, 0)), quad(1.03, 0.51), moved(cube, 20, 0.3, (0, 2, 0))]
+    runs = [A.build_atlas(meshes, T, 2, 256, prototypes=["c", "c", None, None]) for _ in range(2)]
+    assert runs[0].page_sizes == runs[1].page_sizes and runs[0].fill == runs[1].fill
+    for a, b in zip(runs[0].meshes, runs[1].meshes):
+        assert a.page == b.page and a.scale_offset == b.scale_offset
+        np.testing.assert_array_equal(a.uvs, b.uvs)
+        np.testing.assert_array_equal(a.local_uvs, b.local_uvs)
+
+
 # ---------------------------------------------------------------------------------------
 # Dilation
 

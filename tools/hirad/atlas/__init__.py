@@ -15,26 +15,34 @@ Conventions (all of them on purpose):
 - Texel (i, j) covers [i, i+1] x [j, j+1] in texel units (u * W, v * H); its centre is at
   (i + 1/2, j + 1/2).
 - Chart bounding boxes start at texel *centres* (integer + 1/2), for every chart: xatlas
-  places its charts that way and we keep that phase for existing UV layouts too. Chart
+  places its charts that way and we keep that phase for existing UV layouts and instance
+  rectangles too (not inside an instance scaled up from its prototype's smallest member,
+  whose layout was charted with one more texel of padding for that reason). Chart
   edges along the axes then run through texel centres rather than along texel borders, so
   float noise in the UVs never flips whether a border texel is covered, and a bilinear
   lookup on such an edge reads only texels the chart covers (elsewhere the dilated
   padding supplies the neighbours).
-- A mesh lives on exactly one page (a renderer has one lightmap index and one
-  scale/offset), so the unit that must fit a page is a mesh's block of charts; a mesh too
-  big for a page is scaled down as a whole and its achieved density is recorded.
-- Who packs what: xatlas charts a mesh without UVs and packs its charts into the mesh's
-  block (its packer is bitmap based and tight). It also stretches every chart by less than a
-  texel so the chart's extents are whole texels, so generated charts come out slightly
-  denser than asked (small charts the most); the density is measured, not assumed. An
-  author's islands must move rigidly, so they, and the mesh blocks onto pages (which
-  xatlas cannot keep together on one page), go through our own skyline packer.
+- Pages are square powers of two up to max_size (floor to a power of two). A mesh lives on
+  exactly one page (a renderer has one lightmap index and one scale/offset), so the unit
+  that must fit a page is a mesh's set of charts; a mesh too big for a page is scaled down
+  as a whole and its achieved density is recorded.
+- Who packs what: xatlas charts each mesh (bitmap packer, tight), then every mesh's charts
+  go onto pages together through xatlas's UV-mesh packer (`pack._pack_units` chooses each
+  page's size and which meshes share it; xatlas places the charts). It stretches every
+  chart by less than a texel so the chart's extents are whole texels, so generated charts
+  come out slightly denser than asked (small charts the most); the density is measured, not
+  assumed. Layouts that must move as one piece (an author's kept layout, an instance of a
+  prototype, an author's islands repacked by our skyline packer) go onto pages as one
+  rectangle; an engine maps the mesh's own UVs (`MeshLayout.local_uvs`) onto the page by
+  `MeshLayout.scale_offset` (Unity's lightmapScaleOffset order).
+- Dilation fills the whole page (the padding rings smoothly, the rest from the nearest
+  filled texel), so bilinear filtering and every mip level read chart values.
 - "Covered" means the texel square and a triangle overlap in a set of positive area
   (conservative rasterisation without the zero-area touches).
 
 Modules, in the order a bake uses them: `base` (the data), `charts` (UVs per mesh),
 `pack` (islands and blocks onto pages), `texels` (rasterisation, sampling, dilation,
-stitching), `files` (RGBM PNGs and the manifest).
+stitching), `files` (8-bit encodings: hirad RGBM, Unity RGBM and dLDR; the manifest).
 """
 
 from .base import Atlas, Mesh, MeshLayout, TexelSamples

@@ -55,7 +55,12 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     `padding` is the least number of empty texels between texels covered by different
     charts, and between different meshes; pages keep ceil(padding/2) texels at their
     borders so the rule also holds across a wrapping edge. Chart growth is bounded on large
-    meshes (see _CHART_TEXELS: xatlas's cost is super-quadratic in the faces of one chart).
+    meshes (see _CHART_TEXELS: xatlas's cost is super-quadratic in the faces of one chart);
+    `chart_cost` is xatlas's maxCost (see base._CHART_COST: larger means fewer, slightly
+    more stretched charts, less padding). A chart longer than the page its mesh's footprint
+    needs is cut along its triangles (pack._split_to_fit).
+
+    Same inputs, same bits: xatlas's packer runs on one thread with its fixed random seed.
     """
     if not texels_per_metre > 0:
         raise ValueError("texels_per_metre must be positive")

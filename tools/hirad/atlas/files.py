@@ -215,6 +215,7 @@ def manifest_entry(atlas: Atlas, mesh: int, page_files: Sequence[str]) -> dict:
         "scaleOffset": [float(v) for v in m.scale_offset],
         "texelsPerMetre": float(m.texels_per_metre),
         "uvSource": m.source,
+        **({"prototype": str(m.prototype)} if m.prototype is not None else {}),
     }
 
 
