@@ -302,7 +302,7 @@ func _match_instances(manifest: Dictionary, root: Node, pages: Array) -> Array:
 		size = Vector2i(maxi(size.x, image.get_width()), maxi(size.y, image.get_height()))
 	var users := []
 	var list: Array = manifest["instances"]
-	var missing := []
+	var missing := PackedStringArray()
 	var taken := {}  # node -> the prim it was matched to
 	for i in list.size():
 		var where := "instances[%d]" % i
@@ -323,7 +323,7 @@ func _match_instances(manifest: Dictionary, root: Node, pages: Array) -> Array:
 			missing.append(prim)
 			continue
 		if found.size() > 1:
-			var names := []
+			var names := PackedStringArray()
 			for n in found:
 				names.append(String(root.get_path_to(n)))
 			_fail("%s: %s matches %d nodes (%s); rename or remove all but one" % [where, prim, found.size(), ", ".join(names)])
@@ -368,10 +368,14 @@ func _save(resource: Resource, path: String) -> Resource:
 
 func _build(root: Node, tex: Texture2DArray, users: Array) -> void:
 	DirAccess.make_dir_recursive_absolute(ProjectSettings.globalize_path(OUTPUT_DIR))
-	var saved_tex := _save(tex, OUTPUT_DIR.path_join("hirad_lightmaps.res"))
+	var saved_tex = _save(tex, OUTPUT_DIR.path_join("hirad_lightmaps.res"))
 	if saved_tex == null:
 		return
-	var lm: LightmapGI = root.get_node_or_null(LIGHTMAP_NODE_NAME)
+	var existing := root.get_node_or_null(NodePath(LIGHTMAP_NODE_NAME))
+	if existing != null and not existing is LightmapGI:
+		_errors.append("%s: the scene has a node of that name that is not a LightmapGI" % LIGHTMAP_NODE_NAME)
+		return
+	var lm: LightmapGI = existing
 	if lm == null:
 		lm = LightmapGI.new()
 		lm.name = LIGHTMAP_NODE_NAME
@@ -389,11 +393,12 @@ func _build(root: Node, tex: Texture2DArray, users: Array) -> void:
 		if node.gi_mode != GeometryInstance3D.GI_MODE_STATIC:
 			node.gi_mode = GeometryInstance3D.GI_MODE_STATIC
 		data.add_user(lm.get_path_to(node), u["rect"], u["slice"], -1)
-	var saved_data := _save(data, OUTPUT_DIR.path_join("hirad_lightmap_data.res"))
+	var saved_data = _save(data, OUTPUT_DIR.path_join("hirad_lightmap_data.res"))
 	if saved_data == null:
 		return
 	lm.directional = false
 	lm.light_data = saved_data
+	get_editor_interface().get_resource_filesystem().scan()
 	print("hirad: %d meshes lightmapped from %d pages (%s); save the scene to keep %s" % [
 			users.size(), saved_tex.get_layers(), MANIFEST_PATH, LIGHTMAP_NODE_NAME])
 
