@@ -374,6 +374,7 @@ def _locate(points: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray, what: str) 
     d00, d01, d11 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
     den = d00 * d11 - d01 * d01
     out = np.empty((len(points), 2))
+    tol = 1e-5 * max(1.0, float(np.abs(tri).max()))  # float32 coordinates in the files
     for k, x in enumerate(points):
         d = x - tri[:, 0]
         off_plane = np.abs(np.einsum("ij,ij->i", d, n)) / np.linalg.norm(n, axis=1)
@@ -381,7 +382,7 @@ def _locate(points: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray, what: str) 
         b1 = (d11 * d20 - d01 * d21) / den
         b2 = (d00 * d21 - d01 * d20) / den
         b0 = 1 - b1 - b2
-        inside = (off_plane < 1e-5) & (b0 > -1e-6) & (b1 > -1e-6) & (b2 > -1e-6)
+        inside = (off_plane < tol) & (b0 > -1e-5) & (b1 > -1e-5) & (b2 > -1e-5)
         assert inside.any(), (what, x)
         t = int(np.flatnonzero(inside)[0])
         out[k] = b0[t] * tri_uv[t, 0] + b1[t] * tri_uv[t, 1] + b2[t] * tri_uv[t, 2]

@@ -57,9 +57,10 @@ extends EditorScript
 ## Not done: light probes for dynamic objects (LightmapGIData's probe data); directional
 ## (SH) lightmaps; MultiMesh sub-instances (every user gets sub_instance -1).
 ##
-## Author: hirad. The API used is Godot 4's (4.0 to 4.4): LightmapGIData.add_user(path,
-## uv_scale: Rect2, slice_index, sub_instance), light_texture (4.0-4.2) or
-## lightmap_textures (4.3+), LightmapGI.light_data, Texture2DArray.create_from_images.
+## Godot API used (4.0 to 4.4, checked against the class reference and lightmap_gi.cpp):
+## LightmapGIData.add_user(path, uv_scale: Rect2, slice_index, sub_instance), light_texture
+## (4.0-4.2) or lightmap_textures (4.3+), LightmapGI.light_data,
+## Texture2DArray.create_from_images. Not run here: no Godot 4 on this machine.
 
 ## Where hirad's manifest is (res:// or an absolute path); the pages are read beside it.
 const MANIFEST_PATH := "res://hirad/lightmaps/manifest.json"
@@ -98,7 +99,7 @@ func _run() -> void:
 
 
 # ---------------------------------------------------------------------------------------
-# The manifest: every key read goes through _req (must exist, of that kind) or _opt.
+# The manifest: every key read goes through _req (must exist, of that kind).
 
 
 func _fail(message: String) -> void:
