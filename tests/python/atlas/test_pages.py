@@ -157,6 +157,26 @@ def test_instances_share_local_uvs_and_get_their_own_rectangles():
         A.build_atlas([cube, quad()], T, padding, 256, prototypes=["x", "x"])
 
 
+def test_a_mesh_that_fills_a_page_alone():
+    # 60 separate little quads in one mesh, at a density that needs more than a 64 page:
+    # the mesh is scaled down (with a warning) to fit its own block into one page, and
+    # goes onto the page whole even where xatlas's page packer cannot place its charts
+    # one by one as tightly as it packed the block
+    rng = np.random.default_rng(1)
+    points, faces = [], []
+    for k in range(60):
+        w, h = rng.uniform(0.05, 0.4, 2)
+        points += [[k, 0, 0], [k + w, 0, 0], [k + w, h, 0], [k, h, 0]]
+        faces += [[4 * k, 4 * k + 1, 4 * k + 2], [4 * k, 4 * k + 2, 4 * k + 3]]
+    mesh = (np.array(points, float), np.array(faces))
+    atlas = A.build_atlas([mesh], T, 2, 64)
+    assert atlas.page_sizes == [(64, 64)]
+    assert any("scaled down" in w for w in atlas.warnings)
+    assert min_gap(page_coverage(atlas, 0)) >= 2
+    texels = np.array(sorted(set().union(*page_coverage(atlas, 0).values())))
+    assert texels.min() >= 1 and texels.max() <= 62  # the page border keeps ceil(2 / 2)
+
+
 def test_same_inputs_same_bits():
     cube = unit_cube()
     meshes = [cube, moved(cube, 90, 1.5, (5, 0, 0)), quad(1.03, 0.51), moved(cube, 20, 0.3, (0, 2, 0))]

@@ -142,7 +142,7 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
     member_of = {i: (g, k) for g, (members, _) in enumerate(groups) for k, i in enumerate(members)}
     blocks, warnings = _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit,
                                     existing_layout, page_max, member_of, groups, chart_cost)
-    units, owners = [], []  # owners: (mesh, kind, data)
+    units, owners, fallback = [], [], []  # owners: (mesh, kind, data)
     for i, b in enumerate(blocks):
         if b is None or b.width == 0:
             continue
@@ -153,9 +153,11 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
             tris = _split_to_fit(b.uv, tris, padding, margin)
             units.append(([b.uv[t] for t in tris], False))
             owners.append((i, "free", tris))
+            fallback.append(_proxy(b.uv[b.charts >= 0]) if (b.charts >= 0).any() else None)
         else:  # an authored layout, kept or repacked: one rectangle
             units.append(([_proxy(b.uv[b.charts >= 0] if (b.charts >= 0).any() else b.uv)], True))
             owners.append((i, "rect", 1.0))
+            fallback.append(None)
     for g, (members, scales) in enumerate(groups):
         b = blocks[members[0]]
         if b is None or b.width == 0:
@@ -169,8 +171,11 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
                 warnings.append(f"{names[i]}: scaled down to fit one {page_max} page")
             units.append(([_proxy(None, ext * k)], True))
             owners.append((i, "instance", k))
+            fallback.append(None)
 
-    sizes, unit_page, unit_uv = _pack_units(units, page_max, padding, margin)
+    sizes, unit_page, unit_uv, fell_back = _pack_units(units, page_max, padding, margin, fallback)
+    for u in fell_back:  # packed as the block xatlas charted the mesh into: one rectangle
+        owners[u] = (owners[u][0], "block", None)
     if not shrink_pages:
         sizes = [page_max] * len(sizes)  # same placements; charts keep their texel positions
 
@@ -206,7 +211,7 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
                 shift = origin - lo
                 uv_texels = local * s + np.array([ox, oy]) + shift
                 so = (s / size, s / size, (ox + shift[0]) / size, (oy + shift[1]) / size)
-            else:  # repacked authored islands: moved as one block
+            else:  # repacked authored islands, or a mesh's whole block: moved as one piece
                 uv_texels = b.uv - lo + origin
                 local, so = None, (1.0, 1.0, 0.0, 0.0)
             uv_texels = np.where((b.charts >= 0)[:, None, None], uv_texels, 0.5 + margin)

@@ -166,7 +166,8 @@ _FULL = 0.98  # footprints a page is offered, over its area inside the margin
 _GROW_TRIES = 6  # units tried in a settled page's holes
 
 
-def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, padding: int, margin: int):
+def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, padding: int, margin: int,
+                fallback: list[np.ndarray | None] | None = None):
     """Packs units onto square power-of-two pages of at most max_page texels.
 
     A unit is (islands, rigid): a mesh's charts (texel units, v up), which xatlas may place
@@ -186,8 +187,13 @@ def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, paddi
     Charts keep ceil(padding/2) texels from the page edges (`margin`), so the padding also
     holds across a wrapping edge.
 
+    A unit that does not fit a max_page page even alone (xatlas's packer fills a bounded
+    page less tightly than it packed the mesh's own block) is packed as its `fallback`
+    instead, a rectangle (one island: the block the mesh was charted into, which fits by
+    construction).
+
     Returns (page size per page, per unit its page, per unit its islands' uv in page
-    texels)."""
+    texels, the units packed as their fallback)."""
     pp = (padding + 1) // 2
     snapped = [_snap_islands(isl) for isl, _ in units]
     feet = [np.array([_footprint(u, pp) for u in isl], float) for isl in snapped]
@@ -199,6 +205,8 @@ def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, paddi
     need = np.array([max(_MIN_PAGE, _pot_ceil(float(e.max()) + 2 + 2 * margin) if len(e) else 1,
                          _pot_ceil(math.sqrt(f / _UTILISATION) + 2 * margin)) for e, f in zip(ext, foot)])
     need = np.minimum(need, max_page)
+    units = list(units)
+    fell_back: set[int] = set()
     sizes: list[int] = []
     unit_page = [-1] * len(units)
     unit_uv: list[list[np.ndarray] | None] = [None] * len(units)
@@ -225,9 +233,17 @@ def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, paddi
             drop = min(spilled)[2] if spilled else members[-1]  # the first spilled: a companion less
             members = [i for i in members if i != drop]
         if not fits:  # the first unit alone needs a larger page
-            if size >= max_page:
+            i = members[0]
+            if size < max_page:
+                need[i] = 2 * size
+            elif fallback is not None and fallback[i] is not None and i not in fell_back:
+                fell_back.add(i)
+                units[i] = ([fallback[i]], True)
+                snapped[i] = _snap_islands([fallback[i]])
+                feet[i] = np.array([_footprint(snapped[i][0], pp)], float)
+                foot[i] = float(feet[i].sum())
+            else:
                 raise ValueError(f"a mesh's charts do not fit one {max_page} page")
-            need[members[0]] = 2 * size
             continue
         left = room - float(foot[members].sum())
         tries = 0
@@ -248,7 +264,7 @@ def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, paddi
         sizes.append(size)
         done = set(members)
         remaining = [i for i in remaining if i not in done]
-    return sizes, unit_page, unit_uv
+    return sizes, unit_page, unit_uv, fell_back
 
 
 def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: int) -> list[np.ndarray]:
