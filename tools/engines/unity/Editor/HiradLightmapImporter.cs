@@ -105,33 +105,31 @@ namespace Hirad.Engines
             if ((bool)Req(unity, "flipV", "bool", where + ": engines.unity"))
                 throw new HiradImportException($"{where}: engines.unity.flipV is true; this importer applies no flip");
 
-            // ---- pages
+            // ---- pages: checked here, copied and imported once every instance has matched
             var pageList = (List<object>)Req(manifest, "pages", "array", where);
-            string bakeName = SafeName(Path.GetFileName(Path.GetDirectoryName(baseDir)) ?? "bake");
-            string folder = (assetFolder.TrimEnd('/') + "/" + bakeName).Replace('\\', '/');
-            Directory.CreateDirectory(Path.Combine(ProjectRoot(), folder));
-            var colors = new Texture2D[pageList.Count];
-            var dirs = new Texture2D[pageList.Count];
+            int pageCount = pageList.Count;
+            var pageFiles = new string[pageCount];
+            var dirFiles = new string[pageCount];
+            var sizes = new long[pageCount, 2];
             int withDir = 0;
-            for (int k = 0; k < pageList.Count; k++)
+            for (int k = 0; k < pageCount; k++)
             {
                 string pw = $"{where}: pages[{k}]";
                 var page = pageList[k] as Dictionary<string, object>;
                 if (page == null)
                     throw new HiradImportException($"{pw} is not an object");
-                string file = (string)Req(page, "file", "string", pw);
-                long width = (long)Req(page, "width", "int", pw);
-                long height = (long)Req(page, "height", "int", pw);
-                colors[k] = ImportPage(Path.Combine(baseDir, file), folder, TextureImporterType.Lightmap, width, height, pw);
+                pageFiles[k] = Path.Combine(baseDir, (string)Req(page, "file", "string", pw));
+                sizes[k, 0] = (long)Req(page, "width", "int", pw);
+                sizes[k, 1] = (long)Req(page, "height", "int", pw);
                 object dirFile = Opt(page, "unityDirection", "string", pw);
                 if (dirFile != null)
                 {
-                    dirs[k] = ImportPage(Path.Combine(baseDir, (string)dirFile), folder, TextureImporterType.DirectionalLightmap, width, height, pw + ".unityDirection");
+                    dirFiles[k] = Path.Combine(baseDir, (string)dirFile);
                     withDir++;
                 }
             }
-            if (withDir != 0 && withDir != pageList.Count)
-                throw new HiradImportException($"{where}: {withDir} of {pageList.Count} pages have a unityDirection map; all or none must");
+            if (withDir != 0 && withDir != pageCount)
+                throw new HiradImportException($"{where}: {withDir} of {pageCount} pages have a unityDirection map; all or none must");
 
             // ---- instances -> renderers
             var candidates = SceneRenderers();
@@ -152,8 +150,8 @@ namespace Hirad.Engines
                 string prim = (string)Req(inst, "prim", "string", iw);
                 long page = (long)Req(inst, "page", "int", iw);
                 var so = (double[])Req(inst, "scaleOffset", "number4", iw);
-                if (page < 0 || page >= colors.Length)
-                    throw new HiradImportException($"{iw} ({prim}): page {page}, the manifest has {colors.Length} pages");
+                if (page < 0 || page >= pageCount)
+                    throw new HiradImportException($"{iw} ({prim}): page {page}, the manifest has {pageCount} pages");
                 var found = FindRenderers(prim, candidates);
                 if (found.Count == 0)
                 {
@@ -195,6 +193,20 @@ namespace Hirad.Engines
                 Debug.LogWarning($"hirad: {missing.Count} manifest instances have no renderer in the active scene and get no lightmap: " +
                                  string.Join(", ", missing.GetRange(0, Math.Min(8, missing.Count))) + (missing.Count > 8 ? " ..." : ""));
 
+            // ---- the pages into the project
+            string bakeName = SafeName(Path.GetFileName(Path.GetDirectoryName(baseDir)) ?? "bake");
+            string folder = (assetFolder.TrimEnd('/') + "/" + bakeName).Replace('\\', '/');
+            Directory.CreateDirectory(Path.Combine(ProjectRoot(), folder));
+            var colors = new Texture2D[pageCount];
+            var dirs = new Texture2D[pageCount];
+            for (int k = 0; k < pageCount; k++)
+            {
+                string pw = $"{where}: pages[{k}]";
+                colors[k] = ImportPage(pageFiles[k], folder, TextureImporterType.Lightmap, sizes[k, 0], sizes[k, 1], pw);
+                if (dirFiles[k] != null)
+                    dirs[k] = ImportPage(dirFiles[k], folder, TextureImporterType.DirectionalLightmap, sizes[k, 0], sizes[k, 1], pw + ".unityDirection");
+            }
+
             // ---- bind, and keep the binding in the scene
             var active = SceneManager.GetActiveScene();
             HiradLightmaps holder = null;
@@ -215,7 +227,7 @@ namespace Hirad.Engines
                 Undo.RecordObject(r, "hirad lightmaps");
             holder.manifest = Path.GetFullPath(manifestPath);
             holder.colors = colors;
-            holder.directions = withDir == colors.Length ? dirs : new Texture2D[0];
+            holder.directions = withDir == pageCount ? dirs : new Texture2D[0];
             holder.renderers = renderers.ToArray();
             holder.pages = pages.ToArray();
             holder.scaleOffsets = rects.ToArray();
