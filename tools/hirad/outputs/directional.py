@@ -62,8 +62,11 @@ per channel (in [0, 1]). Bakery's optional non-linear (Geomerics) evaluation rea
 Unity, Directional Mode (``LightmapData.lightmapDir``): "a secondary lightmap, which stores the
 incoming dominant light direction and a factor proportional to how much light in the first
 lightmap is the result of light coming in along the dominant direction. The rest is then assumed
-to come uniformly from the entire hemisphere" (Unity Manual, Lightmap Directional Modes). The
-shader (UnityCG.cginc, DecodeDirectionalLightmap):
+to come uniformly from the entire hemisphere" (Unity Manual, Lightmap Directional Modes,
+https://docs.unity3d.com/2018.4/Documentation/Manual/LightmappingDirectional.html; Unity 6's page,
+.../6000.0/Documentation/Manual/LightmappingDirectional.html: "the dominant light direction, along
+with a factor describing how much of the total light received comes from that dominant
+direction"). The shader (UnityCG.cginc, DecodeDirectionalLightmap):
 
     halfLambert = dot(n, dir.rgb - 0.5) + 0.5;   out = colour * halfLambert / max(1e-4, dir.a)
 
