@@ -455,3 +455,29 @@ def test_uv2_through_godots_rect_meets_the_solution_meshes_page_uvs(baked):
             compared[route] += len(centroids)
     assert compared["glb"] >= 20 and compared["usd"] >= compared["glb"], compared
     assert nontrivial >= 2, "the scene must give some instances a real scale and offset"
+
+
+def test_the_godot_name_rule_tells_the_glb_nodes_apart(baked):
+    """Godot drops some characters from node names (String.validate_node_name); the script
+    compares names with those (and "_") removed. The characters are read from the script's
+    _canonical; every lightmapped GLB node must still have a name of its own after that, and the
+    instance's prim must map to its own node."""
+    _, manifest, glb = baked
+    gd = GODOT.read_text()
+    body = gd[gd.index("static func _canonical"):]
+    chars = re.findall(r'"((?:\\.|[^"\\])+)"', body[:body.index("return out")])
+    chars = [c.encode().decode("unicode_escape") for c in chars]
+    assert set(chars) >= {".", ":", "@", "/", '"', "%"}, chars
+
+    def canonical(name: str) -> str:
+        for c in chars:
+            name = name.replace(c, "")
+        return name
+
+    nodes = _glb_lightmap_meshes(glb)
+    names = [canonical(n["name"]) for n in nodes.values()]
+    assert len(set(names)) == len(names), sorted(names)
+    for inst in manifest["instances"]:
+        if inst["prim"] in nodes:
+            assert canonical(inst["prim"]) == canonical(nodes[inst["prim"]]["name"])
+            assert sum(canonical(inst["prim"]) == n for n in names) == 1
