@@ -146,10 +146,6 @@ class _Block:
     scaled: bool = False  # density lowered so the block fits a page
 
 
-def _round_up(n: int, m: int) -> int:
-    return -(-int(n) // m) * m
-
-
 def _areas3(p: np.ndarray, t: np.ndarray) -> np.ndarray:
     a, b, c = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)

@@ -9,7 +9,7 @@ import signal
 from typing import Hashable, Literal, Sequence
 
 import numpy as np
-from .base import Atlas, Mesh, MeshLayout, _Block, _CHART_COST, _CHART_TEXELS, _CHART_TRIANGLES, _FREE_TRIANGLES, _NO_CHART, _areas2, _areas3, _density, _round_up
+from .base import Atlas, Mesh, MeshLayout, _Block, _CHART_COST, _CHART_TEXELS, _CHART_TRIANGLES, _FREE_TRIANGLES, _NO_CHART, _areas2, _areas3, _density
 from .pack import _island_gap, _pack_islands, _pack_units, _repack_islands, _split_to_fit
 from .texels import _covered_texels
 
@@ -201,7 +201,8 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
             if kind == "instance":
                 k = float(data)
                 unit_ext = np.where(ext > 0, ext, 1.0)
-                local = np.where(ext > 0, (b.uv - lo) / unit_ext, 0.0)
+                # in [0, 1]^2 (clipped: triangles without area are parked off the charts)
+                local = np.clip(np.where(ext > 0, (b.uv - lo) / unit_ext, 0.0), 0.0, 1.0)
                 scale = unit_ext * k
                 uv_texels = local * scale + origin
                 so = (scale[0] / size, scale[1] / size, origin[0] / size, origin[1] / size)

@@ -10,9 +10,11 @@ library's EntityLighting.hlsl: LIGHTMAP_RGBM_MAX_GAMMA = 5.0, LIGHTMAP_RGBM_MAX_
 - The values stored in an encoded lightmap are always in *gamma* space; with the linear
   colour space the texture is marked sRGB, so the sampler returns rgb already raised to
   ~2.2, and the shader works in linear space. Unity's model of gamma is the pure power 2.2
-  (34.493242 = 5^2.2, 4.59 = 2^2.2); we encode with exactly that power. (A GPU's sRGB
-  decode follows the piecewise sRGB curve instead, which differs from x^2.2 by up to ~10 %
-  for 8-bit values below about 0.04; Unity accepts the same difference.)
+  (34.493242 = 5^2.2, 4.59 = 2^2.2); we encode and decode with exactly that power. A GPU's
+  sRGB decode follows the piecewise sRGB curve instead: it agrees with x^2.2 within 2 % for
+  8-bit values from 85/255 up, within 10 % from 58/255, and is far brighter in the toe (the
+  curve is linear below 0.04045: at 1/255 it gives 59 times 1/255^2.2). Unity's shaders
+  live with the same difference; decode_* here follow Unity's stated formulas.
 - RGBM: colour in RGB, a multiplier M in A; range 0..5 in gamma space, 0..34.49 in linear.
   Gamma-space decode: value = rgb * a * 5. Linear-space decode: value = rgb_linear *
   a^2.2 * 34.493242 with rgb_linear = rgb^2.2 (the sRGB sampler's work; alpha is never
