@@ -274,3 +274,46 @@ def test_cornell_box_glb_in_threejs_matches_hirads_lightmap_render(tmp_path):
             # page (a face's st1 in the wrong corner order) moves whole faces
             rel = np.abs(a[lit] / b[lit] - 1)
             assert np.median(rel) < 0.01 and np.quantile(rel, 0.9) < 0.03, (np.median(rel), np.quantile(rel, 0.9))
+
+
+def test_copies_share_the_uv_set_and_get_their_own_rectangles(tmp_path):
+    """A copy whose manifest entry names another mesh's UV set (a prototype's) gets that UV set
+    as TEXCOORD_1 and its own rectangle (extras and the emissive mapping's texture transform),
+    the manifest's rectangle taking precedence over the prim's attributes."""
+    import json
+
+    from pxr import Usd as _Usd
+
+    out = _stage(tmp_path)
+    src = _Usd.Stage.Open(str(tmp_path / "input.usda"))
+    copy = UsdGeom.Mesh.Define(src, "/World/copy")
+    for name in ("points", "faceVertexCounts", "faceVertexIndices"):
+        copy.GetPrim().GetAttribute(name).Set(src.GetPrimAtPath("/World/quad").GetAttribute(name).Get())
+    copy.AddTranslateOp().Set(Gf.Vec3d(2, 0, 0))
+    UsdShade.MaterialBindingAPI.Apply(copy.GetPrim()).Bind(UsdShade.Material(src.GetPrimAtPath("/World/Looks/paint")))
+    src.GetRootLayer().Save()
+    manifest = {"version": 2, "instances": [
+        {"prim": "/World/quad", "mesh": "/World/quad", "page": 0, "file": "pages/page0.exr",
+         "scaleOffset": [0.5, 0.5, 0.5, 0.0], "uvSet": "st1"},
+        {"prim": "/World/copy", "mesh": "/World/quad", "page": 0, "file": "pages/page0.exr",
+         "scaleOffset": [0.25, 0.25, 0.0, 0.5], "uvSet": "st1"}]}
+    (out / "lightmaps" / "manifest.json").write_text(json.dumps(manifest))
+    doc = glb_json(gltf.write_glb(out))
+    nodes = {n["extras"]["hirad_path"]: n for n in doc["nodes"] if "mesh" in n}
+    assert set(nodes) == {"/World/quad", "/World/copy"}
+    so = {k: n["extras"]["hirad_lightmap"]["scaleOffset"] for k, n in nodes.items()}
+    assert so["/World/quad"] == pytest.approx([0.5, 0.5, 0.5, 0.5])
+    assert so["/World/copy"] == pytest.approx([0.25, 0.25, 0.0, 1 - 0.25 - 0.5])
+    prims = {k: doc["meshes"][n["mesh"]]["primitives"][0] for k, n in nodes.items()}
+    uv_bytes = {}
+    blob = (out / "scene.glb").read_bytes()
+    bin_start = 20 + int.from_bytes(blob[12:16], "little") + 8
+    for k, p in prims.items():
+        acc = doc["accessors"][p["attributes"]["TEXCOORD_1"]]
+        bv = doc["bufferViews"][acc["bufferView"]]
+        uv_bytes[k] = np.frombuffer(blob[bin_start + bv.get("byteOffset", 0):][:bv["byteLength"]], np.float32)
+        tt = doc["materials"][p["material"]]["emissiveTexture"]["extensions"]["KHR_texture_transform"]
+        assert tt["scale"] == pytest.approx(so[k][:2]) and tt["offset"] == pytest.approx(so[k][2:])
+    assert np.array_equal(np.sort(uv_bytes["/World/quad"]), np.sort(uv_bytes["/World/copy"]))
+    assert prims["/World/quad"]["material"] != prims["/World/copy"]["material"]
+    assert validate(out / "scene.glb")["numErrors"] == 0

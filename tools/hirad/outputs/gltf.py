@@ -8,7 +8,10 @@ What is read
     lightmap UVs of the lightmap contract (`primvars:st1`, faceVarying, one value per authored
     corner, USD convention: v up, origin bottom-left), and per instance its page and Unity-order
     scaleOffset (page_uv = st1 * xy + zw) from OUT/lightmaps/manifest.json ("instances"), else
-    from the prim's `hirad:lightmap:*` attributes. Pages are OUT/lightmaps/pages/page<k>.exr,
+    from the prim's `hirad:lightmap:*` attributes; a copy whose entry names another mesh
+    ("mesh", a prototype's) takes that mesh's UV set, and a mesh inside a native instance (an
+    instance proxy, which the layer cannot author over) has none and is exported without its
+    lightmap, with a warning. PointInstancers are not exported (a warning). Pages are OUT/lightmaps/pages/page<k>.exr,
     linear RGB, value = incident radiance H/pi in W/(m^2 sr) (H the irradiance in W/m^2), row 0
     the top of the page.
 
@@ -259,13 +262,14 @@ def _lightmap_of(prim, manifest: dict, uv_set: str, layer_dir: Path, out_dir: Pa
     inst = manifest.get(path)
     if inst is not None:
         base = out_dir / "lightmaps"
-        return (base / inst["file"]).resolve(), np.asarray(inst["scaleOffset"], np.float64), inst.get("uvSet", uv_set)
+        return ((base / inst["file"]).resolve(), np.asarray(inst["scaleOffset"], np.float64),
+                inst.get("uvSet", uv_set), inst.get("mesh"))
     f = prim.GetAttribute("hirad:lightmap:file")
     so = prim.GetAttribute("hirad:lightmap:scaleOffset")
     if f and f.Get() is not None and so and so.Get() is not None:
         asset = f.Get()
         p = Path(asset.resolvedPath) if asset.resolvedPath else (layer_dir / asset.path)
-        return p.resolve(), np.asarray(so.Get(), np.float64), uv_set
+        return p.resolve(), np.asarray(so.Get(), np.float64), uv_set, None
     return None
 
 
@@ -345,10 +349,18 @@ def _mesh_primitive(prim, world: np.ndarray, axes: np.ndarray, time, uv_set: str
     st = _corner_values(pvapi.GetPrimvar("st"), counts, idx, len(pts), where) if pvapi.HasPrimvar("st") else None
     st1 = None
     if lightmap is not None:
-        st1 = _corner_values(pvapi.GetPrimvar(lightmap[2]), counts, idx, len(pts), where) \
-            if pvapi.HasPrimvar(lightmap[2]) else None
-        if st1 is None:
-            raise GltfExportError(f"{where}: has a lightmap page but no primvars:{lightmap[2]} lightmap UVs")
+        holder = pvapi
+        if not pvapi.HasPrimvar(lightmap[2]) and lightmap[3] and lightmap[3] != where:
+            # the manifest names the mesh whose UV set this copy shares (a prototype's)
+            other = prim.GetStage().GetPrimAtPath(lightmap[3])
+            holder = UsdGeom.PrimvarsAPI(other) if other else pvapi
+        if holder.HasPrimvar(lightmap[2]):
+            st1 = _corner_values(holder.GetPrimvar(lightmap[2]), counts, idx, len(pts), where)
+        else:
+            # meshes inside native instances (instance proxies) have no UV set in the layer
+            warn(f"{where}: has a lightmap page but no primvars:{lightmap[2]} (an instance proxy?): "
+                 "exported without its lightmap")
+            lightmap = None
     # fan triangulation, corner slots in authored order
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     fan_f = np.repeat(np.arange(len(counts)), counts - 2)
