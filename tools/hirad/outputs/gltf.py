@@ -11,9 +11,11 @@ What is read
     from the prim's `hirad:lightmap:*` attributes; a copy whose entry names another mesh
     ("mesh", a prototype's) takes that mesh's UV set, and a mesh inside a native instance (an
     instance proxy, which the layer cannot author over) has none and is exported without its
-    lightmap, with a warning. PointInstancers are not exported (a warning). Pages are OUT/lightmaps/pages/page<k>.exr,
-    linear RGB, value = incident radiance H/pi in W/(m^2 sr) (H the irradiance in W/m^2), row 0
-    the top of the page.
+    lightmap, with a warning. PointInstancers are not exported (a warning). Visibility is the
+    input's: the solution layer hides the original meshes under its own display meshes, so its
+    own visibility opinions are skipped, and its display meshes are not exported. Pages are
+    OUT/lightmaps/pages/page<k>.exr, linear RGB, value = incident radiance H/pi in W/(m^2 sr)
+    (H the irradiance in W/m^2), row 0 the top of the page.
 
 Geometry
     glTF is metres, +Y up, right-handed, counter-clockwise front faces. Points are taken to world
