@@ -1,6 +1,6 @@
 """The engine import scripts (tools/engines/) against a real bake's manifest and pages.
 
-Neither Godot 4 nor Unity can run here (Debian ships godot3 3.2 only, Unity is not packaged), so
+Neither Godot 4 nor Unity can run here (Debian ships godot3 3.2 only; Unity is proprietary), so
 the scripts themselves are not executed. What is checked is what they depend on, read out of the
 scripts' own text so that a change on either side shows up here:
 
@@ -22,15 +22,20 @@ scripts' own text so that a change on either side shows up here:
    a. every authored st1 corner of every original prim lands, through the flip and the Rect2,
       on the slice pixel of the page texel hirad's own convention names, for the slice size the
       script uses (the largest page) and for a slice twice that size;
-   b. the GLB's TEXCOORD_1 (hirad's glTF export, what Godot reads into UV2), interpolated to the
-      centroid of every face of hirad's solution meshes, lands on the same pixel as that face's
-      own page UVs (the solution layer's ``hirad:lightmapUV``, found by hirad locating each
-      display corner in its source face): an independent route to the same texels;
+   b. the GLB's TEXCOORD_1 (hirad's glTF export, what Godot reads into UV2; for PointInstancer
+      copies, which the GLB leaves out, st1 with the flip), interpolated to the centroid of
+      every face of hirad's solution meshes, lands on the same pixel as that face's own page
+      UVs (the solution layer's ``hirad:lightmapUV``, found by hirad locating each display
+      corner in its source face): an independent route to the same texels. Exact only where a
+      polygon's lightmap UVs are one affine map (the scene's faces are charted whole);
    c. the script's own Rect2 expression (the ``return Rect2(...)`` of ``godot_uv_scale``,
       evaluated) equals the derived one.
 
 3. Unity uses scaleOffset as written (no flip): checked through (a) in Unity's convention, where
    page_uv = uv2 * xy + zw is bottom-left like USD.
+
+4. Names: the characters the Godot script drops before comparing node names (read from it)
+   keep every GLB node's name distinct, and each prim maps to its own node.
 """
 
 from __future__ import annotations
@@ -59,8 +64,9 @@ MAX_SIZE = 64  # small pages: the floor and the wall cannot share one, so there 
 
 
 def build_scene(path: Path) -> Path:
-    """A floor of two quads, a wall with a hole-free quad, a box whose top is a pentagon and a
-    triangle (n-gon fans), a left-handed plinth and an emitter: Y up, metres."""
+    """A floor of two quads, a wall, a box whose top is a pentagon and a triangle (n-gon fans), a
+    left-handed plinth, an emitter, a panel with its own st1 and two PointInstancer copies of a
+    crate: Y up, metres."""
     stage = new_stage(path)
     grey = add_material(stage, "/World/Looks/grey", (0.6, 0.6, 0.6))
     red = add_material(stage, "/World/Looks/red", (0.6, 0.2, 0.2))
