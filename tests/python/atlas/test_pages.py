@@ -177,6 +177,16 @@ def test_a_mesh_that_fills_a_page_alone():
     assert texels.min() >= 1 and texels.max() <= 62  # the page border keeps ceil(2 / 2)
 
 
+def test_meshes_without_area_get_no_page():
+    line = (np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.array([[0, 1, 2]]))  # collinear
+    none = (np.zeros((0, 3)), np.zeros((0, 3), int))
+    atlas = A.build_atlas([line, none, quad(), line], T, 2, 256, prototypes=["l", None, None, "l"])
+    assert [m.page for m in atlas.meshes] == [-1, -1, 0, -1]
+    assert [len(m.uvs) for m in atlas.meshes] == [0, 0, 2, 0]
+    assert any("no triangle with area" in w for w in atlas.warnings)
+    assert A.build_atlas([none], T, 2, 256).page_sizes == []
+
+
 def test_same_inputs_same_bits():
     cube = unit_cube()
     meshes = [cube, moved(cube, 90, 1.5, (5, 0, 0)), quad(1.03, 0.51), moved(cube, 20, 0.3, (0, 2, 0))]

@@ -148,6 +148,9 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
             continue
         if i in member_of:
             continue
+        if not (b.charts >= 0).any():  # no triangle with area: no texels, no page
+            warnings.append(f"{names[i]}: no triangle with area; it gets no lightmap")
+            continue
         if b.source == "generated":
             tris = [np.nonzero(b.charts == c)[0] for c in np.unique(b.charts[b.charts >= 0])]
             tris = _split_to_fit(b.uv, tris, padding, margin)
@@ -161,6 +164,9 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
     for g, (members, scales) in enumerate(groups):
         b = blocks[members[0]]
         if b is None or b.width == 0:
+            continue
+        if not (b.charts >= 0).any():
+            warnings += [f"{names[i]}: no triangle with area; it gets no lightmap" for i in members]
             continue
         s_min = min(scales)
         for i, s in zip(members, scales):
