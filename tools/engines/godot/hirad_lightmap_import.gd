@@ -107,27 +107,27 @@ func _fail(message: String) -> void:
 
 
 func _is_kind(v, kind: String) -> bool:
+	var t := typeof(v)
+	var ok := false
 	match kind:
 		"string":
-			return typeof(v) == TYPE_STRING
+			ok = t == TYPE_STRING
 		"bool":
-			return typeof(v) == TYPE_BOOL
+			ok = t == TYPE_BOOL
 		"number":
-			return typeof(v) == TYPE_FLOAT or typeof(v) == TYPE_INT
+			ok = t == TYPE_FLOAT or t == TYPE_INT
 		"int":
-			return (typeof(v) == TYPE_FLOAT and v == floor(v)) or typeof(v) == TYPE_INT
+			ok = (t == TYPE_FLOAT and v == floor(v)) or t == TYPE_INT
 		"array":
-			return typeof(v) == TYPE_ARRAY
+			ok = t == TYPE_ARRAY
 		"dict":
-			return typeof(v) == TYPE_DICTIONARY
+			ok = t == TYPE_DICTIONARY
 		"number4":
-			if typeof(v) != TYPE_ARRAY or v.size() != 4:
-				return false
-			for x in v:
-				if typeof(x) != TYPE_FLOAT and typeof(x) != TYPE_INT:
-					return false
-			return true
-	return false
+			ok = t == TYPE_ARRAY and v.size() == 4
+			if ok:
+				for x in v:
+					ok = ok and (typeof(x) == TYPE_FLOAT or typeof(x) == TYPE_INT)
+	return ok
 
 
 ## The value of `key` in `d` (a dictionary found at `where`), which must be of `kind`.
@@ -221,7 +221,8 @@ func _page_array(pages: Array) -> Texture2DArray:
 			slices.append(slice)
 	var tex := Texture2DArray.new()
 	if tex.create_from_images(slices) != OK:
-		_fail("Godot could not make a Texture2DArray of %d pages of %dx%d" % [slices.size(), size.x, size.y])
+		_fail("Godot could not make a Texture2DArray of %d pages of %dx%d"
+				% [slices.size(), size.x, size.y])
 		return null
 	return tex
 
@@ -277,7 +278,8 @@ func _find_node(prim: String, candidates: Array, root: Node) -> Array:
 		while n != null and n != root:
 			names.push_front(_canonical(String(n.name)))
 			n = n.get_parent()
-		if parts.size() > 0 and names.size() >= parts.size() and names.slice(names.size() - parts.size()) == parts:
+		var tail := names.slice(names.size() - parts.size()) if names.size() >= parts.size() else []
+		if parts.size() > 0 and tail == parts:
 			by_path.append(node)
 	for found in [by_extras, by_name, by_path]:
 		if found.size() > 0:
@@ -327,16 +329,18 @@ func _match_instances(manifest: Dictionary, root: Node, pages: Array) -> Array:
 			var names := PackedStringArray()
 			for n in found:
 				names.append(String(root.get_path_to(n)))
-			_fail("%s: %s matches %d nodes (%s); rename or remove all but one" % [where, prim, found.size(), ", ".join(names)])
+			_fail("%s: %s matches %d nodes (%s); rename or remove all but one"
+					% [where, prim, found.size(), ", ".join(names)])
 			continue
 		var node: MeshInstance3D = found[0]
 		if taken.has(node):
-			_fail("%s: %s and %s both match the node %s" % [where, taken[node], prim, root.get_path_to(node)])
+			_fail("%s: %s and %s both match the node %s"
+					% [where, taken[node], prim, root.get_path_to(node)])
 			continue
 		taken[node] = prim
 		if not _has_uv2(node.mesh):
-			_errors.append("%s: %s (%s) has no UV2; import it with hirad's GLB (TEXCOORD_1) and Light Baking = Static" % [
-					root.get_path_to(node), prim, where])
+			_errors.append(("%s: %s (%s) has no UV2; import it with hirad's GLB (TEXCOORD_1) and"
+					+ " Light Baking = Static") % [root.get_path_to(node), prim, where])
 			continue
 		var image: Image = pages[int(page)]
 		users.append({"node": node, "slice": int(page),
@@ -360,7 +364,8 @@ func _save(resource: Resource, path: String) -> Resource:
 	if err != OK:
 		_errors.append("%s: cannot be written (%s)" % [tmp, error_string(err)])
 		return null
-	err = DirAccess.rename_absolute(ProjectSettings.globalize_path(tmp), ProjectSettings.globalize_path(path))
+	err = DirAccess.rename_absolute(ProjectSettings.globalize_path(tmp),
+			ProjectSettings.globalize_path(path))
 	if err != OK:
 		_errors.append("%s: cannot be renamed to %s (%s)" % [tmp, path, error_string(err)])
 		return null
@@ -374,7 +379,8 @@ func _build(root: Node, tex: Texture2DArray, users: Array) -> void:
 		return
 	var existing := root.get_node_or_null(NodePath(LIGHTMAP_NODE_NAME))
 	if existing != null and not existing is LightmapGI:
-		_errors.append("%s: the scene has a node of that name that is not a LightmapGI" % LIGHTMAP_NODE_NAME)
+		_errors.append("%s: the scene has a node of that name that is not a LightmapGI"
+				% LIGHTMAP_NODE_NAME)
 		return
 	var lm: LightmapGI = existing
 	if lm == null:
