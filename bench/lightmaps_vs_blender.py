@@ -545,6 +545,46 @@ def errors(texel_h_over_pi: np.ndarray, rho: np.ndarray, ref: np.ndarray) -> np.
     return ((rho * texel_h_over_pi) @ LUM) / (ref @ LUM) - 1.0
 
 
+def coverage(scene, uvs: dict, pages: list) -> list[np.ndarray]:
+    """Per page, (H, W) bool, bottom row first: texels whose centre lies inside a baked face's
+    fan triangle in page UV (the texels both tools bake from the surface, not from dilation)."""
+    masks = [np.zeros((pg["height"], pg["width"]), bool) for pg in pages]
+    counts = np.asarray(scene.face_vertex_counts, np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    for f in np.nonzero(uvs["face_page"] >= 0)[0]:
+        p = int(uvs["face_page"][f])
+        H, W = masks[p].shape
+        for j in range(1, counts[f] - 1):
+            uv = uvs["corner_uv"][[starts[f], starts[f] + j, starts[f] + j + 1]] * (W, H)
+            lo, hi = np.floor(uv.min(0)).astype(int), np.ceil(uv.max(0)).astype(int)
+            xs, ys = np.meshgrid(np.arange(max(lo[0], 0), min(hi[0] + 1, W)), np.arange(max(lo[1], 0), min(hi[1] + 1, H)))
+            q = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1) - uv[0]
+            e1, e2 = uv[1] - uv[0], uv[2] - uv[0]
+            det = e1[0] * e2[1] - e1[1] * e2[0]
+            if det == 0:
+                continue
+            v = (q[:, 0] * e2[1] - q[:, 1] * e2[0]) / det
+            w = (e1[0] * q[:, 1] - e1[1] * q[:, 0]) / det
+            ins = (v >= 0) & (w >= 0) & (v + w <= 1)
+            masks[p][ys.ravel()[ins], xs.ravel()[ins]] = True
+    return masks
+
+
+def page_agreement(hirad_pages: list[np.ndarray], blender_pages: list[np.ndarray], masks: list[np.ndarray]) -> dict:
+    """Texel for texel over whole pages: the ratio of luminances hirad / Blender at the covered
+    texels (`coverage`) where both are above zero: median, and the fraction off by more than 50 %."""
+    r = []
+    for h, b, m in zip(hirad_pages, blender_pages, masks):
+        hl, bl = h[::-1, :, :3] @ LUM, b[:, :, :3] @ LUM  # hirad's row 0 is the top: flip to bottom-first
+        ok = m & (hl > 0) & (bl > 0)
+        r.append(hl[ok] / bl[ok])
+    r = np.concatenate(r) if r else np.zeros(0)
+    if not len(r):
+        return {"texels": 0}
+    return {"texels": int(len(r)), "median_ratio": float(np.median(r)),
+            "fraction_off_50pct": float(np.mean((r > 1.5) | (r < 1 / 1.5)))}
+
+
 def summary(e: np.ndarray, ref_rse: np.ndarray) -> dict:
     ms = float(np.mean(e ** 2))
     return {"mean": float(np.mean(e)), "rms": float(np.sqrt(ms)),
@@ -660,6 +700,15 @@ def main() -> None:
         e_b = errors(texel_values(imgs, sel, top_row_first=False), sel["rho"], ref_k)
         rows.append({"samples": n, "bake_s": t, "texels_per_s": texels / t, **summary(e_b, rse_k)})
 
+    agree = None
+    if rows:
+        n = rows[-1]["samples"]
+        imgs = [np.fromfile(spec.parent / f"blender_s{n}_page{k}.f32", "<f4").reshape(pg["height"], pg["width"], 4)
+                for k, pg in enumerate(pages)]
+        agree = page_agreement(hirad_pages, imgs, coverage(scene, uvs, pages))
+        if agree["texels"]:
+            print(f"whole pages, texel for texel against Blender {n} spp ({agree['texels']:,} texels whose centre is on a baked face): median "
+                  f"hirad/Blender {agree['median_ratio']:.3f}, {agree['fraction_off_50pct']:.1%} off by more than 50 %")
     print(f"\nBlender process: {run_b['wall_s']:.1f} s wall (load {run_b['load_at_start']:.1f} at start; scene build "
           f"{bj['build_s']:.1f} s), peak RSS {run_b['peak_rss_mib']:.0f} MiB, {args.threads} threads, "
           f"{args.bounces} bounces")
@@ -687,7 +736,7 @@ def main() -> None:
                "ref_mean_rse": float(np.mean(rse_k)), "hirad": {**run_h, **s_h}, "reference_run": run_r,
                "blender": {"process": run_b, "build_s": bj["build_s"], "rows": rows, "bounces": args.bounces,
                            "threads": args.threads, "version": bj["version"]},
-               "blender_time_at_hirad_error_s": match}
+               "blender_time_at_hirad_error_s": match, "page_agreement": agree}
     if args.json:
         tmp = args.json.with_suffix(".tmp")
         tmp.write_text(json.dumps(figures, indent=1, default=float))
