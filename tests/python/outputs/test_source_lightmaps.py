@@ -45,8 +45,9 @@ def build_scene(path: Path) -> Path:
     floor = add_mesh(stage, "/World/floor", f, [4, 4], [0, 1, 2, 3, 3, 2, 4, 5], grey)
     st = UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", _tex2(), UsdGeom.Tokens.faceVarying)
     st.Set([(0, 0), (0, 1), (1, 1), (1, 0)] * 2)
-    # box 0.6 m, its top a pentagon (one corner cut off the top square: a 5-gon and a triangle)
-    c, h = np.array([0.6, 0.0, 0.4]), 0.3
+    # box 0.6 m, 5 cm above the floor (its bottom sees the floor's light: no texel is black), its
+    # top a pentagon (one corner cut off the top square: a 5-gon and a triangle)
+    c, h = np.array([0.6, 0.05, 0.4]), 0.3
     p = [c + [x * h, (y + 1) * h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
     p += [c + [h, 2 * h, 0.0], c + [0.0, 2 * h, h]]  # 8, 9: on the top's edges at the +x+z corner
     faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [0, 2, 6, 4], [1, 5, 7, 3],  # -x, +x, -y, -z, +z

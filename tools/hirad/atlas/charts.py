@@ -24,7 +24,8 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
                 existing_layout: Literal["keep", "repack"] = "keep",
                 shrink_pages: bool = True,
                 prototypes: Sequence[Hashable | None] | None = None,
-                chart_cost: float = _CHART_COST) -> Atlas:
+                chart_cost: float = _CHART_COST,
+                polygons: Sequence[np.ndarray | None] | None = None) -> Atlas:
     """Lays every mesh out on square power-of-two pages of at most max_size texels a side.
 
     Charts: a mesh without UVs gets charts from xatlas at `texels_per_metre`; a mesh with
@@ -60,6 +61,14 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     more stretched charts, less padding). A chart longer than the page its mesh's footprint
     needs is cut along its triangles (pack._split_to_fit).
 
+    Polygons: `polygons` gives, per mesh, the source polygon of each triangle (or None: each
+    triangle its own). A polygon's triangles always end up in one chart, connected in UV
+    space: a faceVarying UV set on the author's polygons (one UV per polygon corner) can
+    only express that. xatlas charts triangles and may cut a polygon along its diagonal (a
+    large quad when chart growth is bounded, a polygon at a cost boundary); such polygons
+    are taken out of their charts and each charted whole by projection onto its plane, and
+    chart cuts (pack._split_to_fit) go between polygons.
+
     Same inputs, same bits: xatlas's packer runs on one thread with its fixed random seed.
     """
     if not texels_per_metre > 0:
@@ -79,9 +88,16 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
         raise ValueError("names needs one entry per mesh")
     if prototypes is not None and len(prototypes) != len(meshes):
         raise ValueError("prototypes needs one entry (an id or None) per mesh")
+    if polygons is not None and len(polygons) != len(meshes):
+        raise ValueError("polygons needs one entry (an array or None) per mesh")
 
     geometry: list[Mesh] = [(np.asarray(p, dtype=np.float64).reshape(-1, 3),
                              np.asarray(t, dtype=np.int64).reshape(-1, 3)) for p, t in meshes]
+    if polygons is not None:
+        polygons = [None if q is None else np.asarray(q, dtype=np.int64).reshape(-1) for q in polygons]
+        for i, q in enumerate(polygons):
+            if q is not None and len(q) != len(geometry[i][1]):
+                raise ValueError(f"{names[i]}: polygons has {len(q)} entries for {len(geometry[i][1])} triangles")
     groups = _prototype_groups(geometry, prototypes, names)
     warnings: list[str] = []
     if page_max != int(max_size):
@@ -89,7 +105,7 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     # Charting and packing in one child process (see _isolated): one fork per atlas.
     sizes, layouts, more = _isolated(_layout_all, geometry, existing_uvs, names, float(texels_per_metre),
                                      padding, page_max, existing_layout, groups, bool(shrink_pages),
-                                     float(chart_cost))
+                                     float(chart_cost), polygons)
     warnings += more
     for i, layout in enumerate(layouts):
         layout.prototype = None if prototypes is None else prototypes[i]
@@ -134,14 +150,14 @@ def _prototype_groups(geometry, prototypes, names) -> list[tuple[list[int], list
 
 
 def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_max, existing_layout, groups,
-                shrink_pages, chart_cost=None):
+                shrink_pages, chart_cost=None, polygons=None):
     """Every mesh's charts, then all of them onto pages: (page sizes, MeshLayouts, warnings).
     Run through _isolated: xatlas is called here."""
     margin = (padding + 1) // 2
     limit = page_max - 2 * margin
     member_of = {i: (g, k) for g, (members, _) in enumerate(groups) for k, i in enumerate(members)}
     blocks, warnings = _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit,
-                                    existing_layout, page_max, member_of, groups, chart_cost)
+                                    existing_layout, page_max, member_of, groups, chart_cost, polygons)
     units, owners, fallback = [], [], []  # owners: (mesh, kind, data)
     for i, b in enumerate(blocks):
         if b is None or b.width == 0:
@@ -153,7 +169,7 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
             continue
         if b.source == "generated":
             tris = [np.nonzero(b.charts == c)[0] for c in np.unique(b.charts[b.charts >= 0])]
-            tris = _split_to_fit(b.uv, tris, padding, margin)
+            tris = _split_to_fit(b.uv, tris, padding, margin, None if polygons is None else polygons[i])
             units.append(([b.uv[t] for t in tris], False))
             owners.append((i, "free", tris))
             fallback.append(_proxy(b.uv[b.charts >= 0]) if (b.charts >= 0).any() else None)
@@ -297,7 +313,7 @@ def chart_area_bound(area: np.ndarray, texels_per_metre: float) -> float:
 
 
 def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
-                 member_of=None, groups=(), chart_cost=None):
+                 member_of=None, groups=(), chart_cost=None, polygons=None):
     """Each mesh's block of charts, and the warnings; None for a prototype's members after
     the first (they share its layout). Run through _isolated: xatlas is called here."""
     member_of = member_of or {}
@@ -323,7 +339,8 @@ def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit
             block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), density, pad,
                                     limit, existing_layout, names[i], warnings)
         if block is None:
-            block = _generated_block(p, t, density, pad, limit, names[i], warnings, chart_cost)
+            block = _generated_block(p, t, density, pad, limit, names[i], warnings, chart_cost,
+                                     None if polygons is None else polygons[i])
         if block.scaled:
             warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
                             f"(asked {density:g}) to fit one {max_size} page")
@@ -430,7 +447,8 @@ def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density
 
 
 def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padding: int, limit: int,
-                     name: str, warnings: list[str], chart_cost: float | None = None) -> _Block:
+                     name: str, warnings: list[str], chart_cost: float | None = None,
+                     poly: np.ndarray | None = None) -> _Block:
     """xatlas charts and packs the mesh into a block of its own at the given density; if the
     block is larger than a page, the density is lowered and it is done again."""
     area3 = _areas3(p, t)
@@ -492,10 +510,63 @@ def _generated_block(p: np.ndarray, t: np.ndarray, texels_per_metre: float, padd
             chart[faces] = np.unique(ids, return_inverse=True)[1]
             warnings.append(f"{name}: xatlas folded {folded.size} chart(s) onto themselves; "
                             f"{int(redo.sum())} triangles re-charted by box projection")
+    apart = _polygons_apart(poly, chart) if poly is not None else np.zeros(0, np.int64)
+    if apart.size:
+        # A polygon cut by a chart boundary cannot carry one UV per corner: each such polygon
+        # becomes a chart of its own, its triangles projected onto the polygon's plane.
+        redo = np.isin(poly, apart) & (chart >= 0)
+        plane_uv, plane_id = _polygon_islands(p, t[redo], poly[redo], density)
+        keep = (chart >= 0) & ~redo
+        uvt = np.concatenate([local[keep], plane_uv])
+        ids = np.concatenate([chart[keep], plane_id + int(chart.max()) + 1])
+        packed = _pack_islands(uvt, ids, padding, limit, rigid=False)
+        if packed is None:
+            raise RuntimeError(f"{name}: could not pack its charts after charting {apart.size} polygon(s) whole")
+        new_local, w, h, factor = packed
+        density *= factor
+        faces = np.concatenate([np.nonzero(keep)[0], np.nonzero(redo)[0]])
+        local[faces] = new_local
+        chart[faces] = np.unique(ids, return_inverse=True)[1]
+        warnings.append(f"{name}: xatlas cut {apart.size} polygon(s) across charts; each was charted whole by "
+                        "projection onto its plane")
     got = _density(local[chart >= 0], area3[chart >= 0])
     if abs(got / density - 1) > 0.05:  # xatlas rounds charts up to whole texels, distorts curved ones
         warnings.append(f"{name}: xatlas charts came out at {got:.4g} texels/m for {density:.4g} asked")
     return _Block(w, h, local, chart, got, "generated", scaled=density < texels_per_metre)
+
+
+def _polygons_apart(poly: np.ndarray, chart: np.ndarray) -> np.ndarray:
+    """Polygons whose charted triangles lie in more than one chart."""
+    ok = chart >= 0
+    if not ok.any():
+        return np.zeros(0, np.int64)
+    pairs = np.unique(np.stack([poly[ok], chart[ok]], axis=1), axis=0)
+    ids, counts = np.unique(pairs[:, 0], return_counts=True)
+    return ids[counts > 1]
+
+
+def _polygon_islands(p: np.ndarray, t: np.ndarray, poly: np.ndarray, density: float):
+    """Triangles of whole polygons, each polygon one island: its corners projected onto the
+    polygon's plane (the area-weighted normal of its triangles, Newell's normal for a planar
+    polygon) in texel units at `density`, oriented so the island keeps the polygon's winding.
+    Returns (uv (M, 3, 2), island id per triangle, 0..)."""
+    ids, island = np.unique(poly, return_inverse=True)
+    a, b, c = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
+    cross = np.cross(b - a, c - a)
+    normal = np.zeros((len(ids), 3))
+    np.add.at(normal, island, cross)
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 0, normal / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+    # a tangent: the axis least aligned with the normal, made orthogonal
+    axis = np.eye(3)[np.argmin(np.abs(normal), axis=1)]
+    u = axis - (axis * normal).sum(axis=1, keepdims=True) * normal
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normal, u)
+    corners = p[t]  # (M, 3, 3)
+    origin = corners.reshape(-1, 3)[::3][0] if len(t) else np.zeros(3)
+    rel = corners - origin
+    uv = np.stack([(rel * u[island, None, :]).sum(-1), (rel * v[island, None, :]).sum(-1)], axis=-1)
+    return uv * float(density), island.astype(np.int64)
 
 
 def _folded_charts(uv: np.ndarray, chart: np.ndarray) -> np.ndarray:

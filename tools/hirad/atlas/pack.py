@@ -264,10 +264,38 @@ def _pack_units(units: list[tuple[list[np.ndarray], bool]], max_page: int, paddi
         sizes.append(size)
         done = set(members)
         remaining = [i for i in remaining if i not in done]
+    _merge_last_pages(sizes, unit_page, unit_uv, snapped, units, foot, max_page, margin, pp)
     return sizes, unit_page, unit_uv, fell_back
 
 
-def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: int) -> list[np.ndarray]:
+def _merge_last_pages(sizes, unit_page, unit_uv, snapped, units, foot, max_page, margin, pp) -> None:
+    """The last pages the rule above opens are small and can be many (a small scene: five
+    64 pages). The trailing k pages (largest k first) are packed again onto one page of the
+    power of two their footprints ask for, kept when that page is no larger in texels than
+    the k pages were: fewer pages (textures, lightmap indices) for no more memory. In place."""
+    n = len(sizes)
+    for k in range(n, 1, -1):
+        tail = list(range(n - k, n))
+        members = [i for i in range(len(unit_page)) if unit_page[i] in tail]
+        area = sum(sizes[j] ** 2 for j in tail)
+        size = min(max_page, _pot_ceil(math.sqrt(float(foot[members].sum()) / _UTILISATION) + 2 * margin))
+        size = max(size, max(sizes[j] for j in tail))
+        if size * size > area:
+            continue
+        pages, uvs = _xatlas_pack_pages([snapped[i] for i in members], [units[i][1] for i in members],
+                                        size - 2 * margin, pp)
+        if not all(max(p) == 0 for p in pages):
+            continue
+        for m, i in enumerate(members):
+            unit_page[i] = n - k
+            unit_uv[i] = [u + margin for u in uvs[m]]
+        del sizes[n - k:]
+        sizes.append(size)
+        return
+
+
+def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: int,
+                  poly: np.ndarray | None = None) -> list[np.ndarray]:
     """A mesh's charts (triangle sets `tris` of block uv `uv`, texel units) cut where one
     chart alone would need a larger page than the whole mesh's footprint does.
 
@@ -279,7 +307,8 @@ def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: 
     footprint asks for ((S - 2 margin) / 2 - 2 texels, S = _pot_ceil(sqrt(footprint /
     _UTILISATION))): pieces of up to a whole page's width could still not share it (two
     170 x 160 pieces do not fit a 254 x 254 square). The cuts are new seams (stitched like
-    xatlas's); a single triangle is never cut."""
+    xatlas's); a single triangle is never cut, and with `poly` (the source polygon of each
+    triangle) neither is a polygon: cuts go by polygon centres, between polygons."""
     pp = (padding + 1) // 2
     if not tris:
         return tris
@@ -301,16 +330,18 @@ def _split_to_fit(uv: np.ndarray, tris: list[np.ndarray], padding: int, margin: 
             if float(ext.max()) <= cap:
                 pieces.append(t)
                 continue
-            if len(t) == 1:  # a triangle longer than the cap: the chart stays whole
+            group = np.arange(len(t)) if poly is None else np.unique(poly[t], return_inverse=True)[1].reshape(-1)
+            if group.max() == 0:  # one triangle (or polygon) longer than the cap: the chart stays whole
                 pieces = None
                 break
             axis = int(np.argmax(ext))
             centre = uv[t].mean(axis=1)[:, axis]
+            centre = (np.bincount(group, centre) / np.bincount(group))[group]  # per polygon
             low = centre < pts[:, axis].min() + 0.5 * float(ext[axis])
             if low.all() or not low.any():
-                order = np.argsort(centre, kind="stable")
-                low = np.zeros(len(t), bool)
-                low[order[:len(t) // 2]] = True
+                centres = np.bincount(group, centre) / np.bincount(group)
+                order = np.argsort(centres, kind="stable")
+                low = np.isin(group, order[:len(order) // 2])
             work += [t[~low], t[low]]
         if pieces is None or len(pieces) == 1:
             out.append(chart)

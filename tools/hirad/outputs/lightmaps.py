@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from pathlib import Path
@@ -162,23 +161,6 @@ def _uv_overlap(uv: np.ndarray, cells: int = 0) -> float:
     return float((count > 1).sum()) / covered if covered else 0.0
 
 
-def _local_layout(layout, size) -> tuple[np.ndarray, tuple[float, float, float, float]]:
-    """A mesh's own lightmap UVs (per triangle corner, [0, 1]) and the Unity-order
-    scaleOffset that maps them to its page: page_uv = local * (sx, sy) + (ox, oy). An author's
-    kept layout keeps its UVs (the atlas's scale_offset); generated and repacked charts are
-    expressed in the mesh's block, so each mesh (each instance) owns a rectangle."""
-    local = getattr(layout, "local_uvs", None)
-    if local is not None:
-        return np.asarray(local, dtype=np.float64), tuple(float(v) for v in layout.scale_offset)
-    if layout.source == "existing":
-        sx, sy, ox, oy = (float(v) for v in layout.scale_offset)
-        return (layout.uvs - [ox, oy]) / [sx, sy], (sx, sy, ox, oy)
-    w, h = size
-    bx, by, bw, bh = (float(v) for v in layout.block)
-    so = (bw / w, bh / h, bx / w, by / h)
-    return (layout.uvs - [so[2], so[3]]) / [so[0], so[1]], so
-
-
 def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
                      staging: Path, result=None, warn=None) -> tuple[list[str], dict]:
     """Lightmaps baked on the source meshes: every input mesh's own faces (triangle fans of
@@ -217,7 +199,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
                                                  for m in range(len(scene.meshes))])]).astype(np.int64)
     fvi = np.asarray(scene.face_vertex_indices, dtype=np.int64)
 
-    geometry, existing, names, prototypes, tri_ids, pms = [], [], [], [], [], []
+    geometry, existing, names, prototypes, tri_ids, pms, polygons = [], [], [], [], [], [], []
     rep_warnings: list[str] = []
     for pm in meshes:
         m = pm.mesh_index
@@ -239,14 +221,13 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         existing.append(own)
         names.append(info.name)
         prototypes.append(info.prototype)
+        polygons.append(fan["face"][tris])  # a polygon's triangles stay in one chart
         tri_ids.append(tris)
         pms.append(pm)
 
-    kwargs = {}
-    if any(p is not None for p in prototypes) and "prototypes" in inspect.signature(A.build_atlas).parameters:
-        kwargs["prototypes"] = prototypes
     atlas = A.build_atlas(geometry, density, lm.padding, lm.max_size, existing_uvs=existing, names=names,
-                          existing_layout=lm.existing_layout, **kwargs)
+                          existing_layout=lm.existing_layout, polygons=polygons,
+                          prototypes=prototypes if any(p is not None for p in prototypes) else None)
     rep_warnings += list(atlas.warnings)
 
     # Page UVs of every source triangle, for the display corners; the mesh's own UVs per
@@ -259,7 +240,8 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         if layout.page < 0 or not len(layout.uvs):
             continue
         tri_uv[tri_ids[k]] = layout.uvs
-        local, so = _local_layout(layout, atlas.page_sizes[layout.page])
+        # the mesh's own [0, 1] layout and the rectangle that puts it on its page
+        local, so = np.asarray(layout.local_uvs, dtype=np.float64), tuple(float(v) for v in layout.scale_offset)
         first_corner = corner_start[face_start[pm.mesh_index]]
         slots = (fan["corner"][tri_ids[k]] - first_corner).reshape(-1)
         n_read = int(corner_start[face_start[pm.mesh_index + 1]] - first_corner)
