@@ -367,3 +367,29 @@ def test_modern_hall_pages_fill():
         assert 0 <= m.page < len(sizes)
         # measured density: at least the asked one (xatlas only stretches charts up)
         assert m.texels_per_metre >= density * (1 - 1e-3)
+
+
+def test_a_polygon_is_never_cut_across_charts():
+    """A 40 m strip of 31 quads (0.5 m wide) at 16 texels/m is longer than the page its texels
+    need, so its chart is cut (pack._split_to_fit); cut by triangle centroids, one quad lands on
+    both sides. With the quads given as polygons, every quad stays in one chart, connected: its
+    two triangles share the diagonal's UVs (a faceVarying UV set has one UV per quad corner)."""
+    n = 31
+    x = np.linspace(0, 40.3, n + 1)
+    pts = np.array([[xi, 0, z] for xi in x for z in (0.0, 0.5)])
+    quads = [[2 * i, 2 * i + 1, 2 * i + 3, 2 * i + 2] for i in range(n)]
+    tris = np.array([[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads])
+    poly = np.array(list(range(n)) * 2)
+
+    def apart(atlas):
+        ch = atlas.meshes[0].charts
+        return sum(len(set(ch[poly == k])) > 1 for k in range(n))
+
+    plain = A.build_atlas([(pts, tris)], 16.0, 2, 4096)
+    assert len(set(plain.meshes[0].charts)) > 1  # the strip was cut
+    assert apart(plain) >= 1  # the case this guards against (triangles cut apart)
+    whole = A.build_atlas([(pts, tris)], 16.0, 2, 4096, polygons=[poly])
+    assert apart(whole) == 0
+    uv = whole.meshes[0].uvs
+    for k in range(n):  # the diagonal (corners 0 and 2 of the quad) has the same UVs in both triangles
+        assert np.allclose(uv[k][[0, 2]], uv[n + k][[0, 1]], atol=1e-9)

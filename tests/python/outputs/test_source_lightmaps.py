@@ -384,3 +384,32 @@ def test_instances_share_one_uv_set_and_get_their_own_rectangles(tmp_path):
     got, expect = np.array(got), np.array(expect)
     assert expect[0] > 1.5 * expect[1]  # the lamp is right above the first copy
     assert np.all(np.abs(got - expect) / expect < 0.02), (got, expect)
+
+
+def test_each_polygon_is_one_piece_of_its_chart(baked):
+    """A faceVarying st1 has one UV per polygon corner, so a polygon must lie whole in one chart:
+    for every planar polygon, the affine map that takes its first fan triangle to UV takes
+    every other corner to its st1 (in texels, within 1e-3), i.e. no polygon is cut by a seam."""
+    root, scene, before, result, out = baked
+    worst = 0.0
+    polygons = 0
+    for name, e in _originals(out).items():
+        if "st1" not in e:
+            continue
+        page = _read_exr(out / e["file"].path)
+        size = np.array(page.shape[1::-1], float)
+        uv = (e["st1"] * e["so"][:2] + e["so"][2:]) * size
+        s = 0
+        for c in e["counts"]:
+            if c > 3:
+                x = e["points"][e["indices"][s:s + c]]
+                a, b, d = x[0], x[1], x[2]
+                e1, e2 = b - a, d - a
+                gram = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+                lam = np.linalg.solve(gram, np.stack([(x - a) @ e1, (x - a) @ e2]))  # (2, c)
+                predicted = uv[s] + np.outer(lam[0], uv[s + 1] - uv[s]) + np.outer(lam[1], uv[s + 2] - uv[s])
+                worst = max(worst, float(np.abs(predicted - uv[s:s + c]).max()))
+                polygons += 1
+            s += c
+    assert polygons >= 8
+    assert worst < 1e-3, f"a polygon's corners leave its first triangle's chart by {worst:.3g} texels"
