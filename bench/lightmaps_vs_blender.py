@@ -513,15 +513,15 @@ def texel_points(scene, uvs: dict, pages: list, n: int, seed: int) -> dict:
     return {k: np.array(v) for k, v in out.items()}
 
 
-def reference(scene_path: Path, pts: dict, work: Path, paths: int) -> tuple[dict, dict]:
-    csv_in, csv_out = work / "points.csv", work / "reference.csv"
+def reference(scene_path: Path, pts: dict, work: Path, paths: int, seed: int, tag: str) -> tuple[dict, dict]:
+    csv_in, csv_out = work / "points.csv", work / f"reference_{tag}.csv"
     with open(csv_in, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["x", "y", "z", "nx", "ny", "nz"])
         for p, n in zip(pts["points"], pts["normals"]):
             w.writerow([repr(float(x)) for x in (*p, *n)])
-    run = run_child([*HIRAD, "reference", str(scene_path), str(csv_in), "--paths", str(paths), "--seed", "7",
-                     "-o", str(csv_out)], work / "reference.log")
+    run = run_child([*HIRAD, "reference", str(scene_path), str(csv_in), "--paths", str(paths), "--seed", str(seed),
+                     "-o", str(csv_out)], work / f"reference_{tag}.log")
     rows = list(csv.DictReader(open(csv_out)))
     rad = np.array([[float(r[f"radiance_{c}"]) for c in "rgb"] for r in rows])
     se = np.array([[float(r[f"stderr_{c}"]) for c in "rgb"] for r in rows])
@@ -628,8 +628,11 @@ def main() -> None:
     ap.add_argument("--density", type=float, default=16.0, help="texels per metre (both tools)")
     ap.add_argument("--points", type=int, default=200, help="texel sample points compared")
     ap.add_argument("--seed", type=int, default=14)
+    ap.add_argument("--candidates", type=int, default=None, help="texel points drawn before selection [1.3 N + 10]")
     ap.add_argument("--ref-paths", type=int, default=8192, help="hirad reference paths per point")
-    ap.add_argument("--max-se", type=float, default=0.03, help="drop points with a noisier reference")
+    ap.add_argument("--select-paths", type=int, default=2048, help="paths per point of the run that chooses points")
+    ap.add_argument("--max-se", type=float, default=0.05,
+                    help="drop points whose selection run's relative standard error is above this")
     ap.add_argument("--samples", type=lambda s: [int(x) for x in s.split(",")], default=[4, 16, 64],
                     help="Cycles samples per texel, a ladder of full bakes")
     ap.add_argument("--bounces", type=int, default=32)
@@ -672,16 +675,23 @@ def main() -> None:
     print(f"pages: {len(pages)} ({', '.join(str(pg['width']) + 'x' + str(pg['height']) for pg in pages)}), fill "
           f"{texels / page_area:.3f}, {texels:,.0f} covered texels")
 
-    pts = texel_points(scene, uvs, pages, int(args.points * 1.3) + 10, args.seed)
-    ref, run_r = reference(scene_path, pts, work, args.ref_paths)
+    pts = texel_points(scene, uvs, pages, args.candidates or int(args.points * 1.3) + 10, args.seed)
+    # Two independent reference runs: the first chooses the points, the second gives their values.
+    # Choosing by a run's own relative standard error would keep the points whose estimate missed
+    # the rare bright paths (a low mean with a low standard error): a reference biased low.
+    ref_s, run_s = reference(scene_path, pts, work, args.select_paths, 7, "select")
+    lum_s = ref_s["radiance"] @ LUM
+    rse_s = np.where(lum_s > 0, (ref_s["standard_error"] @ LUM) / np.maximum(lum_s, 1e-300), np.inf)
+    keep = np.nonzero((lum_s > 0.01 * np.median(lum_s)) & (rse_s <= args.max_se))[0][: args.points]
+    ref, run_r = reference(scene_path, {k: v[keep] for k, v in pts.items()}, work, args.ref_paths, 8, "value")
     lum = ref["radiance"] @ LUM
     rse = np.where(lum > 0, (ref["standard_error"] @ LUM) / np.maximum(lum, 1e-300), np.inf)
-    keep = np.nonzero((lum > 0.01 * np.median(lum)) & (rse <= args.max_se))[0][: args.points]
-    print(f"reference: {len(pts['page'])} texel points, {args.ref_paths} paths each, {run_r['wall_s']:.1f} s; "
-          f"{len(keep)} kept (lit, relative standard error <= {args.max_se:.0%}); their mean relative standard "
-          f"error {np.mean(rse[keep]):.2%}")
+    print(f"reference: {len(pts['page'])} texel points; selection run {args.select_paths} paths each "
+          f"({run_s['wall_s']:.1f} s): {len(keep)} kept (lit, relative standard error <= {args.max_se:.0%}); value run "
+          f"(another seed) {args.ref_paths} paths each ({run_r['wall_s']:.1f} s): mean relative standard error "
+          f"{np.mean(rse):.2%}")
     sel = {k: v[keep] for k, v in pts.items()}
-    ref_k, rse_k = ref["radiance"][keep], rse[keep]
+    ref_k, rse_k = ref["radiance"], rse
 
     hirad_pages = [np.asarray(_engine.read_exr(str(out / "lightmaps" / pg["file"])), float) for pg in pages]
     e_h = errors(texel_values(hirad_pages, sel, top_row_first=True), sel["rho"], ref_k)
@@ -732,7 +742,7 @@ def main() -> None:
               f"{er.min():.2%}..{er.max():.2%}: no interpolated time")
     figures = {"machine": state, "end_load": os.getloadavg(), "calibration": cal, "scene": str(scene_path),
                "density": args.density, "mode": args.mode, "epsilon": args.epsilon, "min_area": args.min_area, "pages": [{k: pg[k] for k in ("width", "height", "fill")} for pg in pages],
-               "covered_texels": texels, "points": len(keep), "ref_paths": args.ref_paths,
+               "covered_texels": texels, "points": len(keep), "ref_paths": args.ref_paths, "select_paths": args.select_paths, "selection_run": run_s,
                "ref_mean_rse": float(np.mean(rse_k)), "hirad": {**run_h, **s_h}, "reference_run": run_r,
                "blender": {"process": run_b, "build_s": bj["build_s"], "rows": rows, "bounces": args.bounces,
                            "threads": args.threads, "version": bj["version"]},
