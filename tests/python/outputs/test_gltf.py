@@ -317,3 +317,46 @@ def test_copies_share_the_uv_set_and_get_their_own_rectangles(tmp_path):
     assert np.array_equal(np.sort(uv_bytes["/World/quad"]), np.sort(uv_bytes["/World/copy"]))
     assert prims["/World/quad"]["material"] != prims["/World/copy"]["material"]
     assert validate(out / "scene.glb")["numErrors"] == 0
+
+
+def test_texture_material_and_texture_uvs(tmp_path):
+    """A diffuseColor read from a UsdUVTexture (a PNG) becomes baseColorTexture on TEXCOORD_0,
+    the image embedded byte for byte; TEXCOORD_0 is st with V flipped (glTF's origin is the
+    top-left); the emissive mapping's albedo is the texture's mean linear colour."""
+    from PIL import Image
+
+    out = _stage(tmp_path)
+    tex = np.zeros((4, 4, 3), np.uint8)
+    tex[:, :2] = (255, 0, 0)
+    tex[:, 2:] = (0, 0, 255)
+    Image.fromarray(tex).save(tmp_path / "albedo.png")
+    src = Usd.Stage.Open(str(tmp_path / "input.usda"))
+    t = UsdShade.Shader.Define(src, "/World/Looks/paint/albedo")
+    t.CreateIdAttr("UsdUVTexture")
+    t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./albedo.png"))
+    sh = UsdShade.Shader(src.GetPrimAtPath("/World/Looks/paint/surface"))
+    sh.GetInput("diffuseColor").ConnectToSource(t.ConnectableAPI(), "rgb")
+    UsdGeom.PrimvarsAPI(src.GetPrimAtPath("/World/quad")).CreatePrimvar(
+        "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying).Set(
+        [Gf.Vec2f(0, 0), Gf.Vec2f(2, 0), Gf.Vec2f(2, 2), Gf.Vec2f(0, 2)])
+    src.GetRootLayer().Save()
+    path = gltf.write_glb(out)
+    doc = glb_json(path)
+    (node,) = [n for n in doc["nodes"] if "mesh" in n]
+    prim = doc["meshes"][node["mesh"]]["primitives"][0]
+    mat = doc["materials"][prim["material"]]
+    info = mat["pbrMetallicRoughness"]["baseColorTexture"]
+    assert info["texCoord"] == 0
+    image = doc["images"][doc["textures"][info["index"]]["source"]]
+    assert image["mimeType"] == "image/png"
+    blob = path.read_bytes()
+    bin_start = 20 + int.from_bytes(blob[12:16], "little") + 8
+    bv = doc["bufferViews"][image["bufferView"]]
+    assert blob[bin_start + bv.get("byteOffset", 0):][:bv["byteLength"]] == (tmp_path / "albedo.png").read_bytes()
+    acc = doc["accessors"][prim["attributes"]["TEXCOORD_0"]]
+    bv = doc["bufferViews"][acc["bufferView"]]
+    uv0 = np.frombuffer(blob[bin_start + bv.get("byteOffset", 0):][:bv["byteLength"]], np.float32).reshape(-1, 2)
+    assert {tuple(r) for r in uv0} == {(0.0, 1.0), (2.0, 1.0), (2.0, -1.0), (0.0, -1.0)}
+    # half the texels red, half blue: mean linear colour (0.5, 0, 0.5)
+    assert mat["emissiveFactor"] == pytest.approx([0.5, 0.0, 0.5])
+    assert validate(path)["numErrors"] == 0
