@@ -349,6 +349,11 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                              mesh_faces, groups=light_groups, n_specs=len(specs)))
             usd.write_solution_layer(cfg.scene, path, scene, meshes, meta, view=cfg.outputs.usd_view)
             outputs["usd"] = "solution.usda"
+    if cfg.outputs.gltf:  # the config requires usd and lightmaps with it
+        from .outputs.gltf import write_glb
+
+        with rep.stage("glTF"):
+            outputs["gltf"] = write_glb(staging, uv_set=cfg.outputs.lightmaps.uv_set, warn=rep.warn).name
     if cfg.outputs.preview.enabled:
         with rep.stage("preview"):
             pv = cfg.outputs.preview

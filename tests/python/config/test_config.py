@@ -227,11 +227,26 @@ def test_missing_key_in_tuple_reports_parent_line(tmp_path: Path) -> None:
         ("scene: scene.usda\nhierarchy:\n  relative_epsilon: -0.1\n", 3, "hierarchy.relative_epsilon"),
         ("scene: scene.usda\nhierarchy:\n  spread_epsilon: 1.5\n", 3, "hierarchy.spread_epsilon"),
         ("scene: scene.usda\nhierarchy:\n  spread_epsilon: -1.0e-3\n", 3, "hierarchy.spread_epsilon"),
+        ("scene: scene.usda\noutputs:\n  lightmaps:\n    encodings: [unity-rgbm, png]\n", 4,
+         "outputs.lightmaps.encodings[1]"),
+        ("scene: scene.usda\noutputs:\n  lightmaps:\n    uv_set: 'st 1'\n", 4, "outputs.lightmaps.uv_set"),
     ],
 )
 def test_out_of_range(tmp_path: Path, text: str, line: int, key: str) -> None:
     err = load_error(write(tmp_path, text))
     assert (err.line, err.key) == (line, key)
+
+
+def test_directional_lightmaps_need_the_gather_and_gltf_needs_its_sources(tmp_path: Path) -> None:
+    err = load_error(write(tmp_path, "scene: scene.usda\noutputs:\n  lightmaps:\n    mode: interpolate\n"
+                                     "    directional: true\n"))
+    assert err.key == "outputs.lightmaps" and "final_gather" in err.problem
+    err = load_error(write(tmp_path, "scene: scene.usda\noutputs:\n  gltf: true\n  lightmaps:\n"
+                                     "    enabled: false\n"))
+    assert err.key == "outputs" and "lightmaps.enabled" in err.problem
+    cfg = load_config(write(tmp_path, "scene: scene.usda\nmethod: hierarchical\noutputs:\n  gltf: true\n"
+                                      "  lightmaps:\n    mode: final_gather\n    directional: true\n"))
+    assert cfg.outputs.gltf and cfg.outputs.lightmaps.directional
 
 
 def test_snapshots_need_progressive(tmp_path: Path) -> None:

@@ -88,7 +88,8 @@ def baked(tmp_path_factory):
                        outputs={"preview": {"enabled": False},
                                 "lightmaps": {"texels_per_metre": TPM, "padding": 2, "max_size": 512,
                                               "supersample": 2, "mode": "final_gather", "gather_rays": 16,
-                                              "uv_primvars": ["st1", "st"]}})
+                                              "uv_primvars": ["st1", "st"],
+                                              "encodings": ["unity-rgbm", "unity-dldr"]}})
     result = bake(cfg)
     return root, scene, before, result, root / "out"
 
@@ -413,3 +414,118 @@ def test_each_polygon_is_one_piece_of_its_chart(baked):
             s += c
     assert polygons >= 8
     assert worst < 1e-3, f"a polygon's corners leave its first triangle's chart by {worst:.3g} texels"
+
+
+def test_directional_maps_decode_to_the_gathered_light(tmp_path):
+    """directional: true. At chart-centre texels of the floor and the box, each engine's own decode
+    (hirad.outputs.directional: Godot's packed L1 shader, Unity's DecodeDirectionalLightmap) for
+    normals tilted 35 degrees four ways gives the light a fresh directional gather at that point
+    predicts for the tilted normal (E1(n') = l0/4 + n'.l1/2, within 2 % of the light at the
+    texel's own normal); Unity's decode at the
+    texel's own normal is the plain lightmap (within 8-bit rounding); and on the floor under the
+    lamp the dominant direction points at the lamp."""
+    from PIL import Image
+
+    from hirad.outputs import directional as D
+    from hirad.outputs.probes import engine_frame
+
+    scene = build_scene(tmp_path / "scene.usda")
+    cfg = write_config(tmp_path / "bake.yaml", scene, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-4, "min_area": 0.005, "samples": 8, "max_rounds": 4},
+                       solver={"method": "jacobi", "tolerance": 1e-4},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {"texels_per_metre": TPM, "padding": 2, "max_size": 512,
+                                              "mode": "final_gather", "gather_rays": 16, "directional": True}})
+    result = bake(cfg)
+    out = tmp_path / "out"
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    godot_m, unity_m = engine_frame("Y", "godot"), engine_frame("Y", "unity")
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    errors, own, angles = [], [], []
+    orig = _originals(out)
+    for name in ("floor", "box"):
+        e = orig[name]
+        entry = manifest["pages"][e["page"]]
+        page = _read_exr(out / "lightmaps" / entry["file"])
+        layers = np.stack([_read_exr(out / "lightmaps" / f) for f in entry["godotL1"]["layers"]])
+        with Image.open(out / "lightmaps" / entry["unityDirection"]) as im:
+            udir = np.asarray(im.convert("RGBA"), dtype=np.float64) / 255
+        h, w = page.shape[:2]
+        tp, tuv, tn = _corner_points(e)
+        cuv = tuv.mean(axis=1)
+        tx, ty = np.floor(cuv[:, 0] * w) + 0.5, np.floor(cuv[:, 1] * h) + 0.5
+        centre_uv = np.stack([tx / w, ty / h], axis=1)
+        a, b, c = tuv[:, 0], tuv[:, 1], tuv[:, 2]
+        lam = np.linalg.solve(np.stack([b - a, c - a], axis=2), (centre_uv - a)[..., None])[..., 0]
+        inside = (lam >= 0.05).all(axis=1) & (lam.sum(axis=1) <= 0.95)
+        x = (tp[:, 0] + lam[:, :1] * (tp[:, 1] - tp[:, 0]) + lam[:, 1:] * (tp[:, 2] - tp[:, 0]))[inside]
+        n, cu = tn[inside], centre_uv[inside]
+        g = result.gather(x + 1e-4 * n, n, rays=256, seed=5, directional=True)
+        px = np.clip(np.floor(cu[:, 0] * w).astype(int), 0, w - 1)
+        py = np.clip(np.floor((1 - cu[:, 1]) * h).astype(int), 0, h - 1)
+        lit = g["irradiance"] @ lum > 0
+        for k in np.nonzero(lit)[0]:
+            t1 = np.cross(n[k], [1.0, 0, 0] if abs(n[k][0]) < 0.9 else [0, 0, 1.0])
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(n[k], t1)
+            for t in (t1, -t1, t2, -t2):
+                tilted = math.cos(math.radians(35)) * n[k] + math.sin(math.radians(35)) * t
+                expect = (g["l0"][k] / 4 + g["l1"][k] @ tilted / 2) / math.pi
+                got = D.godot_directional_decode(layers[:, py[k], px[k]], godot_m @ tilted, packed=True)
+                # relative to the light at the texel's own normal (a tilt away from the light
+                # can leave little, and the error is the texel average's, on the whole light)
+                level = (g["l0"][k] / 4 + g["l1"][k] @ n[k] / 2) @ lum / math.pi
+                errors.append(abs(got @ lum - expect @ lum) / level)
+            plain = page[py[k], px[k]]
+            unity = D.unity_decode_directional(plain, udir[py[k], px[k]], unity_m @ n[k])
+            own.append(abs(unity @ lum - plain @ lum) / (plain @ lum))
+        if name == "floor":  # floor points near the lamp's foot, read through st1
+            for q in ([-0.3, 0.0, -0.3], [-0.3, 0.0, 0.2], [0.1, 0.0, -0.3]):
+                q = np.array(q)
+                for tri_p, tri_uv in zip(tp, tuv):
+                    m = np.stack([tri_p[1] - tri_p[0], tri_p[2] - tri_p[0]], axis=1)[[0, 2]]
+                    bl = np.linalg.solve(m, (q - tri_p[0])[[0, 2]])
+                    if bl.min() >= 0 and bl.sum() <= 1:
+                        quv = tri_uv[0] + bl[0] * (tri_uv[1] - tri_uv[0]) + bl[1] * (tri_uv[2] - tri_uv[0])
+                        d = udir[int((1 - quv[1]) * h), int(quv[0] * w)]
+                        v = np.linalg.inv(unity_m) @ (d[:3] - 0.5)
+                        to_lamp = np.array([0.0, 2.2, 0.0]) - q
+                        cosang = v @ to_lamp / np.linalg.norm(v) / np.linalg.norm(to_lamp)
+                        angles.append(math.degrees(math.acos(min(1.0, cosang))))
+                        break
+    assert len(errors) >= 40 and len(angles) >= 2
+    assert max(errors) < 0.02, f"Godot decode vs gather: max {max(errors):.4f}"
+    assert max(own) < 0.01, f"Unity decode at the normal vs the lightmap: max {max(own):.4f}"
+    assert max(angles) < 20, f"dominant direction vs the lamp: {angles}"
+
+
+def test_unity_encodings_decode_to_the_page_by_unitys_formulas(baked):
+    """Unity RGBM and dLDR PNGs beside each page, named in the manifest, decoded by Unity's documented
+    formulas (Lightmaps: Technical information; EntityLighting.hlsl): RGBM linear = (5 a rgb)^2.2,
+    dLDR linear = (2 rgb)^2.2, texels as 8-bit fractions. Each texel is the EXR's value up to the
+    rounding of one 8-bit step in gamma space: |dec - v| <= v ((1 + dg/g)^2.2 - 1), dg the half step
+    (RGBM 2.5 a / 255, dLDR 1 / 255), g = v^(1/2.2), and the EXR's half-float rounding."""
+    from PIL import Image
+
+    root, scene, before, result, out = baked
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    assert set(manifest["encodings"]) == {"unity-rgbm", "unity-dldr"}
+    for entry in manifest["pages"]:
+        v = _read_exr(out / "lightmaps" / entry["file"])
+        for enc, rng, dg_of in (("unity-rgbm", 34.493242, lambda a: 2.5 * a / 255),
+                                ("unity-dldr", 4.594794, lambda a: 1.0 / 255)):
+            with Image.open(out / "lightmaps" / entry["encoded"][enc]["file"]) as im:
+                q = np.asarray(im, dtype=np.float64) / 255
+            if enc == "unity-rgbm":
+                a = q[..., 3:4]
+                dec = (5 * a * q[..., :3]) ** 2.2
+            else:
+                a = np.ones(q.shape[:2] + (1,))
+                dec = (2 * q[..., :3]) ** 2.2
+            assert q.shape[:2] == v.shape[:2]
+            inside = v < rng * 0.999  # beyond the range both clamp
+            g = np.maximum(v, 1e-12) ** (1 / 2.2)
+            # plus the EXR's own half-float rounding (2^-11 relative) of the value encoded
+            bound = v * ((1 + dg_of(a) / g) ** 2.2 - 1) + v * 2.0 ** -11 + 1e-6
+            bad = (np.abs(dec - v) > bound) & inside
+            assert not bad.any(), (enc, v[bad][:5], dec[bad][:5], bound[bad][:5])

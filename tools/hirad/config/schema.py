@@ -640,6 +640,27 @@ class LightmapOutputConfig(BaseModel):
         gt=0.0,
         description="RGBM range (value = rgb * a * range); null uses each page's maximum.",
     )
+    encodings: list[Literal["hirad-rgbm", "unity-rgbm", "unity-dldr"]] = Field(
+        default_factory=list,
+        description=(
+            "8-bit PNG copies of each page besides the half-float EXR: 'hirad-rgbm' (linear, the"
+            " range in the PNG; same as rgbm: true), 'unity-rgbm' (Unity's RGBM: range 5 in gamma"
+            " space, 34.49 linear) and 'unity-dldr' (Unity's double LDR: 2 in gamma space)."
+        ),
+    )
+    directional: StrictBool = Field(
+        default=False,
+        description=(
+            "Also write directional lightmaps from the final gather (mode: final_gather): per page"
+            " Godot 4's four L1 SH layers, Bakery's SH textures and Unity's dominant-direction map."
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _directional_needs_the_gather(self) -> "LightmapOutputConfig":
+        if self.directional and self.mode != "final_gather":
+            raise ValueError("directional: true needs mode: final_gather (the directions come from the gather)")
+        return self
 
 
 class VolumeOutputConfig(BaseModel):
@@ -722,6 +743,13 @@ class OutputsConfig(BaseModel):
             " reads) and keeps the solved meshes as a hidden debug scope."
         ),
     )
+    gltf: StrictBool = Field(
+        default=False,
+        description=(
+            "Also write scene.glb (glTF 2.0): the input's meshes with their materials, TEXCOORD_1 ="
+            " the lightmap UVs and the lightmap pages (needs usd and lightmaps)."
+        ),
+    )
     lightmaps: LightmapOutputConfig = Field(
         default_factory=LightmapOutputConfig, description="Lightmap texture settings."
     )
@@ -734,6 +762,13 @@ class OutputsConfig(BaseModel):
     report: StrictBool = Field(
         default=True, description="Write a report of timings, statistics and settings."
     )
+
+    @model_validator(mode="after")
+    def _gltf_needs_its_sources(self) -> "OutputsConfig":
+        if self.gltf and not (self.usd and self.lightmaps.enabled):
+            raise ValueError("gltf: true needs usd: true and lightmaps.enabled: true (the GLB is written from "
+                             "the solution layer and the lightmap pages)")
+        return self
 
 
 # --------------------------------------------------------------------------

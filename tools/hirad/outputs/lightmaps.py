@@ -161,6 +161,51 @@ def _uv_overlap(uv: np.ndarray, cells: int = 0) -> float:
     return float((count > 1).sum()) / covered if covered else 0.0
 
 
+def _write_directional(lm_dir: Path, page: int, baked: np.ndarray, up_axis: str, meta) -> dict:
+    """A page's directional lightmaps from its 18 resolved channels (E/pi, l0, l1 (3 x 3), normal),
+    in each engine's world frame (hirad.outputs.probes.engine_frame: Y up; Unity left-handed, x
+    negated): Godot 4's four packed L1 SH layers (EXR, linear), Bakery's L0 and RNM0-2 (EXR) and
+    Unity's dominant-direction map (8-bit RGBA PNG, linear data: import without sRGB). Returns
+    the page's manifest fields."""
+    from PIL import Image
+
+    from . import directional as D
+    from .probes import engine_frame
+
+    e = baked[..., 0:3].astype(np.float64) * np.pi
+    l0 = baked[..., 3:6].astype(np.float64)
+    l1 = baked[..., 6:15].astype(np.float64).reshape(baked.shape[:2] + (3, 3))
+    n = baked[..., 15:18].astype(np.float64)
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = np.where(length > 0, n / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+    out: dict = {}
+    godot = D.godot_directional_layers(l0, l1, to_engine=engine_frame(up_axis, "godot"), packed=True)
+    files = []
+    for j, layer in enumerate(godot):
+        rel = f"pages/page{page}.godot_l1_{j}.exr"
+        _engine.write_exr(str(lm_dir / rel), np.ascontiguousarray(layer, dtype=np.float32),
+                          meta + [("hirad:page", str(page)), ("hirad:layer", ["L0", "L1y", "L1z", "L1x"][j])])
+        files.append(rel)
+    out["godotL1"] = {"layers": files, "order": "L0, L1 m=-1 (y), m=0 (z), m=1 (x)", "packed": True,
+                      "frame": "Godot world (Y up, right-handed)"}
+    bakery = D.bakery_sh_textures(l0, l1, to_engine=engine_frame(up_axis, "unity"))
+    files = {}
+    for key, texture in bakery.items():
+        rel = f"pages/page{page}.bakery_{key}.exr"
+        _engine.write_exr(str(lm_dir / rel), np.ascontiguousarray(texture, dtype=np.float32),
+                          meta + [("hirad:page", str(page)), ("hirad:layer", key)])
+        files[key] = rel
+    out["bakerySH"] = {**files, "frame": "Unity world (Y up, left-handed, x negated)"}
+    _, direction = D.unity_dominant_direction(e, l0, l1, n, to_engine=engine_frame(up_axis, "unity"))
+    rel = f"pages/page{page}.unity_dir.png"
+    texels = np.clip(np.rint(direction * 255), 0, 255).astype(np.uint8)
+    from ..atlas.files import _atomic
+
+    _atomic(lm_dir / rel, lambda tmp: Image.fromarray(texels, mode="RGBA").save(tmp, format="PNG"))
+    out["unityDirection"] = rel
+    return out
+
+
 def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
                      staging: Path, result=None, warn=None) -> tuple[list[str], dict]:
     """Lightmaps baked on the source meshes: every input mesh's own faces (triangle fans of
@@ -284,7 +329,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         lifted, moved = _lift(result, points, normals, texel, lm.sample_offset, reach)
         evaluate.moved += int(moved.sum())
         if mode == "final_gather":
-            g = result.gather(lifted, normals, rays=lm.gather_rays)
+            g = result.gather(lifted, normals, rays=lm.gather_rays, directional=lm.directional)
             values = g["irradiance"] / np.pi
             miss = g["patch"] < 0
         else:
@@ -295,7 +340,19 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             q = field.probe(np.ascontiguousarray(lifted[miss]), np.zeros((int(miss.sum()), 3)), 1e30)
             values[miss] = q.irradiance / np.pi
         evaluate.samples += len(points)
-        return values
+        if not lm.directional:
+            return values
+        # Per sample E/pi, the hemisphere's moments l0, l1 and the normal, resolved per texel
+        # like the colour (18 channels). Where the gather found no element (read from the
+        # nearest surface instead) the light is taken as uniform over the hemisphere:
+        # l0 = 2 E, l1 = E n (E1 = l0/4 + n.l1/2 = E).
+        l0 = np.asarray(g["l0"], dtype=np.float64).copy()
+        l1 = np.asarray(g["l1"], dtype=np.float64).reshape(-1, 9).copy()
+        if miss.any():
+            e = np.pi * values[miss]
+            l0[miss] = 2.0 * e
+            l1[miss] = (e[:, :, None] * np.asarray(normals)[miss][:, None, :]).reshape(-1, 9)
+        return np.concatenate([values, l0, l1, np.asarray(normals, dtype=np.float64)], axis=1)
 
     evaluate.moved = 0
     evaluate.samples = 0
@@ -304,20 +361,29 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     meta_base = [("hirad:units", lightmap_units), ("hirad:version", __version__),
                  ("hirad:sceneFingerprint", fingerprint), ("hirad:texelsPerMetre", f"{density:.9g}"),
                  ("hirad:lightmapMode", mode)]
-    page_files, page_images, page_masks, png_files = [], [], [], []
+    page_files, page_images, page_masks, png_files, page_extra = [], [], [], [], []
+    encodings = list(dict.fromkeys((["hirad-rgbm"] if lm.rgbm else []) + list(lm.encodings)))
     for page in range(len(atlas.page_sizes)):
-        image, mask = _bake_page(atlas, page, evaluate, lm.supersample)
-        image = np.ascontiguousarray(image[..., :3], dtype=np.float32)
+        baked, mask = _bake_page(atlas, page, evaluate, lm.supersample)
+        image = np.ascontiguousarray(baked[..., :3], dtype=np.float32)
         rel = f"pages/page{page}.exr"
         _engine.write_exr(str(lm_dir / rel), image, meta_base + [("hirad:page", str(page))])
         page_files.append(rel)
         page_images.append(image)
         page_masks.append(mask)
-        if lm.rgbm:
-            top = float(lm.rgbm_range) if lm.rgbm_range is not None else float(max(image.max(), 1e-6))
-            png = f"pages/page{page}.png"
-            A.write_rgbm_png(lm_dir / png, image, top)
-            png_files.append({"file": png, "rgbm_range": top})
+        extra_k: dict = {}
+        for enc in encodings:
+            top = None
+            if enc == "hirad-rgbm":
+                top = float(lm.rgbm_range) if lm.rgbm_range is not None else float(max(image.max(), 1e-6))
+            png = f"pages/page{page}.png" if enc == "hirad-rgbm" else f"pages/page{page}.{enc}.png"
+            A.write_png(lm_dir / png, image, enc, top)
+            extra_k.setdefault("encoded", {})[enc] = {"file": png, **({"rgbm_range": top} if top else {})}
+            if enc == "hirad-rgbm":
+                png_files.append({"file": png, "rgbm_range": top})
+        if lm.directional:
+            extra_k.update(_write_directional(lm_dir, page, baked, scene.up_axis, meta_base))
+        page_extra.append(extra_k)
     elapsed = time.perf_counter() - t_start
 
     written = []
@@ -373,7 +439,10 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
                           "page": sl["page"], "file": page_files[sl["page"]],
                           "scaleOffset": [float(v) for v in sl["scale_offset"]], "uvSet": lm.uv_set,
                           "uvSource": sl["source"], "texelsPerMetre": float(layout.texels_per_metre)})
-    extra = {"version": 2, "hirad:version": __version__, "units": lightmap_units, "sceneFingerprint": fingerprint,
+    pages = [{"file": f, "width": w, "height": h, "fill": round(fill, 6), **more}
+             for f, (w, h), fill, more in zip(page_files, atlas.page_sizes, atlas.fill, page_extra)]
+    extra = {"version": 2, "hirad:version": __version__, "pages": pages,
+             "encodings": {e: A.ENCODINGS[e] for e in encodings}, "units": lightmap_units, "sceneFingerprint": fingerprint,
              "mode": mode, "supersample": lm.supersample,
              "value": "incident radiance H/pi per texel (linear); a Lambertian surface shows albedo x value",
              "uvSet": lm.uv_set,
