@@ -296,9 +296,16 @@ def test_source_view_shows_the_input_meshes_and_keeps_the_solution_for_hirad(tmp
     scene = build_scene(tmp_path / "scene.usda")
     cfg = write_config(tmp_path / "bake.yaml", scene, tmp_path / "out",
                        meshing={"max_patch_area": 0.1, "max_edge_length": 0.5},
-                       outputs={"preview": {"enabled": False}, "usd_view": "source",
+                       outputs={"preview": {"enabled": False}, "usd_view": "source", "gltf": True,
                                 "lightmaps": {"texels_per_metre": 8.0, "mode": "interpolate"}})
-    bake(cfg)
+    result = bake(cfg)
+    # outputs.gltf: the GLB is part of the bake, with every original mesh
+    import pygltflib
+
+    glb = pygltflib.GLTF2().load(str(tmp_path / "out" / "scene.glb"))
+    assert result.report["outputs"]["gltf"] == "scene.glb"
+    assert len(glb.meshes) >= 5 and any("TEXCOORD_1" in p.attributes.__dict__ and p.attributes.TEXCOORD_1
+                                        is not None for m in glb.meshes for p in m.primitives)
     stage = Usd.Stage.Open(str(tmp_path / "out" / "solution.usda"))
     for name in ("floor", "box", "plinth", "wall", "lamp"):
         prim = stage.GetPrimAtPath(f"/World/{name}")
