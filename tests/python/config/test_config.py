@@ -96,6 +96,14 @@ def test_example_configs_load(name: str, area: float, edge: float, samples: int,
     assert cfg.outputs.preview.camera == "/World/Camera"
 
 
+def test_game_engines_example_loads() -> None:
+    cfg = load_config(CONFIGS / "game_engines.yaml")
+    assert cfg.scene.is_file() and cfg.output == REPO / "out" / "game_engines"
+    lm = cfg.outputs.lightmaps
+    assert cfg.outputs.gltf and cfg.outputs.usd_view == "source" and cfg.outputs.volume.enabled
+    assert lm.mode == "final_gather" and lm.directional and lm.encodings == ["unity-rgbm", "unity-dldr"]
+
+
 # --- error reports ---------------------------------------------------------
 
 
