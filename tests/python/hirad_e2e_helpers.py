@@ -205,3 +205,23 @@ def write_points_csv(path: Path, rows: Iterable[Sequence[float]], header: bool =
     lines += [",".join(repr(float(v)) for v in r) for r in rows]
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def add_crate_instancer(stage: Usd.Stage, path: str, half: float, positions, material=None) -> UsdGeom.PointInstancer:
+    """A PointInstancer at `path` with copies of one cube prototype (`path`/Prototypes/crate: side
+    2 half, resting on y = 0, faces wound outwards) at `positions`."""
+    inst = UsdGeom.PointInstancer.Define(stage, path)
+    p = [[x * half, y * half + half, z * half] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    faces = []
+    for q in quads:
+        a, b, c = (np.asarray(p[i]) for i in q[:3])
+        if np.dot(np.cross(b - a, c - a), np.asarray(p)[q].mean(axis=0) - [0, half, 0]) < 0:
+            q = q[::-1]
+        faces.append(q)
+    proto = f"{path}/Prototypes/crate"
+    add_mesh(stage, proto, p, [4] * 6, [k for q in faces for k in q], material)
+    inst.CreatePrototypesRel().SetTargets([proto])
+    inst.CreateProtoIndicesAttr([0] * len(positions))
+    inst.CreatePositionsAttr([tuple(map(float, x)) for x in positions])
+    return inst

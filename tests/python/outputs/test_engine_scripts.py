@@ -49,7 +49,7 @@ import pytest
 
 pytest.importorskip("xatlas")
 pytest.importorskip("pygltflib")
-from hirad_e2e_helpers import add_material, add_mesh, new_stage, write_config  # noqa: E402
+from hirad_e2e_helpers import add_crate_instancer, add_material, add_mesh, new_stage, write_config  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
 from hirad.bake import bake  # noqa: E402
@@ -99,20 +99,7 @@ def build_scene(path: Path) -> Path:
                                                    UsdGeom.Tokens.faceVarying)
     st1.Set([(0.1, 0.2), (0.1, 0.7), (0.9, 0.7), (0.9, 0.2)])
     # two copies of one crate prototype (PointInstancer): one UV set, two rectangles
-    inst = UsdGeom.PointInstancer.Define(stage, "/World/crates")
-    hc = 0.15
-    pc = [[x * hc, y * hc + hc, z * hc] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
-    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    out = []
-    for qd in quads:
-        a, b, cc = (np.asarray(pc[i]) for i in qd[:3])
-        if np.dot(np.cross(b - a, cc - a), np.asarray(pc)[qd].mean(axis=0) - [0, hc, 0]) < 0:
-            qd = qd[::-1]
-        out.append(qd)
-    add_mesh(stage, "/World/crates/Prototypes/crate", pc, [4] * 6, [k for qd in out for k in qd], grey)
-    inst.CreatePrototypesRel().SetTargets(["/World/crates/Prototypes/crate"])
-    inst.CreateProtoIndicesAttr([0, 0])
-    inst.CreatePositionsAttr([(-1.0, 0.0, 1.0), (0.0, 0.0, 1.0)])
+    add_crate_instancer(stage, "/World/crates", 0.15, [(-1.0, 0.0, 1.0), (0.0, 0.0, 1.0)], grey)
     stage.GetRootLayer().Save()
     return path
 

@@ -23,10 +23,11 @@ import numpy as np
 import pytest
 
 pytest.importorskip("xatlas")
-from hirad_e2e_helpers import add_material, add_mesh, new_stage, write_config  # noqa: E402
+from hirad_e2e_helpers import add_crate_instancer, add_material, add_mesh, new_stage, write_config  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
 from hirad.bake import bake  # noqa: E402
+from hirad.outputs.lightmap_render import _bilinear  # noqa: E402  (the engines' bilinear read, v up)
 
 TPM = 24.0
 
@@ -109,17 +110,6 @@ def _nearest_texel(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     x = np.clip(np.floor(uv[:, 0] * w).astype(int), 0, w - 1)
     y = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(int), 0, h - 1)
     return image[y, x]
-
-
-def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    h, w = image.shape[:2]
-    x = np.clip(uv[:, 0] * w - 0.5, 0, w - 1)
-    y = np.clip((1.0 - uv[:, 1]) * h - 0.5, 0, h - 1)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    return ((image[y0, x0] * (1 - fx) + image[y0, x1] * fx) * (1 - fy)
-            + (image[y1, x0] * (1 - fx) + image[y1, x1] * fx) * fy)
 
 
 def _originals(out: Path) -> dict:
@@ -327,20 +317,7 @@ def _instanced_scene(path: Path) -> Path:
     add_mesh(stage, "/World/floor", f, [4], [0, 1, 2, 3], grey)
     e = np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]])
     add_mesh(stage, "/World/lamp", e, [4], [0, 1, 2, 3], lamp)
-    inst = UsdGeom.PointInstancer.Define(stage, "/World/crates")
-    h = 0.2
-    p = [[x * h, y * h + h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
-    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    fixed = []
-    for q in quads:
-        a, b, c = (np.asarray(p[i]) for i in q[:3])
-        if np.dot(np.cross(b - a, c - a), np.asarray(p)[q].mean(axis=0) - [0, h, 0]) < 0:
-            q = q[::-1]
-        fixed.append(q)
-    add_mesh(stage, "/World/crates/Prototypes/crate", p, [4] * 6, [k for q in fixed for k in q], grey)
-    inst.CreatePrototypesRel().SetTargets(["/World/crates/Prototypes/crate"])
-    inst.CreateProtoIndicesAttr([0, 0])
-    inst.CreatePositionsAttr([(0.0, 0.0, 0.0), (1.6, 0.0, 1.6)])
+    add_crate_instancer(stage, "/World/crates", 0.2, [(0.0, 0.0, 0.0), (1.6, 0.0, 1.6)], grey)
     stage.GetRootLayer().Save()
     return path
 
