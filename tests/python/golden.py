@@ -43,7 +43,13 @@ It was written again for the two hierarchical configs when close or partly visib
 uneven sources began to be split at the source (hierarchy.spread_epsilon, default 1e-3, stop
 25: links carried their sources' mean radiosity into the classroom, +91 % daylight factor); the
 Cornell box's links near the boxes' shadows and the walls' contacts split further.
-Rewrite it only for a change of the physics, and say which in the commit.
+It was written again for all three configs when lightmaps began to be baked on the source
+meshes (stop 26, issue 14: charts and texels on the input's own polygons, st1 on the original
+prims, square power-of-two pages packed across meshes, whole-page dilation) and the volume
+gained the L2 probe grids sh2_0..sh2_8 (report: the probe files): the lightmap pages, the
+solution meshes' lightmap UVs and the report's atlas figures changed layout; the solution's
+radiance and irradiance primvars did not (they are compared here too and held).
+Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 
 from __future__ import annotations
