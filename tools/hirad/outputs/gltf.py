@@ -11,7 +11,10 @@ What is read
     from the prim's `hirad:lightmap:*` attributes; a copy whose entry names another mesh
     ("mesh", a prototype's) takes that mesh's UV set, and a mesh inside a native instance (an
     instance proxy, which the layer cannot author over) has none and is exported without its
-    lightmap, with a warning. PointInstancers are not exported (a warning). Visibility is the
+    lightmap, with a warning. A PointInstancer's copies are nodes of their own (the prototype mesh
+    at the copy's transform, the copy's page and rectangle from the manifest entry of its path,
+    the UV set the prototype's; nested instancers and lights in prototypes are named in a
+    warning, as the bake reads them). Visibility is the
     input's: the solution layer hides the original meshes under its own display meshes, so its
     own visibility opinions are skipped, and its display meshes are not exported. Pages are
     OUT/lightmaps/pages/page<k>.exr, linear RGB, value = incident radiance H/pi in W/(m^2 sr)
@@ -258,14 +261,18 @@ def _manifest_instances(out_dir: Path) -> dict[str, dict]:
     return out
 
 
-def _lightmap_of(prim, manifest: dict, uv_set: str, layer_dir: Path, out_dir: Path):
-    """(page file Path, Unity-order scaleOffset USD convention, uv set name) or None."""
-    path = str(prim.GetPath())
+def _lightmap_of(prim, manifest: dict, uv_set: str, layer_dir: Path, out_dir: Path, path: str | None = None):
+    """(page file Path, Unity-order scaleOffset USD convention, uv set name, the mesh holding the
+    UV set) or None; `path` names a PointInstancer copy (whose prim is the prototype mesh)."""
+    copy = path is not None
+    path = str(prim.GetPath()) if path is None else path
     inst = manifest.get(path)
     if inst is not None:
         base = out_dir / "lightmaps"
         return ((base / inst["file"]).resolve(), np.asarray(inst["scaleOffset"], np.float64),
                 inst.get("uvSet", uv_set), inst.get("mesh"))
+    if copy:  # a copy's rectangle is only in the manifest
+        return None
     f = prim.GetAttribute("hirad:lightmap:file")
     so = prim.GetAttribute("hirad:lightmap:scaleOffset")
     if f and f.Get() is not None and so and so.Get() is not None:
@@ -499,7 +506,7 @@ def write_glb(out_dir: str | Path, *, solution: str = "solution.usda", name: str
     from pxr import Usd, UsdGeom
 
     from .. import _engine
-    from ..usd.scene import read_cameras
+    from ..usd.scene import point_instancer_copies, read_cameras
     from ..usd.solution import find_solution_root
 
     out_dir = Path(out_dir)
@@ -534,8 +541,21 @@ def write_glb(out_dir: str | Path, *, solution: str = "solution.usda", name: str
                 it.PruneChildren()
                 continue
         if prim.IsA(UsdGeom.PointInstancer):
-            instancers += 1
+            # each copy a node of its own: the prototype mesh at the copy's transform, with the
+            # copy's lightmap rectangle (the manifest's entry for the copy's path)
             it.PruneChildren()
+            notes: list[str] = []
+            copies = point_instancer_copies(prim, xfc, time, notes)
+            for note in notes:
+                warn(note)
+            for copy_path, proto, world in copies:
+                lm = _lightmap_of(proto, manifest, uv_set, layer.parent, out_dir, path=copy_path)
+                mat = _read_material(proto, layer.parent, materials, warn)
+                p = _mesh_primitive(proto, np.asarray(world, dtype=np.float64), axes, time, uv_set, mat, lm, warn)
+                if p is not None:
+                    p.name = copy_path
+                    prims.append(p)
+                    instancers += 1
             continue
         if not prim.IsA(UsdGeom.Mesh):
             continue
@@ -545,8 +565,6 @@ def write_glb(out_dir: str | Path, *, solution: str = "solution.usda", name: str
         p = _mesh_primitive(prim, world, axes, time, uv_set, mat, lm, warn)
         if p is not None:
             prims.append(p)
-    if instancers:
-        warn(f"{layer}: {instancers} PointInstancer(s) are not exported to glTF")
     if not prims:
         raise GltfExportError(f"{layer}: no mesh to export")
 

@@ -1146,12 +1146,28 @@ def read_scene(
 
 
 def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, mpu: float, time):
+    """Every mesh copy of a PointInstancer into the builder (point_instancer_copies)."""
+    path = str(prim.GetPath())
+    for copy_path, p, world in point_instancer_copies(prim, xfc, time, b.warnings, b.unread_lights):
+        b.add_mesh(p, world, mpu, copy_path, path, prototype=str(p.GetPath()),
+                   author_path=None if p.IsInstanceProxy() else str(p.GetPath()))
+
+
+def point_instancer_copies(prim: Usd.Prim, xfc: UsdGeom.XformCache, time, warnings: list,
+                           unread_lights: list | None = None) -> list:
+    """The mesh copies a PointInstancer places: (copy path "<instancer>/instance_<k>/<path of the
+    mesh relative to its prototype's parent>", prototype mesh prim, its world matrix (row
+    vectors, stage units)), in instance order; masked and out-of-range instances skipped,
+    invisible and guide/proxy parts of a prototype pruned. What is not honoured (nested
+    instancers, lights in prototypes, missing prototypes or transforms) goes to `warnings`."""
+    unread_lights = [] if unread_lights is None else unread_lights
+    copies: list = []
     pi = UsdGeom.PointInstancer(prim)
     path = str(prim.GetPath())
     targets = pi.GetPrototypesRel().GetTargets()
     proto_idx = pi.GetProtoIndicesAttr().Get(time)
     if proto_idx is None or len(proto_idx) == 0 or not targets:
-        return
+        return copies
     stage = prim.GetStage()
     pi_time = time if not time.IsEarliestTime() else Usd.TimeCode.Default()
     xforms = pi.ComputeInstanceTransformsAtTime(
@@ -1165,8 +1181,8 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
             t0, t0, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask
         )
     if xforms is None or len(xforms) != len(proto_idx):
-        b.warnings.append(f"{path}: PointInstancer instance transforms could not be computed; ignored")
-        return
+        warnings.append(f"{path}: PointInstancer instance transforms could not be computed; ignored")
+        return copies
     mask = pi.ComputeMaskAtTime(time)
     inst_world = _mat(xfc.GetLocalToWorldTransform(prim))
 
@@ -1175,7 +1191,7 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
     for j, tgt in enumerate(targets):
         proto = stage.GetPrimAtPath(tgt)
         if not proto or not proto.IsValid():
-            b.warnings.append(f"{path}: prototype {tgt} not found")
+            warnings.append(f"{path}: prototype {tgt} not found")
             proto_meshes[j] = []
             continue
         proto_inv = np.linalg.inv(_mat(xfc.GetLocalToWorldTransform(proto)))
@@ -1194,16 +1210,16 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
                     rng.PruneChildren()
                     continue
             if p.IsA(UsdGeom.PointInstancer):
-                b.warnings.append(f"{p.GetPath()}: nested PointInstancer not supported; ignored")
+                warnings.append(f"{p.GetPath()}: nested PointInstancer not supported; ignored")
                 rng.PruneChildren()
                 continue
             if p.IsA(UsdGeom.Mesh):
                 rel = _mat(xfc.GetLocalToWorldTransform(p)) @ proto_inv
                 lst.append((p, rel, str(p.GetPath().MakeRelativePath(proto_parent))))
             elif _is_light_prim(p):
-                b.warnings.append(f"{p.GetPath()}: {p.GetTypeName() or 'light'} in a PointInstancer prototype is not "
+                warnings.append(f"{p.GetPath()}: {p.GetTypeName() or 'light'} in a PointInstancer prototype is not "
                                   "read (only meshes are instanced); ignored, it emits nothing in the bake")
-                b.unread_lights.append(f"{p.GetPath()} ({p.GetTypeName() or 'light'} in a PointInstancer prototype)")
+                unread_lights.append(f"{p.GetPath()} ({p.GetTypeName() or 'light'} in a PointInstancer prototype)")
         proto_meshes[j] = lst
 
     for k, j in enumerate(proto_idx):
@@ -1213,5 +1229,5 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
             continue
         inst = _mat(xforms[k]) @ inst_world
         for p, rel, relpath in proto_meshes.get(int(j), []):
-            b.add_mesh(p, rel @ inst, mpu, f"{path}/instance_{k}/{relpath}", path, prototype=str(p.GetPath()),
-                       author_path=None if p.IsInstanceProxy() else str(p.GetPath()))
+            copies.append((f"{path}/instance_{k}/{relpath}", p, rel @ inst))
+    return copies
