@@ -425,22 +425,21 @@ def _mesh_primitive(prim, world: np.ndarray, axes: np.ndarray, time, uv_set: str
 
 
 def encode_rgbm(values: np.ndarray) -> tuple[np.ndarray, float]:
-    """Linear RGBM with a per-image range: value = (rgb/255) * (a/255) * range. Returns the
-    (H, W, 4) uint8 image and the range (the largest component, or 1 for a black page). The
-    multiplier a is the smallest code whose range covers the texel's largest component, so
-    rgb keeps 8 bits of relative precision at every level."""
+    """hirad's linear RGBM (hirad.atlas.files.encode_rgbm: value = (rgb/255) * (a/255) * range)
+    with a per-image range, the page's largest component (1 for a black page). Returns the
+    (H, W, 4) uint8 image and the range."""
+    from ..atlas.files import encode_rgbm as encode
+
     v = np.maximum(np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=0.0), 0.0)
     top = float(v.max()) if v.size else 0.0
     rng = top if top > 0 else 1.0
-    m = v.max(axis=2) / rng
-    a = np.clip(np.ceil(m * 255.0), 1, 255)
-    rgb = np.clip(np.round(v / (a[..., None] / 255.0 * rng) * 255.0), 0, 255)
-    return np.concatenate([rgb, a[..., None]], axis=2).astype(np.uint8), rng
+    return encode(v, rng), rng
 
 
 def decode_rgbm(image: np.ndarray, rng: float) -> np.ndarray:
-    img = np.asarray(image, dtype=np.float64)
-    return img[..., :3] / 255.0 * (img[..., 3:4] / 255.0) * rng
+    from ..atlas.files import decode_rgbm as decode
+
+    return decode(image, rng).astype(np.float64)
 
 
 def _srgb_encode(x: np.ndarray) -> np.ndarray:
