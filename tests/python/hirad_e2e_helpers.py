@@ -225,3 +225,21 @@ def add_crate_instancer(stage: Usd.Stage, path: str, half: float, positions, mat
     inst.CreateProtoIndicesAttr([0] * len(positions))
     inst.CreatePositionsAttr([tuple(map(float, x)) for x in positions])
     return inst
+
+
+def add_pentagon_box(stage: Usd.Stage, path: str, centre, half: float, bottom: float, material=None) -> UsdGeom.Mesh:
+    """A box of side 2 half standing at height `bottom` around `centre` (x, z), faces wound
+    outwards, whose top is a pentagon and a corner triangle (one corner of the top square cut
+    off through the midpoints of its two edges): n-gons for fan triangulation and faceVarying UVs."""
+    c, h = np.array([centre[0], bottom, centre[2]], float), float(half)
+    p = [c + [x * h, (y + 1) * h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    p += [c + [h, 2 * h, 0.0], c + [0.0, 2 * h, h]]  # 8, 9: on the top's edges at the +x+z corner
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [0, 2, 6, 4], [1, 5, 7, 3],  # -x, +x, -y, -z, +z
+             [2, 3, 9, 8, 6], [9, 7, 8]]  # top: pentagon + corner triangle (both +y)
+    fixed = []
+    for q in faces:
+        a, b, cc = (np.asarray(p[i]) for i in q[:3])
+        if np.dot(np.cross(b - a, cc - a), np.asarray(p)[q].mean(axis=0) - (c + [0, h, 0])) < 0:
+            q = q[::-1]
+        fixed.append(q)
+    return add_mesh(stage, path, p, [len(q) for q in fixed], [k for q in fixed for k in q], material)

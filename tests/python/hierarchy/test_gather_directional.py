@@ -19,26 +19,12 @@ import numpy as np
 import pytest
 
 from conftest import box_faces, make_model, quad
+from test_gather import corner_form_factor, solve  # the same solve and closed form as the plain gather's tests
 
 from hirad import _engine
 from hirad.outputs import directional as dl
 
 DEG = np.pi / 180
-
-
-def solve(m, epsilon, min_area, samples=16, max_rounds=6):
-    r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=min_area, samples=samples, seed=1,
-                                                      max_rounds=max_rounds),
-                             _engine.SolveOptions(method="jacobi", tolerance=1e-10, max_iterations=100000))
-    m.use_leaves_as_patches()
-    return r
-
-
-def corner_form_factor(a, b, c):
-    """Point below the corner of an a x b rectangle at distance c, parallel (closed form)."""
-    A, B = a / c, b / c
-    return (A / np.sqrt(1 + A * A) * np.arctan(B / np.sqrt(1 + A * A))
-            + B / np.sqrt(1 + B * B) * np.arctan(A / np.sqrt(1 + B * B))) / (2 * np.pi)
 
 
 def corner_solid_angle(a, b, c):

@@ -49,7 +49,7 @@ import pytest
 
 pytest.importorskip("xatlas")
 pytest.importorskip("pygltflib")
-from hirad_e2e_helpers import add_crate_instancer, add_material, add_mesh, new_stage, write_config  # noqa: E402
+from hirad_e2e_helpers import add_crate_instancer, add_material, add_pentagon_box, add_mesh, new_stage, write_config  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
 from hirad.bake import bake  # noqa: E402
@@ -73,18 +73,7 @@ def build_scene(path: Path) -> Path:
     lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
     f = np.array([[-1.5, 0, -1.5], [-1.5, 0, 1.5], [0, 0, 1.5], [0, 0, -1.5], [1.5, 0, 1.5], [1.5, 0, -1.5]], float)
     add_mesh(stage, "/World/floor", f, [4, 4], [0, 1, 2, 3, 3, 2, 4, 5], grey)
-    c, h = np.array([0.6, 0.0, 0.4]), 0.3
-    p = [c + [x * h, (y + 1) * h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
-    p += [c + [h, 2 * h, 0.0], c + [0.0, 2 * h, h]]
-    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [0, 2, 6, 4], [1, 5, 7, 3], [2, 3, 9, 8, 6], [9, 7, 8]]
-    fixed = []
-    for q in faces:
-        a, b, cc = (np.asarray(p[i]) for i in q[:3])
-        n = np.cross(b - a, cc - a)
-        if np.dot(n, np.asarray(p)[q].mean(axis=0) - (c + [0, h, 0])) < 0:
-            q = q[::-1]
-        fixed.append(q)
-    add_mesh(stage, "/World/Props/box", p, [len(q) for q in fixed], [k for q in fixed for k in q], red)
+    add_pentagon_box(stage, "/World/Props/box", (0.6, 0.0, 0.4), 0.3, 0.0, red)
     lh = np.array([[-0.9, 0, -0.3], [-0.3, 0, -0.3], [-0.3, 0.2, -0.3], [-0.9, 0.2, -0.3]], float)
     m = add_mesh(stage, "/World/Props/plinth", lh, [4], [0, 3, 2, 1], grey)
     m.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)

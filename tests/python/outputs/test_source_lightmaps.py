@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("xatlas")
-from hirad_e2e_helpers import add_crate_instancer, add_material, add_mesh, new_stage, write_config  # noqa: E402
+from hirad_e2e_helpers import add_crate_instancer, add_material, add_pentagon_box, add_mesh, new_stage, write_config  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
 from hirad.bake import bake  # noqa: E402
@@ -48,19 +48,7 @@ def build_scene(path: Path) -> Path:
     st.Set([(0, 0), (0, 1), (1, 1), (1, 0)] * 2)
     # box 0.6 m, 5 cm above the floor (its bottom sees the floor's light: no texel is black), its
     # top a pentagon (one corner cut off the top square: a 5-gon and a triangle)
-    c, h = np.array([0.6, 0.05, 0.4]), 0.3
-    p = [c + [x * h, (y + 1) * h, z * h] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
-    p += [c + [h, 2 * h, 0.0], c + [0.0, 2 * h, h]]  # 8, 9: on the top's edges at the +x+z corner
-    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [0, 2, 6, 4], [1, 5, 7, 3],  # -x, +x, -y, -z, +z
-             [2, 3, 9, 8, 6], [9, 7, 8]]  # top: pentagon + corner triangle (both +y)
-    fixed = []
-    for q in faces:
-        a, b, cc = (np.asarray(p[i]) for i in q[:3])
-        n = np.cross(b - a, cc - a)
-        if np.dot(n, np.asarray(p)[q].mean(axis=0) - (c + [0, h, 0])) < 0:
-            q = q[::-1]
-        fixed.append(q)
-    add_mesh(stage, "/World/box", p, [len(q) for q in fixed], [k for q in fixed for k in q], red)
+    add_pentagon_box(stage, "/World/box", (0.6, 0.0, 0.4), 0.3, 0.05, red)
     # a left-handed plinth (corners authored clockwise: USD flips them)
     lh = np.array([[-0.9, 0, -0.3], [-0.3, 0, -0.3], [-0.3, 0.2, -0.3], [-0.9, 0.2, -0.3]], float)
     # corners 0, 3, 2, 1 wind clockwise seen from +z; left-handed, the face looks towards +z
