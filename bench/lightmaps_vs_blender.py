@@ -361,7 +361,8 @@ def blender_version() -> str:
 def hirad_bake(scene: Path, density: float, work: Path, args) -> tuple[dict, Path]:
     out = work / "hirad_out"
     cfg = {"scene": str(scene), "output": str(out), "method": "hierarchical",
-           "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": 16, "max_rounds": 6},
+           "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": 16, "max_rounds": 6,
+                         **({} if args.spread is None else {"spread_epsilon": args.spread})},
            "solver": {"method": "jacobi", "tolerance": 1e-4},
            "outputs": {"usd": True,
                        "lightmaps": {"enabled": True, "texels_per_metre": density, "padding": 2, "max_size": 4096,
@@ -642,6 +643,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2, help="Blender threads (hirad uses all cores)")
     ap.add_argument("--epsilon", type=float, default=1e-5)
     ap.add_argument("--min-area", type=float, default=1e-3)
+    ap.add_argument("--spread", type=float, default=None,
+                    help="hierarchy.spread_epsilon (default: the config's; 0 is the fast setting for lamp-lit rooms)")
     ap.add_argument("--supersample", type=int, default=2)
     ap.add_argument("--calibrate", action="store_true", help="only Blender's unit checks")
     ap.add_argument("--no-calibration", action="store_true", help="skip Blender's unit checks (debugging)")
