@@ -530,7 +530,16 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
             _engine.write_exr(str(staging / rel), np.ascontiguousarray(img, dtype=np.float32), meta)
             written.append(rel)
         if (out_dir / "lightmaps" / "manifest.json").is_file():
-            shutil.copyfile(out_dir / "lightmaps" / "manifest.json", staging / "lightmaps" / "manifest.json")
+            # the relit output holds the EXR pages only: the manifest keeps no entry for the
+            # 8-bit copies, directional maps or RGBM PNGs of the bake (bake again for those)
+            manifest = json.loads((out_dir / "lightmaps" / "manifest.json").read_text())
+            for page in manifest.get("pages", []):
+                for key in ("encoded", "godotL1", "bakerySH", "unityDirection"):
+                    page.pop(key, None)
+            for key in ("encodings", "rgbm", "meshFiles"):
+                manifest.pop(key, None)
+            manifest["relit"] = {"settings": settings, "files": "the EXR pages only"}
+            (staging / "lightmaps" / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
             written.append("lightmaps/manifest.json")
     # --- grids: the stored sensors' RGB, weighted, then the study as the bake writes it
     grid_report = None
@@ -729,7 +738,8 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
     from .solution import Result
 
     class _GroupResult(Result):
-        def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8, seed: int = 1) -> dict:
+        def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8, seed: int = 1,
+                   directional: bool = False) -> dict:
             from . import _engine
 
             if not self.hierarchical:
@@ -737,8 +747,9 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
             pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
             nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
             g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
-                                                                   seed=seed), 1e30, k)
-            return {key: np.asarray(getattr(g, key)) for key in ("patch", "irradiance", "radiance")}
+                                                                   seed=seed, directional=bool(directional)), 1e30, k)
+            keys = ("patch", "irradiance", "radiance") + (("l0", "l1") if directional else ())
+            return {key: np.asarray(getattr(g, key)) for key in keys}
 
     return _GroupResult(result.corners, result.nv, corner_radiance, corner_irradiance, cameras=result.cameras,
                         up_axis=result.up_axis, patch_radiosity=None, patch_irradiance=None, patches=result.patches,
@@ -756,8 +767,12 @@ def replay_result(result, records: list, weights: np.ndarray):
             k = self._calls
             self._calls += 1
             out = {"patch": records[0][k]["patch"]}
-            for key in ("irradiance", "radiance"):
-                out[key] = weighted_sum([r[k][key] for r in records], weights)
+            # every quantity is linear in the groups' emission, the hemisphere moments too
+            for key in ("irradiance", "radiance", "l0"):
+                if key in records[0][k]:
+                    out[key] = weighted_sum([r[k][key] for r in records], weights)
+            if "l1" in records[0][k]:  # (n, channel, axis): the weights go on the channel
+                out["l1"] = weighted_sum([r[k]["l1"] for r in records], np.asarray(weights)[:, :, None])
             return out
 
     r = _Replayed(**{f: getattr(result, f) for f in result.__dataclass_fields__})

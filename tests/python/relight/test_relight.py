@@ -234,10 +234,18 @@ def test_relit_lightmaps_are_the_weighted_group_pages(tmp_path):
 
     scene = room(tmp_path / "room.usda", with_bulb=True)
     path = config(tmp_path / "c.yaml", scene, tmp_path / "o", GROUPS,
-                  outputs={"lightmaps": {"enabled": True, "texels_per_metre": 24, "mode": "final_gather"}})
+                  outputs={"lightmaps": {"enabled": True, "texels_per_metre": 24, "mode": "final_gather",
+                                         "directional": True, "encodings": ["unity-rgbm"]}})
     hirad.bake(str(path))
     r = _cli("relight", tmp_path / "o", "--set", "lights.groups.rest.dimmer=0", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
+    # the bake's directional maps and 8-bit copies are not relit: the relit manifest names none
+    baked = json.loads((tmp_path / "o" / "lightmaps" / "manifest.json").read_text())
+    assert "unityDirection" in baked["pages"][0] and "encoded" in baked["pages"][0]
+    relit_manifest = json.loads((tmp_path / "r" / "lightmaps" / "manifest.json").read_text())
+    for page in relit_manifest["pages"]:
+        assert set(page) & {"encoded", "godotL1", "bakerySH", "unityDirection"} == set()
+        assert (tmp_path / "r" / "lightmaps" / page["file"]).is_file()
     total = np.asarray(_engine.read_exr(str(tmp_path / "o" / "lightmaps" / "pages" / "page0.exr")), dtype=np.float64)
     relit = np.asarray(_engine.read_exr(str(tmp_path / "r" / "lightmaps" / "pages" / "page0.exr")), dtype=np.float64)
     rest = np.asarray(_engine.read_exr(str(tmp_path / "o" / "groups" / "rest" / "lightmaps" / "pages" / "page0.exr")),
