@@ -240,8 +240,9 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     tri_order = np.argsort(fan["mesh"], kind="stable")
     tri_bounds = np.searchsorted(fan["mesh"][tri_order], np.arange(len(scene.meshes) + 1))
     corner_start = np.concatenate([[0], np.cumsum(scene.face_vertex_counts)]).astype(np.int64)
-    face_start = np.concatenate([[0], np.cumsum([np.count_nonzero(scene.face_mesh == m)
-                                                 for m in range(len(scene.meshes))])]).astype(np.int64)
+    # each mesh's first face (a mesh's faces are contiguous): one pass, not one per mesh
+    face_start = np.concatenate([[0], np.cumsum(np.bincount(np.asarray(scene.face_mesh, np.int64),
+                                                            minlength=len(scene.meshes)))]).astype(np.int64)
     fvi = np.asarray(scene.face_vertex_indices, dtype=np.int64)
 
     geometry, existing, names, prototypes, tri_ids, pms, polygons = [], [], [], [], [], [], []
