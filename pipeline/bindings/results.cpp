@@ -132,7 +132,10 @@ void bind_results(nb::module_& m) {
                   "engine's patches.")
         .def_prop_ro("radiosity", rgb(&H::radiosity), kOwned, "(leaves, 3) B, W/m^2.")
         .def_prop_ro("irradiance", rgb(&H::irradiance), kOwned, "(leaves, 3) H, W/m^2.")
-        .def_prop_ro("escaped", rgb(&H::escaped), kOwned, "(leaves, 3) B A (1 - outgoing fraction), W, signed.")
+        .def_prop_ro("escaped", rgb(&H::escaped), kOwned, "(leaves, 3) B A (open - outgoing fraction), W, signed.")
+        .def_prop_ro("open", arr(&H::open), kOwned,
+                     "(leaves,) the share of each leaf's area not inside other geometry; its B, H and direct light are "
+                     "that part's (power: times open x area).")
         .def_ro("residual", &H::residual)
         .def_ro("converged", &H::converged)
         .def_ro("iterations", &H::iterations, "All rounds.")

@@ -295,7 +295,13 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
             shapes.push_back(&h.nodes[i].shape);
         }
     light_patches(shapes, vis, spread);
-    for (uint32_t i : ids) h.nodes[i].lit = true;
+    // The direct light of the element's open part (Hierarchy::open), like its links' light.
+    h.measure_open(vis);
+    for (uint32_t i : ids) {
+        h.nodes[i].lit = true;
+        const double open = h.open_share(i);
+        if (open > 0 && open < 1) h.nodes[i].shape.direct = h.nodes[i].shape.direct / open;
+    }
     if (fresh) *fresh = std::move(ids);
 }
 
@@ -695,13 +701,14 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
         }
         std::vector<uint8_t> is_source(h.nodes.size(), 0);
         std::vector<double> outgoing(h.nodes.size(), 0.0);
+        h.measure_open(*state->visibility);
         std::vector<Link> part;
         for (size_t g = 0; g < chunks->groups(); ++g)
             for (size_t p = 0; p < chunks->parts(g); ++p) {
                 chunks->read(g, p, part);
                 for (const Link& l : part) {
                     is_source[l.source] = 1;
-                    outgoing[l.source] += double(l.coupling) / h.nodes[l.source].area;
+                    outgoing[l.source] += h.sent(l) / h.nodes[l.source].area;
                 }
             }
         StreamingOptions gso = so;
@@ -736,16 +743,17 @@ void Engine::glazing_balance(const Hierarchy& h, const HierarchicalSolution& sol
         const Node& node = h.nodes[i];
         const Patch& p = node.shape;
         const double t = scene_.faces[p.face].diffuse_transmittance;
-        r.glass_back_entered += mul(p.reflectance, p.direct) * node.area;
-        r.glass_back_absorbed += mul(RGB{1 - t, 1 - t, 1 - t} - p.reflectance, sol.irradiance[i]) * node.area;
-        r.glass_back_escaped += sol.radiosity[i] * (node.area * (1.0 - sol.outgoing[i]));
+        const double open_area = node.area * h.open_share(i);  // B, H, D are the open part's
+        r.glass_back_entered += mul(p.reflectance, p.direct) * open_area;
+        r.glass_back_absorbed += mul(RGB{1 - t, 1 - t, 1 - t} - p.reflectance, sol.irradiance[i]) * open_area;
+        r.glass_back_escaped += sol.radiosity[i] * (node.area * (h.open_share(i) - sol.outgoing[i]));
     }
     // Each side's mean irradiance from the links (leaves' area-weighted), times t and its area.
     std::vector<RGB> power(h.nodes.size());
     for (size_t i = h.nodes.size(); i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.cluster) continue;
-        if (node.leaf()) { power[i] = sol.irradiance[i] * node.area; continue; }
+        if (node.leaf()) { power[i] = sol.irradiance[i] * (node.area * h.open_share(i)); continue; }
         for (uint32_t c = 0; c < node.child_count; ++c) power[i] += power[node.first_child + c];
     }
     for (const Hierarchy::GlassPair& g : h.glass) {
@@ -811,13 +819,16 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.radiosity.resize(leaves.size());
     r.irradiance.resize(leaves.size());
     r.escaped.resize(leaves.size());
+    r.open.resize(leaves.size());
     for (size_t k = 0; k < leaves.size(); ++k) {
         const Node& node = h.nodes[leaves[k]];
         state->leaf_patches.push_back(node.shape);
         r.radiosity[k] = sol.radiosity[leaves[k]];
         r.irradiance[k] = sol.irradiance[leaves[k]];
         // Signed, as for the flat method: the per-leaf shares only add up unclamped.
-        r.escaped[k] = r.radiosity[k] * (node.area * (1.0 - sol.outgoing[leaves[k]]));
+        // B and H are the open part's (Hierarchy::open): it sends B x open x A.
+        r.open[k] = h.open_share(leaves[k]);
+        r.escaped[k] = r.radiosity[k] * (node.area * (r.open[k] - sol.outgoing[leaves[k]]));
     }
     glazing_balance(h, sol, backs, r);
     r.residual = sol.residual;

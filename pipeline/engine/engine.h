@@ -197,7 +197,8 @@ struct GroupSolution {
 struct HierarchicalResult {
     std::vector<RGB> radiosity;       // per leaf, W/m^2
     std::vector<RGB> irradiance;      // per leaf, W/m^2
-    std::vector<RGB> escaped;         // per leaf, W: B A (1 - outgoing fraction), signed
+    std::vector<RGB> escaped;         // per leaf, W: B A (open - outgoing fraction), signed
+    std::vector<double> open;         // per leaf: its open share (Hierarchy::open); B, H, direct are that part's
     double residual = 0;
     bool converged = false;
     uint64_t iterations = 0;          // all rounds

@@ -123,7 +123,7 @@ public:
             own_.resize(h_.nodes.size(), 0.0);
             for (const Link& l : part) {
                 src_[l.source] = 1;
-                own_[l.source] += double(l.coupling) / h_.nodes[l.source].area;
+                own_[l.source] += h_.sent(l) / h_.nodes[l.source].area;
             }
         };
         if (remote_) {

@@ -69,6 +69,16 @@ struct GatherOptions {
     int cluster_samples = 8;   // faces drawn per cluster source (each with its own ray)
     uint64_t seed = 1;
     bool directional = false;  // also the radiance moments l0, l1 (see above); E unchanged
+    // Importance (0: every link of a point's chain is evaluated at the point). Else, per leaf,
+    // the links of its chain are ranked by the irradiance each brings to the receiver on
+    // average (B_S G / A_R); the weakest, together at most `importance` of the leaf's total,
+    // are taken at that average instead of at the point, except those from emitters and those
+    // whose source is close to the leaf (within the larger of the two's diagonals), where the
+    // light varies most over the leaf. The average of a link over its receiver is what the
+    // point values average to, so this adds no bias, only a bounded local error (at most the
+    // weak links' share times their variation over the leaf). The directional moments always
+    // evaluate every link.
+    double importance = 0;
 };
 
 // The moments of the radiance arriving at a surface point over its hemisphere (see above).
@@ -95,7 +105,16 @@ public:
     void radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const;
 
 private:
-    RGB at(uint32_t leaf, const Vec3& x, uint64_t key, RadianceMoments* mo) const;
+    // The links of a leaf's chain evaluated at its points, and the rest's mean irradiance.
+    struct Split {
+        std::vector<uint64_t> links;
+        RGB rest;
+    };
+    Split split(uint32_t leaf) const;
+    uint32_t leaf_at(uint32_t node, double s, double t) const {
+        return descend_to_leaf([this](uint32_t k) { return steps_[k]; }, node, s, t);
+    }
+    RGB at(uint32_t leaf, const Vec3& x, uint64_t key, RadianceMoments* mo, const Split* sp) const;
     RGB element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
     RGB cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng,
                          RadianceMoments* mo) const;  // B-weighted
@@ -106,6 +125,7 @@ private:
     const Visibility& vis_;
     GatherOptions opt_;
     std::vector<uint64_t> first_link_;  // per node: its links are [first_link_[i], first_link_[i + 1])
+    std::vector<DescentStep> steps_;    // per node, for leaf_at
 };
 
 // The same gather from a flat solution: every patch j is a source, F(x -> j) exact, its

@@ -166,7 +166,7 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
     push_pull(h, gathered, irradiance, unused, terms);
     sol.limited_leaves = terms.limited();
     std::vector<double> own(n, 0.0);
-    for (const Link& l : links) own[l.source] += double(l.coupling) / h.nodes[l.source].area;
+    for (const Link& l : links) own[l.source] += h.sent(l) / h.nodes[l.source].area;
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)
         sol.outgoing[i] = own[i] + (h.nodes[i].parent == kNoNode ? 0.0 : sol.outgoing[h.nodes[i].parent]);

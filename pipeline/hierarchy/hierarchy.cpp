@@ -8,6 +8,10 @@
 #include <string>
 #include <unordered_set>
 
+#include <tbb/parallel_for.h>
+
+#include "pipeline/geometry/visibility.h"
+
 namespace hirad {
 
 namespace {
@@ -218,26 +222,12 @@ void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point,
 }
 
 uint32_t Hierarchy::leaf_at(uint32_t i, double s, double t) const {
-    // Children follow subdivide(): quads by parameter quadrant; triangles by the corner
-    // triangle holding the point, the inverted middle one (3) mapping (s, t) to (1-2s, 1-2t).
-    if (nodes[i].shape.nv == 3 && s + t > 1) { s = 1 - s; t = 1 - t; }
-    while (!nodes[i].leaf()) {
-        const Node& node = nodes[i];
-        int k;
-        if (node.shape.nv == 4) {
-            const bool right = s >= 0.5, top = t >= 0.5;
-            k = right ? (top ? 2 : 1) : (top ? 3 : 0);
-            s = right ? 2 * s - 1 : 2 * s;
-            t = top ? 2 * t - 1 : 2 * t;
-        } else if (s >= 0.5) { k = 1; s = 2 * s - 1; t = 2 * t; }
-        else if (t >= 0.5) { k = 2; s = 2 * s; t = 2 * t - 1; }
-        else if (s + t <= 0.5) { k = 0; s = 2 * s; t = 2 * t; }
-        else { k = 3; s = 1 - 2 * s; t = 1 - 2 * t; }
-        s = std::min(std::max(s, 0.0), 1.0);
-        t = std::min(std::max(t, 0.0), 1.0);
-        i = node.first_child + k;
-    }
-    return i;
+    return descend_to_leaf(
+        [this](uint32_t k) {
+            const Node& n = nodes[k];
+            return DescentStep{n.first_child, n.child_count, static_cast<uint8_t>(n.shape.nv)};
+        },
+        i, s, t);
 }
 
 std::vector<uint32_t> Hierarchy::leaves() const {
@@ -294,6 +284,49 @@ uint64_t Hierarchy::balance() {
         for (uint32_t i : marked) subdivide(i);
         split += marked.size();
     }
+}
+
+void Hierarchy::measure_open(const Visibility& vis) {
+    const size_t first = open.size();
+    if (first >= nodes.size()) return;
+    open.resize(nodes.size(), 1.0f);
+    const double lift = 1e-5 * vis.scene_size();
+    tbb::parallel_for(first, nodes.size(), [&](size_t i) {
+        const Node& node = nodes[i];
+        if (node.cluster) return;
+        const Patch& s = node.shape;
+        const Vec3 n = s.normal;
+        // a tangent frame: the four slanted directions at 60 degrees from n
+        const Vec3 a = std::fabs(n.x) < 0.6 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+        const Vec3 t = normalize(cross(n, a)), b = cross(n, t);
+        const double c = 0.5, si = std::sqrt(0.75);
+        const Vec3 dirs[5] = {n, n * c + t * si, n * c - t * si, n * c + b * si, n * c - b * si};
+        Rng rng(node.key ^ 0x09E4ull);
+        // Share of g x g stratified points inside geometry.
+        auto inside_share = [&](int g) {
+            int inside = 0;
+            for (int k = 0; k < g * g; ++k) {
+                const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
+                const Vec3 x = s.point(s0, t0) + n * lift;
+                bool enclosed = true;
+                for (const Vec3& d : dirs) {
+                    const RayHit hit = vis.intersect(x, d);
+                    if (hit.patch < 0 || dot(faces[static_cast<size_t>(hit.patch)].normal, d) < 0) {
+                        enclosed = false;
+                        break;
+                    }
+                }
+                inside += enclosed;
+            }
+            return double(inside) / (g * g);
+        };
+        // 8 x 8 points; where they disagree (the element straddles a foot) 24 x 24, since the
+        // share then scales the element's light: a thin open strip counted 11 points of 64
+        // where 12.8 were due would brighten the strip by 16 %.
+        double hidden = inside_share(8);
+        if (hidden > 0 && hidden < 1) hidden = inside_share(24);
+        open[i] = static_cast<float>(1.0 - hidden);
+    });
 }
 
 }  // namespace hirad

@@ -11,12 +11,50 @@
 #include <cstdint>
 #include <vector>
 
+#include "pipeline/core/link.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/scene.h"
 
 namespace hirad {
 
+class Visibility;
+
 constexpr uint32_t kNoNode = UINT32_MAX;
+
+// What descending from an element to the leaf at a point reads of each node (8 bytes: the
+// final gather keeps these apart from the large nodes, whose cache misses dominated it).
+struct DescentStep {
+    uint32_t first_child;
+    uint8_t child_count;
+    uint8_t nv;
+};
+
+// The leaf below element i that holds its point (s, t), over any view of the nodes (`step(k)`
+// gives node k's DescentStep). Children follow Hierarchy::subdivide(): quads by parameter
+// quadrant; triangles by the corner triangle holding the point, the inverted middle one (3)
+// mapping (s, t) to (1-2s, 1-2t).
+template <class Step>
+uint32_t descend_to_leaf(const Step& step, uint32_t i, double s, double t) {
+    DescentStep d = step(i);
+    if (d.nv == 3 && s + t > 1) { s = 1 - s; t = 1 - t; }
+    while (d.child_count != 0) {
+        int k;
+        if (d.nv == 4) {
+            const bool right = s >= 0.5, top = t >= 0.5;
+            k = right ? (top ? 2 : 1) : (top ? 3 : 0);
+            s = right ? 2 * s - 1 : 2 * s;
+            t = top ? 2 * t - 1 : 2 * t;
+        } else if (s >= 0.5) { k = 1; s = 2 * s - 1; t = 2 * t; }
+        else if (t >= 0.5) { k = 2; s = 2 * s; t = 2 * t - 1; }
+        else if (s + t <= 0.5) { k = 0; s = 2 * s; t = 2 * t; }
+        else { k = 3; s = 1 - 2 * s; t = 1 - 2 * t; }
+        s = s < 0 ? 0 : (s > 1 ? 1 : s);
+        t = t < 0 ? 0 : (t > 1 ? 1 : t);
+        i = d.first_child + static_cast<uint32_t>(k);
+        d = step(i);
+    }
+    return i;
+}
 
 struct Node {
     Patch shape;             // elements: the polygon, its material and face; clusters: unused
@@ -91,6 +129,30 @@ public:
     // finer neighbours on it (at its midpoint). New nodes come after all existing ones; the
     // number of leaves split is returned.
     uint64_t balance();
+
+    // The open share of each element: the fraction of its area that is not inside other
+    // geometry. A floor modelled as one quad runs on under the blocks standing on it; the
+    // part under a block receives nothing, and an element that straddles the block's foot
+    // averages that nothing into its irradiance and radiosity. Its visible part is then shown
+    // too dark, and, since a link from it sees only the visible part (G counts what the rays
+    // reach) but carries the diluted mean, the light it passes on is lost: the hierarchical
+    // solution's dark bias near contacts (-11 % at the foot of the Cornell box's tall block
+    // at epsilon 1e-4, -1.5 % over the box). So the solution's H and B of an element are
+    // those of its open part: a link's stored coupling is G / open (the estimate's G spread
+    // over the open area, Refiner), the luminaires' direct light is divided by it too, and the
+    // power a link takes from its source is coupling x open(receiver) (sent()).
+    // A point is inside geometry when every ray it sends (its normal and four directions 60
+    // degrees off it) first meets the back of a surface; a ray that escapes or meets a front
+    // face finds it open (under a one-sided table top the slanted rays pass). 8 x 8 stratified
+    // points per element, seeded by its key, and 24 x 24 where they disagree. Clusters: 1.
+    std::vector<float> open;
+    // Measures the nodes made since the last call (open.size() up to nodes.size()), in parallel;
+    // `vis` must be over `faces`.
+    void measure_open(const Visibility& vis);
+    double open_share(uint32_t node) const { return node < open.size() ? open[node] : 1.0; }
+    // G / A_receiver of a link in the solvers: the open receiver's F. The power share it takes
+    // from its source: coupling x open(receiver) / A_source (energy balance).
+    double sent(const Link& l) const { return double(l.coupling) * open_share(l.receiver); }
 };
 
 }  // namespace hirad

@@ -306,10 +306,16 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
         // in frontier order so the result does not depend on threads.
         std::vector<Action> action(frontier.size());
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) { action[k] = decide(frontier[k], peak); });
-        // 3. The links kept from this pass's estimates get their independent transport estimate.
+        // 3. The links kept from this pass's estimates get their independent transport estimate,
+        // spread over the receiver's open area (Hierarchy::open: its part inside geometry
+        // receives nothing, and its H is that of the rest).
+        h_.measure_open(vis_);
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
-            if (action[k] == Action::Keep && !evaluated[k])
-                frontier[k].coupling = estimate(frontier[k].receiver, frontier[k].source, 1).coupling;
+            if (action[k] == Action::Keep && !evaluated[k]) {
+                const double open = h_.open_share(frontier[k].receiver);
+                const double g = estimate(frontier[k].receiver, frontier[k].source, 1).coupling;
+                frontier[k].coupling = static_cast<float>(open > 0 ? g / open : g);
+            }
         });
         for (size_t k = 0; k < frontier.size(); ++k) stats.evaluated += action[k] == Action::Keep && !evaluated[k];
         std::vector<Link> next;

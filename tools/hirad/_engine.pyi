@@ -337,7 +337,7 @@ class OutOfCoreOptions:
 class GatherOptions:
     """The final gather at points after a hierarchical solve."""
 
-    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1, directional: bool = False) -> None: ...
+    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1, directional: bool = False, importance: float = 0.0) -> None: ...
 
     @property
     def rays(self) -> int:
@@ -368,6 +368,15 @@ class GatherOptions:
 
     @directional.setter
     def directional(self, arg: bool, /) -> None: ...
+
+    @property
+    def importance(self) -> float:
+        """
+        0: every link of a point's chain at the point; else the weakest links, together at most this share of a leaf's light, at their mean over the receiver (not emitters, not close sources; gather.h).
+        """
+
+    @importance.setter
+    def importance(self, arg: float, /) -> None: ...
 
 class ReferenceOptions:
     """The Monte Carlo path-traced reference."""
@@ -683,7 +692,13 @@ class HierarchicalResult:
 
     @property
     def escaped(self) -> NDArray[numpy.float64]:
-        """(leaves, 3) B A (1 - outgoing fraction), W, signed."""
+        """(leaves, 3) B A (open - outgoing fraction), W, signed."""
+
+    @property
+    def open(self) -> NDArray[numpy.float64]:
+        """
+        (leaves,) the share of each leaf's area not inside other geometry; its B, H and direct light are that part's (power: times open x area).
+        """
 
     @property
     def residual(self) -> float: ...

@@ -852,7 +852,9 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
                  f"it so the solve converges (raise hierarchy.samples, or lower those materials' reflectance)")
     # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
     model.use_leaves_as_patches()
-    return solved, patch_dict(model.patch_arrays())
+    # per leaf, the share of its area outside other geometry: its B, H and direct light are that
+    # part's, so its powers are over open x area (energy balance)
+    return solved, dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
 
 
 def _solve_progress(cfg: Config, update):

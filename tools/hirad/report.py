@@ -183,7 +183,9 @@ def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndar
     side (with `glazing`; without, glass passes none). `glazing` (a hierarchical result): the unpublished backs of glazed faces (their rho D
     in, their absorption, their light that reaches no surface), and what passes through glass
     each way, reported as entered/left through windows."""
-    area = patches["area"][:, None]
+    # hierarchical bakes: a leaf's B, H and direct light are those of its part outside other
+    # geometry (patches["open"], the engine's Hierarchy::open), which alone sends and absorbs
+    area = (patches["area"] * patches["open"] if "open" in patches else patches["area"])[:, None]
     rho = patches["reflectance"]
     direct = patches["direct"]
     tau = patches.get("transmittance")

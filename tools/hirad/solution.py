@@ -170,21 +170,24 @@ class Result(SurfaceSolution):
     hierarchical: bool = False
 
     def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8,
-               seed: int = 1, directional: bool = False) -> dict:
+               seed: int = 1, directional: bool = False, importance: float = 0.0) -> dict:
         """Final gather at surface points: hierarchical bakes re-evaluate every link that
         reaches a point's element at the point itself (exact point-to-polygon form factors,
         Embree visibility); flat bakes gather from every patch, O(patches) a point. Returns
         dict of patch (-1 if no surface faces along the normal), irradiance (W/m^2) and
         radiance (W/(m^2 sr)); with `directional` (hierarchical bakes) also l0 (n, 3) = the
         integral of L dw and l1 (n, 3 channels, 3 axes) = the integral of L w dw over the
-        point's hemisphere (W/m^2; hirad.outputs.directional)."""
+        point's hemisphere (W/m^2; hirad.outputs.directional). `importance` > 0 (hierarchical):
+        per element, its weakest links, together at most that share of its light, are taken at
+        their mean instead of at each point (not emitters, not close sources; GatherOptions)."""
         if self._model is None:
             raise BakeError("gather needs the bake's engine model (a Result of hirad.bake)")
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
         if self.hierarchical:
             g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
-                                                                   seed=seed, directional=bool(directional)))
+                                                                   seed=seed, directional=bool(directional),
+                                                                   importance=float(importance)))
         elif directional:
             raise BakeError("a directional gather needs a hierarchical bake (method: hierarchical)")
         else:

@@ -593,6 +593,19 @@ class LightmapOutputConfig(BaseModel):
         json_schema_extra={"unit": "rays per link"},
         default=4, ge=1, le=256, description="Visibility rays per link in final_gather mode."
     )
+    gather_importance: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction of an element's light"},
+        default=0.02,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "final_gather: per element, its weakest links, together at most this share of the light"
+            " it gathers, are taken at their mean over the receiver instead of at every sample (links"
+            " from emitters and from close sources always at the sample). No bias, a bounded local"
+            " error; 0.02 is about twice as fast as 0 on the Cornell box at the same error (0: every"
+            " link at every sample). Directional lightmaps evaluate every link."
+        ),
+    )
     sample_offset: StrictFloat = Field(
         json_schema_extra={"unit": "m"},
         default=1.0e-4,

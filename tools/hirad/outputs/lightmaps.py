@@ -330,7 +330,8 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         lifted, moved = _lift(result, points, normals, texel, lm.sample_offset, reach)
         evaluate.moved += int(moved.sum())
         if mode == "final_gather":
-            g = result.gather(lifted, normals, rays=lm.gather_rays, directional=lm.directional)
+            g = result.gather(lifted, normals, rays=lm.gather_rays, directional=lm.directional,
+                              importance=lm.gather_importance)
             values = g["irradiance"] / np.pi
             miss = g["patch"] < 0
         else:
