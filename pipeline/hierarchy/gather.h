@@ -10,13 +10,12 @@
 // once more, so the gathered value is far closer to the true radiance than the element's
 // (Lischinski, Tampieri and Greenberg 1993 gather the same way for display).
 //
-// Directional moments (GatherOptions::directional, off by default; the irradiance does not
-// depend on it, bit for bit). With it the gather also returns, per point, the zeroth and first
+// Directional moments (GatherOptions::directional, off by default; with importance 0 the
+// irradiance does not depend on it, bit for bit: the moments evaluate every link). With it the gather also returns, per point, the zeroth and first
 // moments of the radiance L(w) arriving over the point's hemisphere (w unit, towards the source):
 //   l0 = integral L(w) dw            (W/m^2 per RGB channel)
 //   l1 = integral L(w) w dw          (W/m^2 per channel and world axis)
-// so that E = n . l1 (n the surface normal: cos theta = n . w; exactly, but for the
-// horizon-straddling sources below). A contribution dE
+// so that E = n . l1 (n the surface normal: cos theta = n . w). A contribution dE
 // arriving from one direction d (a point luminaire) carries radiance times solid angle
 // dE / cos theta: l0 += dE / cos, l1 += dE / cos * d (cos > 0 always there: the luminaire code
 // drops arrivals at or below the horizon; the ratio is I V / r^2, finite at grazing).
@@ -35,17 +34,14 @@
 // n . W_S = pi F(x -> S) is Lambert's contour sum. With L_S = b / pi:
 //   l0 += b Omega_S / pi,  l1 += b W_S / pi,  E += b F(x -> S) = b n . W_S / pi.
 // For a small source this is dE / cos theta and dE / cos theta * d, the rule above; for a
-// large one it is exact where the per-sample rule is biased. One difference from E: for an
-// element source traced for visibility (a partly visible link), b is averaged over its points
-// above x's horizon only. The irradiance averages V B over all of S's stratified points, and
-// the points below the horizon, outside the clipped polygon its F counts, reach x from below
-// its own surface and count as blocked: E is biased low where such a source straddles the
-// horizon (a tilted receiver under a wide emitter: -0.08 % in E, -2 % in l0 with all points
-// kept, because the straddling elements are those seen at grazing angles, which carry little
-// irradiance and much solid angle). The irradiance is left as it was (the option must not
-// change it), so there n . l1 is slightly above E. What it does not see is the
-// direction of a partial occlusion inside one source (a half-hidden element's l1 points to its
-// unoccluded centre): refinement splits the links whose visibility varies and that carry enough
+// large one it is exact where the per-sample rule is biased.
+// Points y of S below x's horizon are outside the clipped polygon that F and the moments
+// count, and a ray to one passes under x's own surface: they are redrawn (uniformly over S,
+// up to 8 times) until above, so b is the mean over the part F counts. (Averaging over all of
+// S, as before stop 27, counted them as blocked and biased E low where S straddles the
+// horizon: -5 to -11 % at the foot of the Cornell box's blocks, whose floor runs on under
+// them.) What b does not see is the direction of a partial occlusion inside one source (a
+// half-hidden element's l1 points to its unoccluded centre): refinement splits the links whose visibility varies and that carry enough
 // light to matter, so such sources are small.
 // L1 spherical harmonics of L (real, orthonormal: Y00 = 1 / (2 sqrt(pi)) = 0.282095,
 // Y1m = sqrt(3 / (4 pi)) (y, z, x) = 0.488603 (y, z, x) for m = -1, 0, 1):

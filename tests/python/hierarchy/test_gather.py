@@ -153,3 +153,32 @@ def test_flat_gather_matches_the_closed_form_and_the_hierarchical_gather():
     g = m.gather_flat(pts, nrm, b, rays=16)
     expected = np.array([np.pi * point_to_square(x, y, 1.0) for x, y in xy])
     np.testing.assert_allclose(g.irradiance[:, 0], expected, rtol=2e-3)
+
+
+@pytest.mark.parametrize("importance", [0.02, 0.1])
+def test_importance_split_keeps_the_furnace(importance):
+    # GatherOptions.importance: the weakest links (together at most `importance` of an
+    # element's light) are taken at their mean over the receiver instead of at the point. In
+    # the furnace (B = 2 everywhere) the gather at x is B times the sum of the links' form
+    # factors, exact ones for the links evaluated and receiver means for the rest; so the error
+    # at a point is B times the rest's sum of (mean F - F(x)), at most `importance` of H where
+    # F(x) is below its mean, and it averages out over the surfaces (the means are what the
+    # points average to). The split must evaluate fewer links' worth of error than its allowance.
+    m = make_model(box_faces(), 0.5, 1.0)
+    solve(m, 2e-5, 0.0155, samples=144)
+    rng = np.random.default_rng(11)
+    pts, nrm = [], []
+    for face in box_faces():
+        n = np.cross(face[1] - face[0], face[3] - face[0])
+        n /= np.linalg.norm(n)
+        for s, t in rng.random((200, 2)) * 0.96 + 0.02:
+            pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
+            nrm.append(n)
+    pts, nrm = np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
+    full = m.gather(pts, nrm, _engine.GatherOptions(rays=16)).irradiance[:, 0] * 0.5
+    split = m.gather(pts, nrm, _engine.GatherOptions(rays=16, importance=importance)).irradiance[:, 0] * 0.5
+    assert np.abs(full - 1).max() < 0.01
+    err = split - 1
+    assert np.abs(err).max() < importance + 0.01, f"worst {np.abs(err).max():.4f}"
+    assert abs(err.mean()) < 0.2 * importance + 0.002, f"mean {err.mean():+.4f}"
+    assert not np.array_equal(full, split)  # the split took some links at their mean
