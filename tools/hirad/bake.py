@@ -309,13 +309,38 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             vertex_radiance = grouped.total([v[0] for v in grouped.vertex])
             vertex_irradiance = grouped.total([v[1] for v in grouped.vertex])
     faces = display["faces"]
-    result = Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
-                    vertex_radiance[faces], vertex_irradiance[faces],
-                    cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
-                    patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
-                    emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
-                    luminaires=luminaires,
-                    transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
+
+    def make_result(v_radiance, v_irradiance):
+        return Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
+                      v_radiance[faces], v_irradiance[faces],
+                      cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
+                      patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
+                      emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
+                      luminaires=luminaires,
+                      transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
+
+    result = make_result(vertex_radiance, vertex_irradiance)
+    values = cfg.reconstruction.values
+    if values == "auto":
+        values = "final_gather" if cfg.method == "hierarchical" else "patches"
+    if values == "final_gather" and grouped:
+        rep.warn("reconstruction.values: final_gather is not applied to bakes with light groups yet: their vertex "
+                 "values are the patches' (the seed's vertex rule); the lightmaps' final gather is per group")
+    elif values == "final_gather":
+        from .outputs.vertex_values import gathered_vertex_values
+
+        rc = cfg.reconstruction
+        with rep.stage("vertex gather"):
+            g_rad, g_irr, missed = gathered_vertex_values(result, display, patches, rays=rc.gather_rays,
+                                                          importance=rc.gather_importance,
+                                                          sample_offset=cfg.outputs.lightmaps.sample_offset)
+        found = np.isfinite(g_rad).all(axis=1)
+        vertex_radiance = np.where(found[:, None], g_rad, vertex_radiance)
+        vertex_irradiance = np.where(found[:, None], g_irr, vertex_irradiance)
+        if missed:
+            rep.warn(f"reconstruction.values: final_gather: {missed} face corners found no surface to gather on "
+                     f"({int((~found).sum())} vertices kept the patches' values)")
+        result = make_result(vertex_radiance, vertex_irradiance)
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)

@@ -524,6 +524,32 @@ class ReconstructionConfig(BaseModel):
             " are not blended across their shared edge."
         ),
     )
+    values: Literal["auto", "final_gather", "patches"] = Field(
+        default="auto",
+        description=(
+            "What the display mesh's vertices hold (the USD primvars, the preview, interpolated"
+            " lightmaps). 'final_gather': each vertex gathered from the solution at the faces"
+            " around it (hierarchical: its element's links, flat: every patch, O(patches) a"
+            " point), as accurate as the lightmaps' final gather; 'patches': the seed's rule, the"
+            " mean of the patches around it (fast; each patch holds one value, so a vertex beside"
+            " a contact shadow shows the coarse patches' mean). 'auto': final_gather for"
+            " method: hierarchical, patches for method: flat."
+        ),
+    )
+    gather_rays: StrictInt = Field(
+        json_schema_extra={"unit": "rays per link"},
+        default=16, ge=1, le=256, description="Visibility rays per link for values: final_gather.",
+    )
+    gather_importance: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction of an element's light"},
+        default=0.02,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "values: final_gather on a hierarchical bake: the weakest links, together at most this"
+            " share of an element's light, at their mean (outputs.lightmaps.gather_importance)."
+        ),
+    )
 
 
 class LightmapOutputConfig(BaseModel):
