@@ -31,6 +31,19 @@ def point_to_square(x, y, d, size=1.0):
     return total
 
 
+def box_points(per_face: int, seed: int):
+    """Random points on the unit box's inner faces, away from their edges, and the faces' normals."""
+    rng = np.random.default_rng(seed)
+    pts, nrm = [], []
+    for face in box_faces():
+        n = np.cross(face[1] - face[0], face[3] - face[0])
+        n /= np.linalg.norm(n)
+        for s, t in rng.random((per_face, 2)) * 0.96 + 0.02:
+            pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
+            nrm.append(n)
+    return np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
+
+
 def solve(m, epsilon, min_area, samples=16, max_rounds=6):
     r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=epsilon, min_area=min_area, samples=samples, seed=1,
                                                       max_rounds=max_rounds),
@@ -65,15 +78,8 @@ def test_gather_in_a_furnace_sees_every_direction_once(rho):
     m = make_model(box_faces(), rho, 1.0)
     r = solve(m, {0.5: 2e-5, 0.9: 1e-4}[rho], 0.0155, samples=144)   # test_hierarchy's furnace
     b = r.radiosity
-    rng = np.random.default_rng(7)
-    pts, nrm = [], []
-    for face in box_faces():
-        n = np.cross(face[1] - face[0], face[3] - face[0])
-        n /= np.linalg.norm(n)
-        for s, t in rng.random((10, 2)) * 0.96 + 0.02:
-            pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
-            nrm.append(n)
-    g = m.gather(np.ascontiguousarray(pts), np.ascontiguousarray(nrm), _engine.GatherOptions(rays=16))
+    pts, nrm = box_points(10, seed=7)
+    g = m.gather(pts, nrm, _engine.GatherOptions(rays=16))
     assert np.all(g.patch >= 0)
     # H(x) carries the solved B's own error (under 0.6 % here, test_hierarchy's furnace) once.
     assert np.abs(b * (1 - rho) - 1).max() < 0.006
@@ -166,15 +172,7 @@ def test_importance_split_keeps_the_furnace(importance):
     # points average to). The split must evaluate fewer links' worth of error than its allowance.
     m = make_model(box_faces(), 0.5, 1.0)
     solve(m, 2e-5, 0.0155, samples=144)
-    rng = np.random.default_rng(11)
-    pts, nrm = [], []
-    for face in box_faces():
-        n = np.cross(face[1] - face[0], face[3] - face[0])
-        n /= np.linalg.norm(n)
-        for s, t in rng.random((200, 2)) * 0.96 + 0.02:
-            pts.append(face[0] + (face[1] - face[0]) * s + (face[3] - face[0]) * t)
-            nrm.append(n)
-    pts, nrm = np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
+    pts, nrm = box_points(200, seed=11)
     full = m.gather(pts, nrm, _engine.GatherOptions(rays=16)).irradiance[:, 0] * 0.5
     split = m.gather(pts, nrm, _engine.GatherOptions(rays=16, importance=importance)).irradiance[:, 0] * 0.5
     assert np.abs(full - 1).max() < 0.01
