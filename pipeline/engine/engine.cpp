@@ -222,6 +222,20 @@ std::vector<RGB> Engine::groups_direct(size_t begin, size_t end, const Visibilit
     return out;
 }
 
+namespace {
+
+// The groups' direct light (groups_direct's layout: group-major over `ids`) of the elements'
+// open parts, as light_new_elements gives the total's (Hierarchy::open).
+void to_open_parts(const Hierarchy& h, const std::vector<uint32_t>& ids, std::vector<RGB>& lit) {
+    if (ids.empty()) return;
+    for (size_t k = 0; k < lit.size(); ++k) {
+        const double open = h.open_share(ids[k % ids.size()]);
+        if (open > 0 && open < 1) lit[k] = lit[k] / open;
+    }
+}
+
+}  // namespace
+
 size_t Engine::group_batch(size_t elements) const {
     // Groups lit together: their direct light held for every element, at most ~256 MB of it.
     const size_t per_group = std::max<size_t>(1, elements) * sizeof(RGB);
@@ -235,8 +249,13 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
     std::vector<HierarchicalSolution> out;
     if (groups_.empty()) return out;
     std::vector<Patch*> shapes;
-    for (Node& n : h.nodes)
-        if (!n.cluster) shapes.push_back(&n.shape);
+    std::vector<uint32_t> ids;
+    h.measure_open(vis);
+    for (uint32_t i = 0; i < h.nodes.size(); ++i)
+        if (!h.nodes[i].cluster) {
+            shapes.push_back(&h.nodes[i].shape);
+            ids.push_back(i);
+        }
     std::vector<RGB> emission(shapes.size()), direct(shapes.size());
     for (size_t k = 0; k < shapes.size(); ++k) {
         emission[k] = shapes[k]->emission;
@@ -247,7 +266,10 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
     for (size_t q = 0; q < groups_.size(); ++q) {
         const auto t0 = std::chrono::steady_clock::now();
         const size_t first = q - q % batch;
-        if (q == first) lit = groups_direct(first, std::min(groups_.size(), first + batch), vis, shapes);
+        if (q == first) {
+            lit = groups_direct(first, std::min(groups_.size(), first + batch), vis, shapes);
+            to_open_parts(h, ids, lit);
+        }
         const RGB* d = lit.data() + (q - first) * shapes.size();
         for (size_t k = 0; k < shapes.size(); ++k) {
             Patch& p = *shapes[k];
@@ -300,7 +322,12 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
     for (uint32_t i : ids) {
         h.nodes[i].lit = true;
         const double open = h.open_share(i);
-        if (open > 0 && open < 1) h.nodes[i].shape.direct = h.nodes[i].shape.direct / open;
+        if (open > 0 && open < 1) {  // the emission the solve starts from holds rho x direct too
+            Patch& p = h.nodes[i].shape;
+            const RGB own = self_emission(p);
+            p.direct = p.direct / open;
+            p.emission = own + mul(p.reflectance, p.direct);
+        }
     }
     if (fresh) *fresh = std::move(ids);
 }
@@ -799,8 +826,10 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
         for (size_t k = 0; k < groups.size(); ++k) {
             GroupSolution gs;
             const size_t first = k - k % batch;
-            if (k == first)
+            if (k == first) {
                 lit = groups_direct(first, std::min(groups.size(), first + batch), *state->visibility, shapes);
+                to_open_parts(h, leaves, lit);
+            }
             gs.direct.assign(lit.begin() + (k - first) * shapes.size(), lit.begin() + (k - first + 1) * shapes.size());
             gs.radiosity.resize(leaves.size());
             gs.irradiance.resize(leaves.size());

@@ -56,11 +56,6 @@ averaged the dark part in and lost the light their links passed on, -1.5 % over 
 at the tall block's foot) and the final gather began to average a source's visibility over its
 part above the point's horizon only: the couplings of links to such receivers, their direct
 light and every value downstream changed.
-It was written again for the two hierarchical configs when their display vertices began to be
-gathered from the solution (reconstruction.values: auto = final_gather for hierarchical bakes,
-stop 27, issue 12: the primvars were the patches' vertex rule, 3.0 % mean and 33 % worst off
-the path tracer on the bundled box, now 1.3 % and 8.8 %): the radiance and irradiance
-primvars, the preview and everything read from the vertices changed.
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 

@@ -3,7 +3,7 @@ everywhere"): the bundled Cornell box config baked as it ships (hierarchical, it
 min_area), primvars:hirad:radiance read back from the written layer and interpolated over its
 faces as a renderer does (fan triangles, barycentric), at 200 random points drawn by area on
 the lit, non-emitting faces, against `hirad reference` (Embree path tracing, no radiosity, no
-meshing) at the same points and normals. reconstruction.values: final_gather (the default)
+meshing) at the same points and normals. reconstruction.values: final_gather (opt-in: the default stays the vertex rule while light-group bakes cannot gather per group)
 must agree within 2 % in the mean absolute error and 10 % at the worst point; the seed's vertex
 rule (values: patches) is measured beside it to show the test can fail (it is the worse)."""
 from __future__ import annotations

@@ -525,15 +525,16 @@ class ReconstructionConfig(BaseModel):
         ),
     )
     values: Literal["auto", "final_gather", "patches"] = Field(
-        default="auto",
+        default="patches",
         description=(
             "What the display mesh's vertices hold (the USD primvars, the preview, interpolated"
             " lightmaps). 'final_gather': each vertex gathered from the solution at the faces"
             " around it (hierarchical: its element's links, flat: every patch, O(patches) a"
             " point), as accurate as the lightmaps' final gather; 'patches': the seed's rule, the"
             " mean of the patches around it (fast; each patch holds one value, so a vertex beside"
-            " a contact shadow shows the coarse patches' mean). 'auto': final_gather for"
-            " method: hierarchical, patches for method: flat."
+            " a contact shadow shows the coarse patches' mean; the default while light-group bakes"
+            " cannot gather per group, so that a grouped bake's total and a bake without groups"
+            " agree). 'auto': final_gather for method: hierarchical, patches for method: flat."
         ),
     )
     gather_rays: StrictInt = Field(
