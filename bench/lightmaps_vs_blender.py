@@ -131,18 +131,27 @@ def _material(name: str, rho, radiance=None, image=None):
     dif = nt.nodes.new("ShaderNodeBsdfDiffuse")
     dif.inputs["Color"].default_value = (rho[0], rho[1], rho[2], 1.0)
     dif.inputs["Roughness"].default_value = 0.0
-    shader = dif.outputs[0]
+    # Front side only: Cycles' Diffuse BSDF reflects on both sides of a face, hirad's surfaces
+    # (and its reference's) absorb on the back. The Modern Hall has single-sided meshes that
+    # face out of the room; reflecting on their backs put Blender 5-7 % above the reference.
+    geo = nt.nodes.new("ShaderNodeNewGeometry")
+    black = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    black.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    sided = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(geo.outputs["Backfacing"], sided.inputs[0])
+    nt.links.new(dif.outputs[0], sided.inputs[1])
+    nt.links.new(black.outputs[0], sided.inputs[2])
+    shader = sided.outputs[0]
     if radiance is not None and max(radiance) > 0:
         em = nt.nodes.new("ShaderNodeEmission")
         em.inputs["Color"].default_value = (radiance[0], radiance[1], radiance[2], 1.0)
-        geo = nt.nodes.new("ShaderNodeNewGeometry")
         front = nt.nodes.new("ShaderNodeMath")
         front.operation = "SUBTRACT"
         front.inputs[0].default_value = 1.0
         nt.links.new(geo.outputs["Backfacing"], front.inputs[1])
         nt.links.new(front.outputs[0], em.inputs["Strength"])
         add = nt.nodes.new("ShaderNodeAddShader")
-        nt.links.new(dif.outputs[0], add.inputs[0])
+        nt.links.new(sided.outputs[0], add.inputs[0])
         nt.links.new(em.outputs[0], add.inputs[1])
         shader = add.outputs[0]
     nt.links.new(shader, out.inputs["Surface"])

@@ -207,10 +207,8 @@ def write_points_csv(path: Path, rows: Iterable[Sequence[float]], header: bool =
     return path
 
 
-def add_crate_instancer(stage: Usd.Stage, path: str, half: float, positions, material=None) -> UsdGeom.PointInstancer:
-    """A PointInstancer at `path` with copies of one cube prototype (`path`/Prototypes/crate: side
-    2 half, resting on y = 0, faces wound outwards) at `positions`."""
-    inst = UsdGeom.PointInstancer.Define(stage, path)
+def add_crate_mesh(stage: Usd.Stage, path: str, half: float, material=None) -> UsdGeom.Mesh:
+    """A cube mesh at `path`: side 2 half, resting on y = 0 around the origin, faces wound outwards."""
     p = [[x * half, y * half + half, z * half] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
     faces = []
@@ -219,8 +217,15 @@ def add_crate_instancer(stage: Usd.Stage, path: str, half: float, positions, mat
         if np.dot(np.cross(b - a, c - a), np.asarray(p)[q].mean(axis=0) - [0, half, 0]) < 0:
             q = q[::-1]
         faces.append(q)
+    return add_mesh(stage, path, p, [4] * 6, [k for q in faces for k in q], material)
+
+
+def add_crate_instancer(stage: Usd.Stage, path: str, half: float, positions, material=None) -> UsdGeom.PointInstancer:
+    """A PointInstancer at `path` with copies of one cube prototype (`path`/Prototypes/crate, as
+    add_crate_mesh) at `positions`."""
+    inst = UsdGeom.PointInstancer.Define(stage, path)
     proto = f"{path}/Prototypes/crate"
-    add_mesh(stage, proto, p, [4] * 6, [k for q in faces for k in q], material)
+    add_crate_mesh(stage, proto, half, material)
     inst.CreatePrototypesRel().SetTargets([proto])
     inst.CreateProtoIndicesAttr([0] * len(positions))
     inst.CreatePositionsAttr([tuple(map(float, x)) for x in positions])

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("xatlas")
-from hirad_e2e_helpers import add_crate_instancer, add_material, add_pentagon_box, add_mesh, new_stage, write_config  # noqa: E402
+from hirad_e2e_helpers import add_crate_instancer, add_crate_mesh, add_material, add_pentagon_box, add_mesh, new_stage, write_config  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
 from hirad.bake import bake  # noqa: E402
@@ -356,6 +356,112 @@ def test_instances_share_one_uv_set_and_get_their_own_rectangles(tmp_path):
         expect.append(float(g["irradiance"][0] @ lum / math.pi))
     got, expect = np.array(got), np.array(expect)
     assert expect[0] > 1.5 * expect[1]  # the lamp is right above the first copy
+    assert np.all(np.abs(got - expect) / expect < 0.02), (got, expect)
+
+
+def _native_instances_scene(root: Path) -> tuple[Path, Path]:
+    """A floor, a lamp over the origin, and two pairs of native instances of a cube: inst0/inst1
+    reference a `class` prim of the same file (an internal reference), ext0/ext1 another file."""
+    crate_file = root / "crate.usda"
+    cs = new_stage(crate_file)
+    cs.RemovePrim("/World")
+    crate = UsdGeom.Xform.Define(cs, "/Crate")
+    cs.SetDefaultPrim(crate.GetPrim())
+    add_crate_mesh(cs, "/Crate/crate", 0.2, add_material(cs, "/Crate/Looks/grey", (0.5, 0.5, 0.5)))
+    cs.GetRootLayer().Save()
+    path = root / "scene.usda"
+    stage = new_stage(path)
+    grey = add_material(stage, "/World/Looks/grey", (0.5, 0.5, 0.5))
+    lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
+    add_mesh(stage, "/World/floor", np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], float), [4],
+             [0, 1, 2, 3], grey)
+    add_mesh(stage, "/World/lamp", np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]]),
+             [4], [0, 1, 2, 3], lamp)
+    UsdGeom.Xform.Define(stage, "/Assets/Crate")
+    add_crate_mesh(stage, "/Assets/Crate/crate", 0.2, grey)
+    stage.GetPrimAtPath("/Assets").SetSpecifier(Sdf.SpecifierClass)  # abstract: not drawn itself
+    for name, at, ref in (("inst0", (0.0, 0.0, 0.0), None), ("inst1", (1.6, 0.0, 1.6), None),
+                          ("ext0", (-1.6, 0.0, 1.6), "./crate.usda"), ("ext1", (-1.6, 0.0, -1.6), "./crate.usda")):
+        x = UsdGeom.Xform.Define(stage, f"/World/{name}")
+        x.AddTranslateOp().Set(at)
+        refs = x.GetPrim().GetReferences()
+        refs.AddReference(ref) if ref else refs.AddInternalReference("/Assets/Crate")
+        x.GetPrim().SetInstanceable(True)
+    stage.GetRootLayer().Save()
+    return path, crate_file
+
+
+def test_native_instances_get_st1_and_their_own_rectangles(tmp_path):
+    """Meshes inside native instances: an over on the internally referenced prototype mesh gives
+    every instance the one UV set (instancing kept), and each instance root lists its meshes'
+    rectangles; instances of another file's prototype are de-instanced in the output layer (with
+    a warning) and carry st1 and their rectangle on their own prims. Every copy's top-face texel
+    holds the gathered light at that copy; the inputs are untouched."""
+    scene, crate_file = _native_instances_scene(tmp_path)
+    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (scene, crate_file)}
+    cfg = write_config(tmp_path / "bake.yaml", scene, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-4, "min_area": 0.005, "samples": 8, "max_rounds": 4},
+                       solver={"method": "jacobi", "tolerance": 1e-4},
+                       outputs={"preview": {"enabled": False}, "gltf": True,
+                                "lightmaps": {"texels_per_metre": 32.0, "padding": 2, "max_size": 512,
+                                              "mode": "final_gather", "gather_rays": 16}})
+    result = bake(cfg)
+    out = tmp_path / "out"
+    # the GLB export finds every copy's lightmap UVs (it warns of a mesh with a page and no st1)
+    warnings = json.loads((out / "report.json").read_text())["warnings"]
+    assert not any("no primvars:st1" in w for w in warnings), warnings
+    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (scene, crate_file)} == before
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    by_prim = {i["prim"]: i for i in manifest["instances"]}
+    stage = Usd.Stage.Open(str(out / "solution.usda"))
+    # internal: still instances, one UV set held by the referenced mesh and seen through both
+    assert stage.GetPrimAtPath("/World/inst0").IsInstance() and stage.GetPrimAtPath("/World/inst1").IsInstance()
+    held = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Assets/Crate/crate")).GetPrimvar("st1")
+    assert held and held.GetInterpolation() == UsdGeom.Tokens.faceVarying
+    seen = [np.array(UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(f"/World/inst{k}/crate")).GetPrimvar("st1").Get())
+            for k in (0, 1)]
+    np.testing.assert_array_equal(seen[0], seen[1])
+    assert by_prim["/World/inst0/crate"]["mesh"] == "/Assets/Crate/crate"
+    # external: de-instanced, named in a warning, st1 and the rectangle on each copy's prim
+    for k in (0, 1):
+        assert not stage.GetPrimAtPath(f"/World/ext{k}").IsInstance()
+        assert stage.GetPrimAtPath(f"/World/ext{k}/crate").GetAttribute("hirad:lightmap:scaleOffset").Get() is not None
+    assert any("/World/ext0" in w and "non-instanceable" in w for w in manifest["warnings"]), manifest["warnings"]
+
+    def rectangle(name):
+        """(page file, scaleOffset, st1, mesh) as an engine importer reads them from the USD alone."""
+        prim = stage.GetPrimAtPath(f"/World/{name}/crate")
+        st1 = np.array(UsdGeom.PrimvarsAPI(prim).GetPrimvar("st1").Get(), dtype=np.float64)
+        if name.startswith("inst"):
+            root = stage.GetPrimAtPath(f"/World/{name}")
+            meshes = list(root.GetAttribute("hirad:lightmap:meshes").Get())
+            k = meshes.index("crate")
+            so = np.array(root.GetAttribute("hirad:lightmap:scaleOffsets").Get()[k], dtype=np.float64)
+            f = root.GetAttribute("hirad:lightmap:files").Get()[k].path
+        else:
+            so = np.array(prim.GetAttribute("hirad:lightmap:scaleOffset").Get(), dtype=np.float64)
+            f = prim.GetAttribute("hirad:lightmap:file").Get().path
+        np.testing.assert_allclose(so, by_prim[f"/World/{name}/crate"]["scaleOffset"], rtol=1e-6)
+        return out / f, so, st1, UsdGeom.Mesh(prim)
+
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    got, expect, rects = [], [], []
+    xfc = UsdGeom.XformCache()
+    for name in ("inst0", "inst1", "ext0", "ext1"):
+        page_file, so, st1, mesh = rectangle(name)
+        rects.append(so)
+        idx = np.array(mesh.GetFaceVertexIndicesAttr().Get())
+        m = np.array(xfc.GetLocalToWorldTransform(mesh.GetPrim()), dtype=np.float64)
+        pts = np.array(mesh.GetPointsAttr().Get(), dtype=np.float64) @ m[:3, :3] + m[3, :3]
+        face = next(f for f in range(6) if np.allclose(pts[idx[4 * f:4 * f + 4], 1], 0.4))
+        corners = slice(4 * face, 4 * face + 4)
+        x = pts[idx[corners]].mean(axis=0)
+        g = result.gather((x + [0, 1e-4, 0])[None], np.array([[0.0, 1.0, 0.0]]), rays=256, seed=3)
+        got.append(float(_bilinear(_read_exr(page_file), (st1[corners].mean(axis=0) * so[:2] + so[2:])[None])[0] @ lum))
+        expect.append(float(g["irradiance"][0] @ lum / math.pi))
+    assert len({tuple(r) for r in rects}) == 4  # a rectangle each
+    got, expect = np.array(got), np.array(expect)
+    assert expect[0] > 1.5 * expect[1]  # the lamp is over inst0 only
     assert np.all(np.abs(got - expect) / expect < 0.02), (got, expect)
 
 

@@ -9,9 +9,10 @@ What is read
     corner, USD convention: v up, origin bottom-left), and per instance its page and Unity-order
     scaleOffset (page_uv = st1 * xy + zw) from OUT/lightmaps/manifest.json ("instances"), else
     from the prim's `hirad:lightmap:*` attributes; a copy whose entry names another mesh
-    ("mesh", a prototype's) takes that mesh's UV set, and a mesh inside a native instance (an
-    instance proxy, which the layer cannot author over) has none and is exported without its
-    lightmap, with a warning. A PointInstancer's copies are nodes of their own (the prototype mesh
+    ("mesh", a prototype's) takes that mesh's UV set (a mesh inside a native instance sees the
+    UV set the layer put on the mesh its instances reference, or its own where the layer
+    de-instanced it; a mesh with a page and no UV set is exported without its lightmap, with a
+    warning). A PointInstancer's copies are nodes of their own (the prototype mesh
     at the copy's transform, the copy's page and rectangle from the manifest entry of its path,
     the UV set the prototype's; nested instancers and lights in prototypes are named in a
     warning, as the bake reads them). Visibility is the

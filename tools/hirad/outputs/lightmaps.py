@@ -280,6 +280,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     # authored corner, for the original prim.
     tri_xyz = np.asarray(scene.points)[fvi[fan["corner"]]]
     tri_uv = np.zeros((len(fan["face"]), 3, 2))
+    deinstanced: set[str] = set()
     for k, (pm, layout) in enumerate(zip(pms, atlas.meshes)):
         info = scene.meshes[pm.mesh_index]
         pm.source_lightmap = None
@@ -305,7 +306,15 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             authored[info.corner_source] = per_corner
         pm.source_lightmap = {"uv": authored, "page": int(layout.page), "scale_offset": so,
                               "author_path": info.author_path, "prim": info.path, "prototype": info.prototype,
-                              "source": layout.source}
+                              "source": layout.source, "deinstance": info.deinstance,
+                              "instance_root": info.instance_root}
+        for root in info.deinstance:
+            if root not in deinstanced:
+                deinstanced.add(root)
+                rep_warnings.append(
+                    f"{root}: a native instance whose prototype the output layer cannot author over (it "
+                    f"references another file, is nested, or its referenced mesh is drawn itself): made "
+                    f"non-instanceable in solution.usda so that its meshes carry their own {lm.uv_set}")
 
     # faceVarying page UVs per display corner: each corner located in its source face (the
     # scene face of the patch's mesh and authored face)

@@ -74,8 +74,14 @@ class MeshInfo:
     # PointInstancer prototype mesh) share this key: they share one lightmap UV layout.
     prototype: str | None = None
     # Where a lightmap UV set can be authored in a layer over the input: the prim itself, the
-    # PointInstancer prototype mesh, or None (inside a native instance: proxies are read-only).
+    # PointInstancer prototype mesh, or, inside a native instance (proxies are read-only), the
+    # mesh in the prim the instances reference (see _native_instance_author).
     author_path: str | None = None
+    # Instance roots (outermost first) the output layer makes non-instanceable so that this
+    # mesh can carry its own UV set: a native instance whose prototype the layer cannot reach.
+    deinstance: tuple[str, ...] = ()
+    # The native instance root this mesh is in (None outside native instances).
+    instance_root: str | None = None
 
 
 @dataclass
@@ -291,7 +297,8 @@ class _Builder:
         return None
 
     def add_mesh(self, prim: Usd.Prim, world: np.ndarray, mpu: float, path: str, hide_path: str,
-                 prototype: str | None = None, author_path: str | None = None):
+                 prototype: str | None = None, author_path: str | None = None, deinstance: tuple[str, ...] = (),
+                 instance_root: str | None = None):
         mesh = UsdGeom.Mesh(prim)
         t = self.time
         pts = _typed(mesh.GetPointsAttr(), t, _POINT_ARRAYS, "point3f[]", path)
@@ -375,7 +382,7 @@ class _Builder:
         info = MeshInfo(path=path, name=name, hide_path=hide_path, is_light=is_light, has_uv=uv is not None,
                         corner_source=corner_src.astype(np.int32), authored_corners=int(len(indices)),
                         lightmap_uv=lm_uv, lightmap_uv_name=lm_name, prototype=prototype,
-                        author_path=author_path)
+                        author_path=author_path, deinstance=deinstance, instance_root=instance_root)
         self._append(info, world_pts, kept_counts, new_indices, kept_faces, refl, emis, uv, tau)
 
     def _face_materials(self, prim, path, n_faces, counts, indices, total, n_points):
@@ -1015,6 +1022,48 @@ def _nearest_instance_root(prim: Usd.Prim) -> Usd.Prim:
     return p if p and p.IsInstance() else prim
 
 
+def _instance_roots(prim: Usd.Prim) -> list[Usd.Prim]:
+    """Every instance root above an instance proxy (nested instances), outermost first."""
+    roots = []
+    p = prim.GetParent()
+    while p and not p.IsPseudoRoot():
+        if p.IsInstance():
+            roots.append(p)
+        p = p.GetParent()
+    return roots[::-1]
+
+
+def _native_instance_author(prim: Usd.Prim) -> tuple[str | None, tuple[str, ...]]:
+    """Where the lightmap UV set of `prim`, a mesh inside a native instance, can be authored.
+
+    No layer can author over an instance proxy: a prototype is composed from the arcs of its
+    instances' root, not from opinions below the root. But when the instances reference a prim
+    of the stage's own layer stack (an internal reference, typically to a `class` or `over` that
+    is not drawn itself), an over on the referenced mesh in a layer of that stack composes into
+    the prototype and so into every instance: the UV set is shared, as a prototype's must be,
+    and instancing is kept. Returns (that mesh's path, ()) then. Otherwise (a reference to
+    another file, several arcs, nested instances) returns (the proxy's own path, the instance
+    roots to make non-instanceable): the output layer de-instances them and each copy carries
+    its own UV set; the caller names them in a warning."""
+    roots = _instance_roots(prim)
+    own = (str(prim.GetPath()), tuple(str(r.GetPath()) for r in roots))
+    if len(roots) != 1:
+        return own
+    root = roots[0]
+    arcs = Usd.PrimCompositionQuery.GetDirectReferences(root).GetCompositionArcs()
+    if len(arcs) != 1:
+        return own
+    node = arcs[0].GetTargetNode()
+    stage = prim.GetStage()
+    if node.layerStack.identifier.rootLayer != stage.GetRootLayer():
+        return own
+    target = node.path.AppendPath(prim.GetPath().MakeRelativePath(root.GetPath()))
+    held = stage.GetPrimAtPath(target)
+    if not held or held.IsInstanceProxy() or not held.IsA(UsdGeom.Mesh):
+        return own
+    return str(target), ()
+
+
 def _is_light_prim(prim: Usd.Prim) -> bool:
     return prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or prim.IsA(UsdLux.NonboundableLightBase)
 
@@ -1119,9 +1168,11 @@ def read_scene(
                 world = _mat(xfc.GetLocalToWorldTransform(prim))
                 proxy = prim.IsInstanceProxy()
                 hide = _nearest_instance_root(prim) if proxy else prim
+                author, deinstance = _native_instance_author(prim) if proxy else (str(prim.GetPath()), ())
                 b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()),
                            prototype=str(prim.GetPrimInPrototype().GetPath()) if proxy else None,
-                           author_path=None if proxy else str(prim.GetPath()))
+                           author_path=author, deinstance=deinstance,
+                           instance_root=str(hide.GetPath()) if proxy else None)
             elif _is_light_prim(prim):
                 b.add_light(prim, _mat(xfc.GetLocalToWorldTransform(prim)), mpu, light_segments)
             elif prim.IsA(UsdLux.LightFilter):
@@ -1133,6 +1184,7 @@ def read_scene(
         raise SceneError(f"{path}: no meshes found")
     if not any(m for m in b.meshes if not m.is_light) and b.meshes:
         warnings.append(f"{path}: the stage contains only lights, no surfaces")
+    _settle_instance_authors(b.meshes)
     scene = b.build(cameras, mpu, up_axis, str(path))
     lit = any(np.any(lum.flux > 0) for lum in scene.luminaires) or any(
         np.any((d.illuminance if isinstance(d, DistantLightInfo) else d.radiance) > 0) for d in scene.daylight)
@@ -1145,12 +1197,29 @@ def read_scene(
     return scene
 
 
+def _settle_instance_authors(meshes: list[MeshInfo]) -> None:
+    """A referenced prototype mesh can hold the UV set of one prototype only: when it is also
+    drawn itself (an ordinary mesh at that path) or several prototypes reference it (different
+    variant selections, say), its instances fall back to being de-instanced."""
+    own = {m.author_path for m in meshes if m.instance_root is None and m.prototype is None}
+    keys: dict[str, set] = {}
+    for m in meshes:
+        if m.instance_root is not None and not m.deinstance:
+            keys.setdefault(m.author_path, set()).add(m.prototype)
+    for m in meshes:
+        if m.instance_root is None or m.deinstance:
+            continue
+        if m.author_path in own or len(keys[m.author_path]) > 1:
+            m.author_path, m.deinstance = m.path, (m.instance_root,)
+
+
 def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, mpu: float, time):
     """Every mesh copy of a PointInstancer into the builder (point_instancer_copies)."""
     path = str(prim.GetPath())
     for copy_path, p, world in point_instancer_copies(prim, xfc, time, b.warnings, b.unread_lights):
-        b.add_mesh(p, world, mpu, copy_path, path, prototype=str(p.GetPath()),
-                   author_path=None if p.IsInstanceProxy() else str(p.GetPath()))
+        author, deinstance = _native_instance_author(p) if p.IsInstanceProxy() else (str(p.GetPath()), ())
+        b.add_mesh(p, world, mpu, copy_path, path, prototype=str(p.GetPath()), author_path=author,
+                   deinstance=deinstance)
 
 
 def point_instancer_copies(prim: Usd.Prim, xfc: UsdGeom.XformCache, time, warnings: list,

@@ -257,21 +257,33 @@ def _author_source_lightmaps(stage: Usd.Stage, patch_meshes: Sequence[PatchMeshD
     (hirad:lightmap:scaleOffset: page_uv = uv * xy + zw). Copies of one prototype (the meshes
     of a PointInstancer prototype) share one UV set on the prototype mesh; each copy's page
     and rectangle are in lightmaps/manifest.json ("instances"), as a prim cannot hold one per
-    copy. Meshes inside native instances (instance proxies) cannot be authored over: they are
-    only in the manifest."""
+    copy. Meshes inside native instances (instance proxies, which no layer can author over)
+    get the UV set on the mesh their instances reference when that is in the input's own layer
+    stack (an internal reference: the over composes into the prototype, instancing is kept), and
+    each instance root gets its meshes' pages and rectangles as arrays
+    (hirad:lightmap:meshes, relative paths; :pages; :files; :scaleOffsets). Other native
+    instances (another file's prototype, nested instances) are made non-instanceable here, so
+    their meshes are ordinary prims that carry their own UV set (lightmaps.py warns)."""
     by_path: dict[str, list[dict]] = {}
+    by_root: dict[str, list[dict]] = {}
+    roots: set[str] = set()
     for pm in patch_meshes:
         sl = pm.source_lightmap
         if sl is None or sl.get("uv") is None or not sl.get("author_path") or "file" not in sl:
             continue
         by_path.setdefault(sl["author_path"], []).append(sl)
+        roots.update(sl.get("deinstance", ()))
+        if sl.get("instance_root") and not sl.get("deinstance"):
+            by_root.setdefault(sl["instance_root"], []).append(sl)
+    for root in sorted(roots, key=lambda r: Sdf.Path(r).pathElementCount):  # outer ones first
+        stage.OverridePrim(root).SetInstanceable(False)
     for path, copies in by_path.items():
         over = stage.OverridePrim(path)
         first = copies[0]
         pv = UsdGeom.PrimvarsAPI(over).CreatePrimvar(first["uv_set"], Sdf.ValueTypeNames.TexCoord2fArray,
                                                      UsdGeom.Tokens.faceVarying)
         pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(first["uv"], dtype=np.float32)))
-        if len(copies) > 1 or first.get("prototype") is not None:
+        if len(copies) > 1 or (first.get("prototype") is not None and not first.get("deinstance")):
             over.CreateAttribute("hirad:lightmap:copies", Sdf.ValueTypeNames.Int, True).Set(len(copies))
             continue
         over.CreateAttribute("hirad:lightmap:page", Sdf.ValueTypeNames.Int, True).Set(int(first["page"]))
@@ -279,6 +291,17 @@ def _author_source_lightmaps(stage: Usd.Stage, patch_meshes: Sequence[PatchMeshD
             Sdf.AssetPath("./" + first["file"]))
         over.CreateAttribute("hirad:lightmap:scaleOffset", Sdf.ValueTypeNames.Float4, True).Set(
             Gf.Vec4f(*(float(v) for v in first["scale_offset"])))
+    for root, members in by_root.items():
+        members = sorted(members, key=lambda m: m["prim"])
+        over = stage.OverridePrim(root)
+        attrs = (("meshes", Sdf.ValueTypeNames.StringArray,
+                  [str(Sdf.Path(m["prim"]).MakeRelativePath(Sdf.Path(root))) for m in members]),
+                 ("pages", Sdf.ValueTypeNames.IntArray, [int(m["page"]) for m in members]),
+                 ("files", Sdf.ValueTypeNames.AssetArray, [Sdf.AssetPath("./" + m["file"]) for m in members]),
+                 ("scaleOffsets", Sdf.ValueTypeNames.Float4Array,
+                  [Gf.Vec4f(*(float(v) for v in m["scale_offset"])) for m in members]))
+        for name, type_name, value in attrs:
+            over.CreateAttribute(f"hirad:lightmap:{name}", type_name, True).Set(value)
 
 
 def _solution_parent(input_path: Path, hidden: set[str]) -> tuple[str | None, np.ndarray | None]:
