@@ -139,6 +139,13 @@ bool Glazing::any() const {
     return false;
 }
 
+double Visibility::glass_transmittance(int32_t prim, double abs_cos) const {
+    if (prim < 0 || size_t(prim) >= prim_transmittance_.size()) return 0.0;
+    const float tau = prim_transmittance_[size_t(prim)];
+    if (!(tau > 0)) return 0.0;
+    return double(tau) * relative_from(angular_.data(), int(angular_.size()), abs_cos);
+}
+
 double Glazing::relative(double cos_theta) const {
     if (angular.size() < 2) return 1.0;
     const double c = std::clamp(cos_theta, 0.0, 1.0) * double(angular.size() - 1);

@@ -69,6 +69,9 @@ public:
     // a segment that long in any direction is a ray to infinity (distant lights).
     double reach(const Vec3& origin) const;
     bool has_glass() const { return !prim_transmittance_.empty(); }
+    // T(theta) = tau0 r(cos theta) of patch `prim` for a ray at |cos theta| = `abs_cos` to its
+    // normal: the factor segments_transmittance multiplies per pane; 0 for an opaque patch.
+    double glass_transmittance(int32_t prim, double abs_cos) const;
 
     RayHit intersect(const Vec3& origin, const Vec3& direction, double tnear = 0,
                      double tfar = 1e30) const;

@@ -10,6 +10,9 @@ namespace hirad {
 
 namespace {
 
+// Panes one bounce ray may pass before the path is ended (a ray caught between panes).
+constexpr int kMaxPanes = 16;
+
 struct Emitters {
     std::vector<uint32_t> patch;
     std::vector<double> cdf;  // by emitted power (sum of channels x area)
@@ -56,11 +59,19 @@ RGB direct(const std::vector<Patch>& patches, const Visibility& vis, const Emitt
     double cos_x = dot(n, d) / r, cos_y = -dot(q.normal, d) / r;
     if (cos_x <= 0 || cos_y <= 0) return {};
     Vec3 from = x + n * lift, to = y + q.normal * lift;
-    uint8_t visible = 0;
-    vis.segments_visible(&from, &to, 1, &visible);
-    if (!visible) return {};
+    double pass = 1;
+    if (vis.has_glass()) {  // through glass with its T(theta), pane by pane
+        float t = 0;
+        vis.segments_transmittance(&from, &to, 1, &t);
+        pass = t;
+    } else {
+        uint8_t visible = 0;
+        vis.segments_visible(&from, &to, 1, &visible);
+        pass = visible;
+    }
+    if (!(pass > 0)) return {};
     // L_e = E / pi; pdf of y is pick / A_q.
-    return qe * (cos_x * cos_y / (r2 * kPi) * q.area / pick);
+    return qe * (pass * cos_x * cos_y / (r2 * kPi) * q.area / pick);
 }
 
 }  // namespace
@@ -94,20 +105,51 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
                 double r1 = rng.uniform(), r2 = rng.uniform();
                 double rad = std::sqrt(r1), phi = 2 * kPi * r2;
                 Vec3 dir = t * (rad * std::cos(phi)) + b * (rad * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r1));
-                RayHit hit = vis.intersect(x + n * lift, dir);
-                if (hit.patch < 0) break;
-                const Patch& h = patches[hit.patch];
-                if (dot(h.normal, dir) >= 0) break;  // back faces neither emit nor reflect
-                // L_in = (rho_h / pi) H(hit) and H = pi <L_in> under cosine sampling: the
-                // path's weight gains rho_h.
-                beta = mul(beta, h.reflectance);
+                // The next surface that scatters: glass on the way is passed (T) or reflects.
+                Vec3 origin = x + n * lift;
+                RayHit hit = vis.intersect(origin, dir);
+                RGB gain;     // the path weight's factor at the scattering vertex
+                Vec3 side;    // the normal of the side the path leaves from
+                bool scattered = false;
+                for (int pane = 0; hit.patch >= 0 && pane < kMaxPanes; ++pane) {
+                    const Patch& h = patches[hit.patch];
+                    const double c = dot(h.normal, dir);
+                    const double t_glass = vis.glass_transmittance(hit.patch, std::fabs(c));
+                    if (t_glass <= 0) {
+                        if (c >= 0) break;  // back faces neither emit nor reflect
+                        // L_in = (rho_h / pi) H(hit) and H = pi <L_in> under cosine sampling:
+                        // the path's weight gains rho_h.
+                        gain = h.reflectance;
+                        side = h.normal;
+                        scattered = true;
+                        break;
+                    }
+                    const double pr = max_component(h.reflectance), total = t_glass + pr;
+                    // the point on the glass, from the lifted origin the ray left (x + dir t
+                    // falls short of the pane by the lift, and the next ray would meet it again)
+                    const Vec3 at = origin + dir * hit.t;
+                    if (rng.uniform() * total < t_glass) {  // through, weight T / (T / total)
+                        beta = beta * total;
+                        x = at;
+                        n = c < 0 ? h.normal * -1.0 : h.normal;  // onwards: lifted past the pane
+                        origin = x + n * lift;
+                        hit = vis.intersect(origin, dir);
+                        continue;
+                    }
+                    gain = h.reflectance * (total / pr);  // reflected on the side met
+                    side = c < 0 ? h.normal : h.normal * -1.0;
+                    scattered = true;
+                    break;
+                }
+                if (!scattered) break;
+                beta = mul(beta, gain);
                 if (bounce + 1 >= opt.min_bounces) {
-                    double survive = std::min(0.95, max_component(h.reflectance));
+                    double survive = std::min(0.95, max_component(gain));
                     if (survive <= 0 || rng.uniform() >= survive) break;
                     beta = beta / survive;
                 }
-                x = x + dir * hit.t;
-                n = h.normal;
+                x = origin + dir * hit.t;
+                n = side;
             }
             RGB value = self_emission(p0) / kPi + l;
             sum += value;

@@ -5,6 +5,15 @@
 // Luminaires (luminaire.h) are evaluated exactly at every path vertex (their light is a
 // point-to-point term with one shadow ray per luminaire point), never through the patches'
 // averaged `direct`; a patch's self-emission is its emission less rho x direct.
+//
+// Glass (visibility.h: a patch with a normal transmittance tau0 > 0) is traced as what it is,
+// a thin sheet that lets light straight through with T(theta) = tau0 r(cos theta) and reflects
+// its reflectance diffusely on the side it is met from: a path that meets glass passes it with
+// probability T / (T + max rho) (the weight T over that probability) or is reflected there
+// (the weight rho over the rest); next-event rays to the emitters pass glass with T, as the
+// luminaires' rays do. This is the physics hirad's solution approximates (Hierarchy::glass:
+// interreflected light through glass leaves its other side diffusely, spread over the pane),
+// not a copy of that approximation. Several panes on one path multiply.
 #pragma once
 #include <cstdint>
 #include <vector>

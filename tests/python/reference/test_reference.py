@@ -3,7 +3,7 @@ agree within its own stated standard error (and a small absolute margin)."""
 
 import numpy as np
 
-from conftest import BIG, _engine, box_faces, make_model, parallel_squares
+from conftest import BIG, _engine, box_faces, make_model, parallel_squares, quad
 
 
 def _within(estimate, error, expected, sigmas=4.0, rel=2e-3):
@@ -66,3 +66,42 @@ def test_reference_is_deterministic_for_a_seed():
     c = m.reference(ids, st, _engine.ReferenceOptions(paths=64, min_bounces=3, seed=2)).radiance
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
+
+
+# ---------------------------------------------------------------------------------------------
+# glass: passed straight with T(theta) = tau0 r(cos theta), reflecting rho on the side met
+# ---------------------------------------------------------------------------------------------
+
+
+def test_light_through_a_pane_is_its_transmittance_times_the_unobstructed():
+    # The closed form above with a large pane halfway (tau0 = 0.6, rho 0): every direction from
+    # the bottom centre to the emitter is within 19.5 deg of the pane's normal, where clear
+    # glass's relative angular transmittance is exactly 1 (hirad.daylight.glazing), so the
+    # next-event rays pass with T = 0.6: L = rho tau0 F (radiance 1 of the emitter).
+    from hirad.daylight.glazing import angular_table
+
+    d = 4.0
+    pane = quad([-10, -10, d / 2], [20, 0, 0], [0, 20, 0])
+    m = make_model(parallel_squares(d) + [pane], reflectance=[[0.5] * 3, [0.0] * 3, [0.0] * 3],
+                   emission=[[0.0] * 3, [np.pi] * 3, [0.0] * 3], max_area=BIG, max_edge=BIG,
+                   transmittance=[0.0, 0.0, 0.6], glass_angular=angular_table())
+    ref = m.reference(np.array([0], dtype=np.int32), np.array([[0.5, 0.5]]),
+                      _engine.ReferenceOptions(paths=20000, min_bounces=3, seed=5))
+    f = 4 * _corner_form_factor(0.5, 0.5, d)
+    _within(ref.radiance[0], ref.standard_error[0], 0.5 * 0.6 * f)
+
+
+def test_a_lossless_pane_inside_a_furnace_keeps_it_a_furnace():
+    # A closed box, every wall E = 1 and rho = 0.5, split by a pane that absorbs nothing
+    # (tau0 = 0.6 straight through at every angle, rho = 0.4 diffuse): radiance stays uniform,
+    # L = E / (pi (1 - rho)) on both sides. Glass that stopped the light it does not reflect
+    # (absorbing 0.6 of it) would make the walls darker.
+    pane = quad([0.5, 0, 0], [0, 1, 0], [0, 0, 1])
+    walls = box_faces()
+    n = len(walls)
+    m = make_model(walls + [pane], reflectance=[0.5] * n + [0.4], emission=[1.0] * n + [0.0],
+                   max_area=BIG, max_edge=BIG, transmittance=[0.0] * n + [0.6])
+    ids = np.arange(n, dtype=np.int32)
+    st = np.array([[0.3, 0.7]] * n)  # off the pane's line on the walls it meets
+    ref = m.reference(ids, st, _engine.ReferenceOptions(paths=8192, min_bounces=3, seed=12))
+    _within(ref.radiance, ref.standard_error, 2.0 / np.pi)
