@@ -32,8 +32,14 @@ Both tools bake the same quantity into the same texels:
   plane's albedo (H = pi L inside a closed uniform emitter); walls facing outwards give 0; walls
   that also reflect rho give L / (1 - rho) (a furnace: every bounce), which checks INDIRECT and the
   bounce count. Materials: a Lambertian Diffuse BSDF (roughness 0) of hirad's reflectance (a
-  texture counts by its mean colour, as in hirad); no glossy, no transmission (the scene's
-  "roughconductor"/"dielectric" materials are diffuse in hirad too). World: black.
+  texture counts by its mean colour, as in hirad) on the front side only, black on the back
+  (hirad's faces, and its reference's, absorb on the back; Cycles' diffuse reflects on both
+  sides, which put Blender 5-7 % above the reference on the Modern Hall, whose meshes face out
+  of the room in places); no glossy (the scene's "roughconductor"/"dielectric" materials are
+  diffuse in hirad too). Glass (hirad's face transmittance tau0 > 0: the Hall's balustrade) is
+  a Transparent BSDF of colour tau0 r(|cos theta|), r the Tregenza-Sharples curve hirad uses,
+  plus its reflectance, as `hirad reference` traces it; calibration (d) checks it against
+  the closed form. World: black.
 * Cycles settings: samples per texel from `--samples` (a ladder, each a full bake, timed on its
   own), adaptive sampling and denoising off, clamping off, light-sampling threshold 0, diffuse
   and total bounces `--bounces` (32: with a mean albedo near 0.75 what is cut is about 1e-4;

@@ -140,6 +140,38 @@ def test_negative_scale_flips_winding(tmp_path):
     np.testing.assert_allclose(face_normal(mesh_faces(scene, 0)[0]), [0, 0, 1], atol=1e-12)
 
 
+def test_double_sided_meshes_are_named_in_a_warning(tmp_path):
+    # doubleSided is not honoured (faces are one-sided): said, with the meshes, never silently
+    stage, path = new_stage(tmp_path)
+    add_quad(stage, "/one")
+    add_quad(stage, "/two").CreateDoubleSidedAttr(True)
+    add_quad(stage, "/off").CreateDoubleSidedAttr(False)
+    stage.Save()
+    scene = hu.read_scene(path)
+    said = [w for w in scene.warnings if "doubleSided" in w]
+    assert len(said) == 1 and "/two" in said[0] and "/one" not in said[0] and "/off" not in said[0], scene.warnings
+
+
+def test_glass_that_would_reflect_more_than_it_stops_is_lowered_and_named(tmp_path):
+    # opacity 0.2 lets 0.8 through: a diffuseColor of 0.5 would make the pane create light,
+    # so its reflectance becomes 0.2 with a warning; 0.1 is kept, silently
+    stage, path = new_stage(tmp_path)
+    for name, rho in (("bright", 0.5), ("dim", 0.1)):
+        mat = add_material(stage, f"/Looks/{name}", diffuse=(rho, rho, rho))
+        UsdShade.Shader(stage.GetPrimAtPath(f"/Looks/{name}/Surface")).CreateInput(
+            "opacity", Sdf.ValueTypeNames.Float).Set(0.2)
+        bind(add_quad(stage, f"/{name}").GetPrim(), mat)
+    add_quad(stage, "/lamp", z=1.0, color=(0.5, 0.5, 0.5))
+    stage.Save()
+    scene = hu.read_scene(path, require_emission=False)
+    for name, rho in (("bright", 0.2), ("dim", 0.1)):
+        k = mesh_index(scene, f"/{name}")
+        np.testing.assert_allclose(scene.face_reflectance[scene.face_mesh == k], rho, atol=1e-6)
+        np.testing.assert_allclose(scene.face_transmittance[scene.face_mesh == k], 0.8, atol=1e-6)
+    said = [w for w in scene.warnings if "glazed" in w]
+    assert len(said) == 1 and "/bright" in said[0], scene.warnings
+
+
 def test_left_handed_orientation_flips_winding(tmp_path):
     stage, path = new_stage(tmp_path)
     add_quad(stage, "/rh")

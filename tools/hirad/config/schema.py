@@ -509,6 +509,13 @@ def parse_bytes(value) -> int:
     return size
 
 
+def _gather_importance(description: str):
+    """The final gather's importance threshold (GatherOptions.importance), as both the vertex
+    values and the lightmaps take it."""
+    return Field(json_schema_extra={"unit": "fraction of an element's light"}, default=0.02, ge=0.0, lt=1.0,
+                 description=description)
+
+
 class ReconstructionConfig(BaseModel):
     """How per-patch radiosity is turned into smooth per-vertex values."""
 
@@ -541,15 +548,9 @@ class ReconstructionConfig(BaseModel):
         json_schema_extra={"unit": "rays per link"},
         default=16, ge=1, le=256, description="Visibility rays per link for values: final_gather.",
     )
-    gather_importance: StrictFloat = Field(
-        json_schema_extra={"unit": "fraction of an element's light"},
-        default=0.02,
-        ge=0.0,
-        lt=1.0,
-        description=(
-            "values: final_gather on a hierarchical bake: the weakest links, together at most this"
-            " share of an element's light, at their mean (outputs.lightmaps.gather_importance)."
-        ),
+    gather_importance: StrictFloat = _gather_importance(
+        "values: final_gather on a hierarchical bake: the weakest links, together at most this"
+        " share of an element's light, at their mean (outputs.lightmaps.gather_importance)."
     )
 
 
@@ -620,18 +621,12 @@ class LightmapOutputConfig(BaseModel):
         json_schema_extra={"unit": "rays per link"},
         default=4, ge=1, le=256, description="Visibility rays per link in final_gather mode."
     )
-    gather_importance: StrictFloat = Field(
-        json_schema_extra={"unit": "fraction of an element's light"},
-        default=0.02,
-        ge=0.0,
-        lt=1.0,
-        description=(
-            "final_gather: per element, its weakest links, together at most this share of the light"
-            " it gathers, are taken at their mean over the receiver instead of at every sample (links"
-            " from emitters and from close sources always at the sample). No bias, a bounded local"
-            " error; 0.02 is about twice as fast as 0 on the Cornell box at the same error (0: every"
-            " link at every sample). Directional lightmaps evaluate every link."
-        ),
+    gather_importance: StrictFloat = _gather_importance(
+        "final_gather: per element, its weakest links, together at most this share of the light"
+        " it gathers, are taken at their mean over the receiver instead of at every sample (links"
+        " from emitters and from close sources always at the sample). No bias, a bounded local"
+        " error; 0.02 is about twice as fast as 0 on the Cornell box at the same error (0: every"
+        " link at every sample). Directional lightmaps evaluate every link."
     )
     sample_offset: StrictFloat = Field(
         json_schema_extra={"unit": "m"},

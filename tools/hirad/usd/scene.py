@@ -222,6 +222,7 @@ class _Builder:
         self.uvs: list[np.ndarray | None] = []
         self.n_points = 0
         self.unread_lights: list[str] = []  # lights that emit nothing in the bake, with why
+        self.double_sided: list[str] = []   # meshes authored doubleSided (not honoured)
         if ies_mode not in _lum.IES_MODES:
             raise SceneError(f"IES mode must be one of {', '.join(_lum.IES_MODES)}, got {ies_mode!r}")
         self.ies_mode = ies_mode
@@ -251,6 +252,12 @@ class _Builder:
         self.face_source.append(source.astype(np.int32))
         tau = np.zeros(len(counts)) if tau is None else np.asarray(tau, dtype=np.float64)
         # glazing reflects at most what it does not let through
+        if len(tau) and np.any(refl > (1.0 - tau)[:, None] + 1e-12):
+            over = np.nonzero((refl > (1.0 - tau)[:, None] + 1e-12).any(axis=1))[0]
+            self.warnings.append(
+                f"{info.path}: {len(over)} glazed face(s) reflect more than they do not transmit (reflectance "
+                f"{float(refl[over].max()):.3g} with transmittance {float(tau[over].max()):.3g}): reflectance lowered to "
+                "1 - transmittance so that glass creates no light")
         refl = np.minimum(refl, (1.0 - tau)[:, None]) if len(tau) else refl
         self.reflectance.append(np.clip(refl, 0.0, _MAX_REFLECTANCE))
         self.emission.append(emis)
@@ -301,6 +308,8 @@ class _Builder:
                  instance_root: str | None = None):
         mesh = UsdGeom.Mesh(prim)
         t = self.time
+        if mesh.GetDoubleSidedAttr().Get(t):
+            self.double_sided.append(path)
         pts = _typed(mesh.GetPointsAttr(), t, _POINT_ARRAYS, "point3f[]", path)
         counts = _typed(mesh.GetFaceVertexCountsAttr(), t, _INDEX_ARRAYS, "int[]", path)
         indices = _typed(mesh.GetFaceVertexIndicesAttr(), t, _INDEX_ARRAYS, "int[]", path)
@@ -1182,6 +1191,11 @@ def read_scene(
 
     if not b.meshes:
         raise SceneError(f"{path}: no meshes found")
+    if b.double_sided:
+        shown = ", ".join(b.double_sided[:3]) + (f" and {len(b.double_sided) - 3} more" if len(b.double_sided) > 3 else "")
+        warnings.append(f"{path}: doubleSided is not honoured ({shown}): every face is one-sided in hirad, its "
+                        "front (the side its corners turn counter-clockwise around, orientation honoured) "
+                        "reflecting and emitting and its back absorbing, as for USD's default doubleSided = 0")
     if not any(m for m in b.meshes if not m.is_light) and b.meshes:
         warnings.append(f"{path}: the stage contains only lights, no surfaces")
     _settle_instance_authors(b.meshes)
