@@ -283,21 +283,22 @@ void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* k
         if (leaf[k] >= h_.nodes.size() || h_.nodes[leaf[k]].cluster)
             throw std::invalid_argument("gather: a query point's element is not an element of the hierarchy");
     // Per leaf queried, its split (GatherOptions::importance), made once.
+    // (Found by binary search in the sorted leaves: memory grows with the points, not the nodes.)
     std::vector<uint32_t> unique;
     std::vector<Split> splits;
-    std::vector<int64_t> slot;
-    if (opt_.importance > 0 && !moments) {
+    const bool split_links = opt_.importance > 0 && !moments;
+    if (split_links) {
         unique.assign(leaf, leaf + count);
         std::sort(unique.begin(), unique.end());
         unique.erase(std::unique(unique.begin(), unique.end()), unique.end());
         splits.resize(unique.size());
         tbb::parallel_for(size_t(0), unique.size(), [&](size_t k) { splits[k] = split(unique[k]); });
-        slot.assign(h_.nodes.size(), -1);
-        for (size_t k = 0; k < unique.size(); ++k) slot[unique[k]] = static_cast<int64_t>(k);
     }
     tbb::parallel_for(size_t(0), count, [&](size_t k) {
         if (moments) moments[k] = RadianceMoments{};
-        const Split* sp = slot.empty() ? nullptr : &splits[static_cast<size_t>(slot[leaf[k]])];
+        const Split* sp = split_links
+                              ? &splits[size_t(std::lower_bound(unique.begin(), unique.end(), leaf[k]) - unique.begin())]
+                              : nullptr;
         out[k] = at(leaf[k], x[k], key[k], moments ? moments + k : nullptr, sp);
     });
 }
