@@ -295,16 +295,23 @@ def test_source_view_shows_the_input_meshes_and_keeps_the_solution_for_hirad(tmp
     assert {m.source_path for m in data.meshes} >= {f"/World/{n}" for n in ("floor", "box", "plinth", "wall")}
 
 
-def _instanced_scene(path: Path) -> Path:
-    """A floor, a lamp, and a PointInstancer with two copies of one cube prototype: one under the
-    lamp, one off in a corner (a different light on each)."""
+def _lit_floor(path: Path):
+    """A new stage with a 4 m grey floor (y = 0, facing up) and a 0.6 m lamp 2 m above its centre,
+    facing down: (stage, the grey material)."""
     stage = new_stage(path)
     grey = add_material(stage, "/World/Looks/grey", (0.5, 0.5, 0.5))
     lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
-    f = np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], float)
-    add_mesh(stage, "/World/floor", f, [4], [0, 1, 2, 3], grey)
-    e = np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]])
-    add_mesh(stage, "/World/lamp", e, [4], [0, 1, 2, 3], lamp)
+    add_mesh(stage, "/World/floor", np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], float), [4],
+             [0, 1, 2, 3], grey)
+    add_mesh(stage, "/World/lamp", np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]]),
+             [4], [0, 1, 2, 3], lamp)
+    return stage, grey
+
+
+def _instanced_scene(path: Path) -> Path:
+    """A floor, a lamp, and a PointInstancer with two copies of one cube prototype: one under the
+    lamp, one off in a corner (a different light on each)."""
+    stage, grey = _lit_floor(path)
     add_crate_instancer(stage, "/World/crates", 0.2, [(0.0, 0.0, 0.0), (1.6, 0.0, 1.6)], grey)
     stage.GetRootLayer().Save()
     return path
@@ -370,13 +377,7 @@ def _native_instances_scene(root: Path) -> tuple[Path, Path]:
     add_crate_mesh(cs, "/Crate/crate", 0.2, add_material(cs, "/Crate/Looks/grey", (0.5, 0.5, 0.5)))
     cs.GetRootLayer().Save()
     path = root / "scene.usda"
-    stage = new_stage(path)
-    grey = add_material(stage, "/World/Looks/grey", (0.5, 0.5, 0.5))
-    lamp = add_material(stage, "/World/Looks/lamp", (0.0, 0.0, 0.0), (20.0, 20.0, 20.0))
-    add_mesh(stage, "/World/floor", np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], float), [4],
-             [0, 1, 2, 3], grey)
-    add_mesh(stage, "/World/lamp", np.array([[-0.3, 2.0, -0.3], [0.3, 2.0, -0.3], [0.3, 2.0, 0.3], [-0.3, 2.0, 0.3]]),
-             [4], [0, 1, 2, 3], lamp)
+    stage, grey = _lit_floor(path)
     UsdGeom.Xform.Define(stage, "/Assets/Crate")
     add_crate_mesh(stage, "/Assets/Crate/crate", 0.2, grey)
     stage.GetPrimAtPath("/Assets").SetSpecifier(Sdf.SpecifierClass)  # abstract: not drawn itself
@@ -463,6 +464,41 @@ def test_native_instances_get_st1_and_their_own_rectangles(tmp_path):
     got, expect = np.array(got), np.array(expect)
     assert expect[0] > 1.5 * expect[1]  # the lamp is over inst0 only
     assert np.all(np.abs(got - expect) / expect < 0.02), (got, expect)
+
+
+def test_instances_of_a_drawn_mesh_are_deinstanced_and_the_original_keeps_its_own_st1(tmp_path):
+    """Instances that reference a mesh the scene also draws (its own light, its own rectangle):
+    one st1 over that mesh would be shared with the original, so the instances are made
+    non-instanceable (named in a warning) and all three carry their own st1 and rectangle."""
+    path = tmp_path / "scene.usda"
+    stage, grey = _lit_floor(path)
+    UsdGeom.Xform.Define(stage, "/World/original")
+    add_crate_mesh(stage, "/World/original/crate", 0.2, grey)
+    for name, at in (("copy0", (1.2, 0.0, 0.0)), ("copy1", (-1.2, 0.0, 0.0))):
+        x = UsdGeom.Xform.Define(stage, f"/World/{name}")
+        x.AddTranslateOp().Set(at)
+        x.GetPrim().GetReferences().AddInternalReference("/World/original")
+        x.GetPrim().SetInstanceable(True)
+    stage.GetRootLayer().Save()
+    cfg = write_config(tmp_path / "bake.yaml", path, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-4, "min_area": 0.005, "samples": 8, "max_rounds": 4},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {"texels_per_metre": 32.0, "max_size": 512, "mode": "final_gather"}})
+    bake(cfg)
+    out = tmp_path / "out"
+    manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
+    by_prim = {i["prim"]: i for i in manifest["instances"]}
+    solved = Usd.Stage.Open(str(out / "solution.usda"))
+    rects = []
+    for name in ("original", "copy0", "copy1"):
+        prim = solved.GetPrimAtPath(f"/World/{name}/crate")
+        assert not solved.GetPrimAtPath(f"/World/{name}").IsInstance()
+        assert by_prim[f"/World/{name}/crate"]["mesh"] == f"/World/{name}/crate"
+        assert UsdGeom.PrimvarsAPI(prim).GetPrimvar("st1").HasAuthoredValue()
+        rects.append(tuple(prim.GetAttribute("hirad:lightmap:scaleOffset").Get()))
+    assert len(set(rects)) == 3
+    assert any("/World/copy0" in w and "non-instanceable" in w for w in manifest["warnings"]), manifest["warnings"]
+    assert not any("/World/original" in w and "non-instanceable" in w for w in manifest["warnings"])
 
 
 def test_each_polygon_is_one_piece_of_its_chart(baked):
