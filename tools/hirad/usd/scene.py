@@ -223,6 +223,7 @@ class _Builder:
         self.n_points = 0
         self.unread_lights: list[str] = []  # lights that emit nothing in the bake, with why
         self.double_sided: list[str] = []   # meshes authored doubleSided (not honoured)
+        self.instance_targets: dict = {}     # per native prototype, the prim its instances reference
         if ies_mode not in _lum.IES_MODES:
             raise SceneError(f"IES mode must be one of {', '.join(_lum.IES_MODES)}, got {ies_mode!r}")
         self.ies_mode = ies_mode
@@ -252,8 +253,8 @@ class _Builder:
         self.face_source.append(source.astype(np.int32))
         tau = np.zeros(len(counts)) if tau is None else np.asarray(tau, dtype=np.float64)
         # glazing reflects at most what it does not let through
-        if len(tau) and np.any(refl > (1.0 - tau)[:, None] + 1e-12):
-            over = np.nonzero((refl > (1.0 - tau)[:, None] + 1e-12).any(axis=1))[0]
+        over = np.nonzero((refl > (1.0 - tau)[:, None] + 1e-12).any(axis=1))[0] if len(tau) else []
+        if len(over):
             self.warnings.append(
                 f"{info.path}: {len(over)} glazed face(s) reflect more than they do not transmit (reflectance "
                 f"{float(refl[over].max()):.3g} with transmittance {float(tau[over].max()):.3g}): reflectance lowered to "
@@ -1042,7 +1043,7 @@ def _instance_roots(prim: Usd.Prim) -> list[Usd.Prim]:
     return roots[::-1]
 
 
-def _native_instance_author(prim: Usd.Prim) -> tuple[str | None, tuple[str, ...]]:
+def _native_instance_author(prim: Usd.Prim, targets: dict) -> tuple[str | None, tuple[str, ...]]:
     """Where the lightmap UV set of `prim`, a mesh inside a native instance, can be authored.
 
     No layer can author over an instance proxy: a prototype is composed from the arcs of its
@@ -1053,20 +1054,24 @@ def _native_instance_author(prim: Usd.Prim) -> tuple[str | None, tuple[str, ...]
     and instancing is kept. Returns (that mesh's path, ()) then. Otherwise (a reference to
     another file, several arcs, nested instances) returns (the proxy's own path, the instance
     roots to make non-instanceable): the output layer de-instances them and each copy carries
-    its own UV set; the caller names them in a warning."""
+    its own UV set; the caller names them in a warning. `targets` caches per prototype the
+    prim its instances reference (None: none the layer can reach): instances of one prototype
+    share their arcs, so the composition is queried once per prototype, not once per copy."""
     roots = _instance_roots(prim)
     own = (str(prim.GetPath()), tuple(str(r.GetPath()) for r in roots))
     if len(roots) != 1:
         return own
     root = roots[0]
-    arcs = Usd.PrimCompositionQuery.GetDirectReferences(root).GetCompositionArcs()
-    if len(arcs) != 1:
-        return own
-    node = arcs[0].GetTargetNode()
     stage = prim.GetStage()
-    if node.layerStack.identifier.rootLayer != stage.GetRootLayer():
+    key = str(root.GetPrototype().GetPath())
+    if key not in targets:
+        arcs = Usd.PrimCompositionQuery.GetDirectReferences(root).GetCompositionArcs()
+        node = arcs[0].GetTargetNode() if len(arcs) == 1 else None
+        targets[key] = node.path if node is not None and node.layerStack.identifier.rootLayer == stage.GetRootLayer() \
+            else None
+    if targets[key] is None:
         return own
-    target = node.path.AppendPath(prim.GetPath().MakeRelativePath(root.GetPath()))
+    target = targets[key].AppendPath(prim.GetPath().MakeRelativePath(root.GetPath()))
     held = stage.GetPrimAtPath(target)
     if not held or held.IsInstanceProxy() or not held.IsA(UsdGeom.Mesh):
         return own
@@ -1177,7 +1182,8 @@ def read_scene(
                 world = _mat(xfc.GetLocalToWorldTransform(prim))
                 proxy = prim.IsInstanceProxy()
                 hide = _nearest_instance_root(prim) if proxy else prim
-                author, deinstance = _native_instance_author(prim) if proxy else (str(prim.GetPath()), ())
+                author, deinstance = (_native_instance_author(prim, b.instance_targets) if proxy
+                                      else (str(prim.GetPath()), ()))
                 b.add_mesh(prim, world, mpu, str(prim.GetPath()), str(hide.GetPath()),
                            prototype=str(prim.GetPrimInPrototype().GetPath()) if proxy else None,
                            author_path=author, deinstance=deinstance,
@@ -1231,7 +1237,8 @@ def _add_point_instancer(b: _Builder, prim: Usd.Prim, xfc: UsdGeom.XformCache, m
     """Every mesh copy of a PointInstancer into the builder (point_instancer_copies)."""
     path = str(prim.GetPath())
     for copy_path, p, world in point_instancer_copies(prim, xfc, time, b.warnings, b.unread_lights):
-        author, deinstance = _native_instance_author(p) if p.IsInstanceProxy() else (str(p.GetPath()), ())
+        author, deinstance = (_native_instance_author(p, b.instance_targets) if p.IsInstanceProxy()
+                              else (str(p.GetPath()), ()))
         b.add_mesh(p, world, mpu, copy_path, path, prototype=str(p.GetPath()), author_path=author,
                    deinstance=deinstance)
 
