@@ -58,11 +58,12 @@ void bind_options(nb::module_& m) {
     nb::class_<HierarchyOptions>(m, "HierarchyOptions", "Hierarchical radiosity with clustering.")
         .def("__init__",
              [](HierarchyOptions* o, double eps, double min_area, int samples, uint64_t seed, int rounds,
-                double relative, double spread) {
-                 new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative, spread};
+                double relative, double spread, bool cluster_receivers) {
+                 new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative, spread, cluster_receivers};
              },
              "epsilon"_a = ho.epsilon, "min_area"_a = ho.min_area, "samples"_a = ho.samples, "seed"_a = ho.seed,
-             "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative, "spread"_a = ho.spread)
+             "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative, "spread"_a = ho.spread,
+             "cluster_receivers"_a = ho.cluster_receivers)
         .def_rw("epsilon", &HierarchyOptions::epsilon,
                 "A link may carry at most epsilon x the scene's emitted power (W) before it is split.")
         .def_rw("min_area", &HierarchyOptions::min_area, "Elements are not split below this area, m^2.")
@@ -73,7 +74,11 @@ void bind_options(nb::module_& m) {
                 "After round 1, links are also split above this fraction of their receiver's light (0: off).")
         .def_rw("spread", &HierarchyOptions::spread,
                 "Close or partly visible links whose source's radiosity range could bias them by more than "
-                "spread x epsilon's power are split at the source (0: off).");
+                "spread x epsilon's power are split at the source (0: off).")
+        .def_rw("cluster_receivers", &HierarchyOptions::cluster_receivers,
+                "Clusters whose faces all see a source from their front receive its light as a whole, shared "
+                "among their faces by orientation (links grow with the lighting, not with the faces); the "
+                "face-by-face solvers (gauss_seidel, southwell) refuse such links.");
 
     const OutOfCoreOptions oc;
     nb::class_<OutOfCoreOptions>(m, "OutOfCoreOptions",

@@ -603,6 +603,7 @@ RefineOptions refine_options(const HierarchyOptions& o, double emitted) {
     r.seed = o.seed;
     r.relative = o.relative;
     r.spread = o.spread * r.epsilon;
+    r.cluster_receivers = o.cluster_receivers;
     return r;
 }
 }  // namespace

@@ -109,6 +109,8 @@ struct HierarchyOptions {
                                     // their receiver's light (refine.h; 0: off)
     double spread = 1e-3;           // close or partly visible links of uneven sources are split
                                     // at the source above spread x epsilon (refine.h; 0: off)
+    bool cluster_receivers = false; // clusters whose faces all face a source receive as a whole
+                                    // (refine.h, Hierarchy::reception)
 };
 
 // The hierarchical method out of core: links streamed through a link store.

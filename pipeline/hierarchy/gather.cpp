@@ -88,6 +88,13 @@ Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, c
     }
 }
 
+double Gatherer::mean_coupling(const Link& l, const Node& leaf) const {
+    // G / A_R over an element receiver; over a receiving cluster, what the leaf's face takes
+    // of it by its orientation (Hierarchy::reception).
+    if (h_.slot_of(l.receiver) == kNoNode) return double(l.coupling) / h_.nodes[l.receiver].area;
+    return double(l.coupling) * std::max(0.0, dot(leaf.shape.normal, h_.reception(l.receiver, l.source)));
+}
+
 Gatherer::Split Gatherer::split(uint32_t leaf) const {
     struct Candidate {
         double share;
@@ -101,7 +108,7 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const Link& l = links_[k];
             const Node& s = h_.nodes[l.source];
-            const double share = std::max(0.0, luminance(radiosity_[l.source])) * l.coupling / h_.nodes[i].area;
+            const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, me);
             total += share;
             double gap2 = 0;
             for (int a = 0; a < 3; ++a) {
@@ -121,7 +128,7 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     for (; taken < weak.size() && rest + weak[taken].share <= opt_.importance * total; ++taken) {
         rest += weak[taken].share;
         const Link& l = links_[weak[taken].link];
-        out.rest += radiosity_[l.source] * (double(l.coupling) / h_.nodes[l.receiver].area);
+        out.rest += radiosity_[l.source] * mean_coupling(l, me);
     }
     for (size_t k = taken; k < weak.size(); ++k) out.links.push_back(weak[k].link);
     std::sort(out.links.begin(), out.links.end());  // chain order: the samples drawn do not depend on the ranking

@@ -54,18 +54,49 @@ std::vector<size_t> receiver_groups(const std::vector<Link>& links) {
 
 // Parents come before children in index order, so one forward sweep pushes and one backward
 // sweep pulls.
-std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
-    std::vector<double> f(h.nodes.size(), 0.0);
-    for (const Link& l : links) f[l.receiver] += double(l.coupling) / h.nodes[l.receiver].area;
-    return gather_scale(h, std::move(f));
+void add_link(const Hierarchy& h, const Link& l, const RGB& b, std::vector<RGB>& at,
+              std::vector<VectorIrradiance>& clusters) {
+    const uint32_t slot = h.slot_of(l.receiver);
+    if (slot == kNoNode) {
+        at[l.receiver] += b * (double(l.coupling) / h.nodes[l.receiver].area);
+        return;
+    }
+    if (clusters.empty()) clusters.resize(h.cluster_shapes.size());
+    clusters[slot].add(b * double(l.coupling), h.reception(l.receiver, l.source));
 }
 
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f) {
+bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links) {
+    for (const Link& l : links)
+        if (h.slot_of(l.receiver) != kNoNode) return true;
+    return false;
+}
+
+std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
+    std::vector<double> f(h.nodes.size(), 0.0);
+    std::vector<Vec3> fc;
+    for (const Link& l : links) {
+        const uint32_t slot = h.slot_of(l.receiver);
+        if (slot == kNoNode) { f[l.receiver] += double(l.coupling) / h.nodes[l.receiver].area; continue; }
+        if (fc.empty()) fc.resize(h.cluster_shapes.size());
+        fc[slot] += h.reception(l.receiver, l.source) * double(l.coupling);
+    }
+    return gather_scale(h, std::move(f), fc);
+}
+
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, const std::vector<Vec3>& fc_in) {
     const size_t n = h.nodes.size();
     if (f.size() != n) throw std::invalid_argument("gather_scale: one sum per node");
+    if (!fc_in.empty() && fc_in.size() != h.cluster_shapes.size())
+        throw std::invalid_argument("gather_scale: one vector per cluster");
+    std::vector<Vec3> fc = fc_in;
     std::vector<double> scale;
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
+        if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
+            const Vec3& above = fc[h.cluster_slot[node.parent]];
+            if (node.cluster) fc[h.cluster_slot[i]] += above;
+            else f[i] += std::max(0.0, dot(node.shape.normal, above));
+        }
         if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
         if (!node.leaf() || node.cluster) continue;
         const RGB& rho = node.shape.reflectance;
@@ -127,11 +158,24 @@ RGB LeafTerms::mean(size_t side, const std::vector<RGB>& irradiance) const {
 }
 
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const LeafTerms& terms) {
+               std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters) {
     const size_t n = h.nodes.size();
-    for (size_t i = 0; i < n; ++i) {
-        const Node& node = h.nodes[i];
-        irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
+    if (clusters.empty()) {
+        for (size_t i = 0; i < n; ++i) {
+            const Node& node = h.nodes[i];
+            irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
+        }
+    } else {
+        // Vectors down the clusters (parents first), n_f . E into each face root.
+        std::vector<VectorIrradiance> pushed(clusters);
+        for (size_t i = 0; i < n; ++i) {
+            const Node& node = h.nodes[i];
+            irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
+            if (node.parent == kNoNode || !h.nodes[node.parent].cluster) continue;
+            const VectorIrradiance& above = pushed[h.cluster_slot[node.parent]];
+            if (node.cluster) pushed[h.cluster_slot[i]].add(above);
+            else irradiance[i] += above.along(node.shape.normal);
+        }
     }
     if (!terms.scale.empty())
         for (size_t i = 0; i < n; ++i)
@@ -162,8 +206,9 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
             const LeafTerms& terms) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), unused(n);
-    for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, unused, terms);
+    std::vector<VectorIrradiance> clusters;
+    for (const Link& l : links) add_link(h, l, b[l.source], gathered, clusters);
+    push_pull(h, gathered, irradiance, unused, terms, clusters);
     sol.limited_leaves = terms.limited();
     std::vector<double> own(n, 0.0);
     for (const Link& l : links) own[l.source] += h.sent(l) / h.nodes[l.source].area;
@@ -215,16 +260,31 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
     const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
+    // Receiving clusters: each link's reception vector, computed once.
+    std::vector<Vec3> reception(links.size());
+    const bool clusters_receive = any_cluster_receiver(h, links);
+    std::vector<VectorIrradiance> clusters(clusters_receive ? h.cluster_shapes.size() : 0);
+    if (clusters_receive)
+        for (size_t k = 0; k < links.size(); ++k)
+            if (h.slot_of(links[k].receiver) != kNoNode) reception[k] = h.reception(links[k].receiver, links[k].source);
 
     for (uint64_t it = 1; it <= opt.max_iterations; ++it) {
         std::fill(gathered.begin(), gathered.end(), RGB{});
         tbb::parallel_for(size_t(0), groups.size() - 1, [&](size_t g) {
-            RGB acc;
             const uint32_t r = links[groups[g]].receiver;
+            const uint32_t slot = h.slot_of(r);
+            if (slot != kNoNode) {
+                VectorIrradiance acc;
+                for (size_t k = groups[g]; k < groups[g + 1]; ++k)
+                    acc.add(b[links[k].source] * double(links[k].coupling), reception[k]);
+                clusters[slot] = acc;
+                return;
+            }
+            RGB acc;
             for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
             gathered[r] = acc / h.nodes[r].area;
         });
-        push_pull(h, gathered, irradiance, next, terms);
+        push_pull(h, gathered, irradiance, next, terms, clusters);
         double r2 = 0;
         for (uint32_t i : leaves) {
             RGB d = next[i] - b[i];
@@ -319,8 +379,9 @@ std::vector<RGB> apply(const Hierarchy& h, const std::vector<Link>& links, const
                        const LeafTerms& terms) {
     const size_t n = h.nodes.size();
     std::vector<RGB> gathered(n), irradiance(n), out(n);
-    for (const Link& l : links) gathered[l.receiver] += b[l.source] * (double(l.coupling) / h.nodes[l.receiver].area);
-    push_pull(h, gathered, irradiance, out, terms);
+    std::vector<VectorIrradiance> clusters;
+    for (const Link& l : links) add_link(h, l, b[l.source], gathered, clusters);
+    push_pull(h, gathered, irradiance, out, terms, clusters);
     return out;
 }
 
@@ -334,7 +395,10 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
     std::vector<std::vector<uint32_t>> by_face(trees.roots.size());
     for (uint32_t k = 0; k < links.size(); ++k) {
         const uint32_t slot = trees.slot[links[k].receiver];
-        if (slot == kNoNode) throw std::invalid_argument("hierarchy: a link's receiver is a cluster");
+        if (slot == kNoNode)
+            throw std::invalid_argument("hierarchical Gauss-Seidel works face by face and cannot solve links that "
+                                        "end on clusters (hierarchy.cluster_receivers): use solver.method jacobi "
+                                        "or block_southwell");
         by_face[slot].push_back(k);
     }
     const std::vector<uint32_t> leaves = h.leaves();
@@ -366,6 +430,10 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
 HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::vector<Link>& links,
                                                const std::vector<RGB>& start, const SolverOptions& opt) {
     const size_t n = h.nodes.size();
+    if (any_cluster_receiver(h, links))
+        throw std::invalid_argument("hierarchical Southwell shoots face by face and cannot solve links that end on "
+                                    "clusters (hierarchy.cluster_receivers): use solver.method jacobi or "
+                                    "block_southwell");
     const FaceTrees trees = face_trees(h);
     const std::vector<uint32_t> leaves = h.leaves();
     // Links by source.

@@ -39,9 +39,22 @@ constexpr double kGainLimit = 0.999;
 
 // Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf
 // (1 at inner nodes and within the limit); empty when no leaf needs one.
+// A receiving cluster's links count at each face below it by the face's orientation
+// (Hierarchy::reception): G n_f . reception(R, S).
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links);
-// The same from the sums of G / A_R over the links received at each node (streamed links).
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received);
+// The same from the sums of G / A_R over the links received at each element, and per cluster
+// slot the sums of G reception(R, S) over the links received at it (streamed links; empty:
+// no cluster receives).
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received,
+                                 const std::vector<Vec3>& cluster_received = {});
+
+// What one link brings its receiver with the source at radiosity b: b G / A_R to an element's
+// irradiance `at`, b G reception(R, S) to a receiving cluster's vector (`clusters`, per
+// cluster slot, sized on first use).
+void add_link(const Hierarchy& h, const Link& l, const RGB& b, std::vector<RGB>& at,
+              std::vector<VectorIrradiance>& clusters);
+// Whether some link ends on a cluster; the solvers that work face by face refuse such links.
+bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links);
 
 // Sorts links by receiver, then source (the order the gather reads them in).
 void sort_links(std::vector<Link>& links);
@@ -67,9 +80,12 @@ struct LeafTerms {
 // The terms of a hierarchy whose leaves do not change until the solve ends.
 LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale);
 
-// push_pull with the leaves' terms (empty: B = E + rho H).
+// push_pull with the leaves' terms (empty: B = E + rho H). `clusters`: the vector irradiance
+// gathered at receiving clusters (per cluster slot; empty: none), pushed down the clusters and
+// given to each face root below as n_f . E.
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const LeafTerms& terms = {});
+               std::vector<RGB>& radiosity, const LeafTerms& terms = {},
+               const std::vector<VectorIrradiance>& clusters = {});
 
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);
@@ -84,13 +100,13 @@ double leaf_emission_norm(const Hierarchy& h, const std::vector<uint32_t>& leave
 HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>& links,
                                      const std::vector<RGB>& start, const SolverOptions& options);
 
-// Gauss-Seidel on the hierarchy: face by face, gather the links received anywhere in the
+// Gauss-Seidel on the hierarchy (links to elements only): face by face, gather the links received anywhere in the
 // face's element tree and push-pull that tree at once, so later faces already see the new
 // radiosity. The residual is measured as for Jacobi (one more gather per sweep).
 HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std::vector<Link>& links,
                                                   const std::vector<RGB>& start, const SolverOptions& options);
 
-// Southwell on the hierarchy: shoot the face whose element tree holds the most unshot power
+// Southwell on the hierarchy (links to elements only): shoot the face whose element tree holds the most unshot power
 // through every link whose source is in that tree or is a cluster above it (the cluster's
 // links carry the face's share, A_face / A_cluster), push the received irradiance down the
 // receivers' trees and add it to their unshot radiosity. The residual is the unshot

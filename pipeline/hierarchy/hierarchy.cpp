@@ -135,8 +135,81 @@ Hierarchy::Hierarchy(const Scene& scene) {
     }
     for (uint32_t i = 0; i < nodes.size(); ++i) nodes[i].key = i;
     root = 0;
+    // The clusters' shapes for receiving (see hierarchy.h), each from its own faces.
+    cluster_slot.assign(nodes.size(), kNoNode);
+    std::vector<uint32_t> clusters;
+    for (uint32_t i = 0; i < nodes.size(); ++i)
+        if (nodes[i].cluster) {
+            cluster_slot[i] = static_cast<uint32_t>(clusters.size());
+            clusters.push_back(i);
+        }
+    cluster_shapes.resize(clusters.size());
+    tbb::parallel_for(size_t(0), clusters.size(), [&](size_t k) {
+        const Node& node = nodes[clusters[k]];
+        ClusterShape& c = cluster_shapes[k];
+        Vec3 weighted;
+        for (uint32_t j = node.face_begin; j < node.face_end; ++j) {
+            const Patch& f = faces[face_order[j]];
+            weighted += f.centroid * f.area;
+            c.vector_area += f.normal * f.area;
+        }
+        c.centre = node.area > 0 ? weighted / node.area : (node.lo + node.hi) * 0.5;
+        for (int corner = 0; corner < 8; ++corner) {
+            const Vec3 p{corner & 1 ? node.hi.x : node.lo.x, corner & 2 ? node.hi.y : node.lo.y,
+                         corner & 4 ? node.hi.z : node.lo.z};
+            c.radius = std::max(c.radius, length(p - c.centre));
+        }
+        const double va = length(c.vector_area);
+        if (!(va > 1e-12 * node.area)) return;  // faces in every direction: no cone
+        c.axis = c.vector_area / va;
+        c.cos_spread = 1;
+        for (uint32_t j = node.face_begin; j < node.face_end; ++j)
+            c.cos_spread = std::min(c.cos_spread, dot(faces[face_order[j]].normal, c.axis));
+    });
     for (size_t k = 0; k < glazed.size(); ++k)
         glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].diffuse_transmittance});
+}
+
+Vec3 Hierarchy::centre(uint32_t i) const {
+    const uint32_t slot = slot_of(i);
+    return slot != kNoNode ? cluster_shapes[slot].centre : nodes[i].shape.centroid;
+}
+
+double Hierarchy::radius(uint32_t i) const {
+    const uint32_t slot = slot_of(i);
+    if (slot != kNoNode) return cluster_shapes[slot].radius;
+    const Patch& p = nodes[i].shape;
+    double r = 0;
+    for (int k = 0; k < p.nv; ++k) r = std::max(r, length(p.p[k] - p.centroid));
+    return r;
+}
+
+Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_error) const {
+    const uint32_t slot = slot_of(r);
+    if (slot == kNoNode) return Facing::Mixed;
+    const ClusterShape& c = cluster_shapes[slot];
+    if (c.cos_spread <= 0) return Facing::Mixed;  // some faces at right angles to others, or worse
+    const Vec3 d = centre(s) - c.centre;
+    const double dist = length(d);
+    const double reach = c.radius + radius(s);
+    if (!(dist > reach)) return Facing::Mixed;
+    // Angles: theta between the axis and d, alpha the normals' half-angle, beta the directions'.
+    const double theta = std::acos(std::clamp(dot(c.axis, d) / dist, -1.0, 1.0));
+    const double alpha = std::acos(std::clamp(c.cos_spread, -1.0, 1.0));
+    const double beta = std::asin(std::clamp(reach / dist, 0.0, 1.0));
+    if (theta + alpha + beta < std::acos(kFrontCosine)) {
+        if (direction_error)
+            *direction_error = c.cos_spread > kPlanarCosine ? 0.0 : std::tan(theta + alpha) * c.radius / dist;
+        return Facing::Front;
+    }
+    if (theta - alpha - beta > 0.5 * kPi) return Facing::Back;
+    return Facing::Mixed;
+}
+
+Vec3 Hierarchy::reception(uint32_t r, uint32_t s) const {
+    const ClusterShape& c = cluster_shapes[cluster_slot[r]];
+    const Vec3 u = normalize(centre(s) - c.centre);
+    return u / dot(c.vector_area, u);
 }
 
 bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {

@@ -77,6 +77,21 @@ struct Node {
     double diagonal() const { return length(hi - lo); }
 };
 
+// Light received by a cluster (see Hierarchy::reception): one irradiance vector per colour
+// channel, so that a surface of unit normal n below the cluster receives H = n . E (per channel).
+struct VectorIrradiance {
+    Vec3 c[3];
+    void add(const RGB& b, const Vec3& w) {
+        c[0] += w * b.x;
+        c[1] += w * b.y;
+        c[2] += w * b.z;
+    }
+    void add(const VectorIrradiance& o) {
+        for (int k = 0; k < 3; ++k) c[k] += o.c[k];
+    }
+    RGB along(const Vec3& n) const { return {dot(n, c[0]), dot(n, c[1]), dot(n, c[2])}; }
+};
+
 class Hierarchy {
 public:
     // Builds the clusters over the scene's faces; element roots are the faces themselves.
@@ -102,6 +117,55 @@ public:
         double transmittance;    // t
     };
     std::vector<GlassPair> glass;
+
+    // Clusters that receive (Sillion 1995; Willmott, Heckbert and Garland 1999 solved
+    // million-face scenes this way). A link may end on a cluster R instead of on each of its
+    // faces when every face below R sees every point of the source S from its front: the
+    // normals' cone (axis a, half-angle alpha) and the cone of directions from R to S (axis d,
+    // from R's centre to S's, half-angle beta with sin beta = (r_R + r_S) / |d|, r a node's
+    // radius about its centre) then satisfy angle(a, d) + alpha + beta < 90 degrees (with a
+    // margin: kFrontCosine). The light S sends such a cluster is a field of almost one
+    // direction d, so face f (unit normal n_f, area A_f) receives H_f = n_f . E with the
+    // irradiance vector E = G B_S d / (A_R . d), A_R = sum A_f n_f the cluster's vector area:
+    // the power received, sum A_f H_f = G B_S, is the link's G (estimated with the faces' own
+    // normals, as for every link) and nothing else changes in how a link is stored, shot or
+    // balanced. reception(R, S) is that d / (A_R . d); the solvers add G B_S times it to R's
+    // vector irradiance, push the vectors down the clusters and give each face root n_f . E.
+    // How far that is from each face's own irradiance: a face at y, off R's centre by up to
+    // r_R, sees S in a direction turned from d by up to r_R / |d| (to first order; S's own
+    // extent moves the mean direction only to second order), and n_f . d / (A_R . d) then
+    // errs by up to tan(theta_f) r_R / |d| relative, theta_f <= angle(a, d) + alpha. A
+    // cluster of one plane (alpha = 0) has none of this error: each face gets G / A_R, the
+    // cluster's mean, exactly as an element's children do. So a cluster receives only where
+    // tan(angle(a, d) + alpha) r_R / |d| <= kDirectionTolerance (or it is planar); the light's
+    // variation in magnitude across it is the refiner's epsilon rule, as for elements.
+    enum class Facing { Front, Back, Mixed };
+    static constexpr double kFrontCosine = 0.05;   // cos(angle(a, d) + alpha + beta) at least this
+    static constexpr double kDirectionTolerance = 0.01;  // faces' relative error from one direction
+    static constexpr double kPlanarCosine = 1 - 1e-9;    // cos_spread above this: one plane
+    // Per cluster: its centre (the area-weighted mean of its faces' centroids), radius about it
+    // (to the farthest corner of its box), vector area, and the cone of its faces' normals
+    // (axis: the vector area's direction; cos_spread: the least n_f . axis, -1 when the vector
+    // area vanishes).
+    struct ClusterShape {
+        Vec3 centre;
+        double radius = 0;
+        Vec3 vector_area;
+        Vec3 axis;
+        double cos_spread = -1;
+    };
+    std::vector<ClusterShape> cluster_shapes;   // per cluster slot
+    std::vector<uint32_t> cluster_slot;         // per node the constructor built: its slot, or kNoNode
+    uint32_t slot_of(uint32_t node) const { return node < cluster_slot.size() ? cluster_slot[node] : kNoNode; }
+    Vec3 centre(uint32_t node) const;
+    double radius(uint32_t node) const;
+    // Whether the faces below cluster `r` all see node `s` from their front (Front), all from
+    // their back (Back: nothing passes), or neither; Mixed when `r` is not a cluster.
+    // `direction_error`: the bound tan(angle(a, d) + alpha) r_R / |d| above (0 for a planar
+    // cluster), set for Front.
+    Facing facing(uint32_t r, uint32_t s, double* direction_error = nullptr) const;
+    // d / (A_R . d) for a link from `s` to cluster `r` (see above).
+    Vec3 reception(uint32_t r, uint32_t s) const;
 
     // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
     // scene rebuilds the same nodes with the same indices (what the link store refers to).

@@ -36,6 +36,14 @@ bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
     return node_gap(na, nb) < 0.5 * size;
 }
 
+bool Refiner::estimable(const Link& l) const {
+    if (l.receiver == l.source || must_split_clusters(l.receiver, l.source)) return false;
+    if (!h_.nodes[l.receiver].cluster) return true;
+    double direction_error = 0;
+    return opt_.cluster_receivers && h_.facing(l.receiver, l.source, &direction_error) == Hierarchy::Facing::Front &&
+           direction_error <= Hierarchy::kDirectionTolerance;
+}
+
 bool Refiner::close_pair(uint32_t a, uint32_t b) const {
     // Elements whose boxes are nearer than half the larger one's diagonal (clusters that close
     // are always split: must_split_clusters).
@@ -160,11 +168,24 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
         if (receiver_splits && (!source_splits || ar >= as)) return Action::SplitReceiver;
         return Action::SplitSource;
     };
-    // Receivers are always elements: irradiance gathered at a cluster would have to be shared
-    // out among surfaces that face every which way, which no single number can do. Sources may
-    // stay clusters: the estimate sees each source surface with its own normal.
-    if (h_.nodes[link.receiver].cluster) return Action::SplitReceiver;
-    if (must_split_clusters(link.receiver, link.source)) return Action::SplitSource;
+    // Sources may stay clusters: the estimate sees each source surface with its own normal.
+    // A cluster receives only when all its faces see the source from their front (refine.h);
+    // otherwise irradiance gathered there would have to be shared among surfaces some of which
+    // face away, which no one vector does.
+    const Node& rn = h_.nodes[link.receiver];
+    const Node& sn = h_.nodes[link.source];
+    if (rn.cluster && !opt_.cluster_receivers) return Action::SplitReceiver;
+    if (must_split_clusters(link.receiver, link.source))
+        return rn.cluster && !(sn.cluster && sn.diagonal() > rn.diagonal()) ? Action::SplitReceiver
+                                                                              : Action::SplitSource;
+    if (rn.cluster) {
+        // Split where one direction would misplace the light among its faces (hierarchy.h).
+        double direction_error = 0;
+        const Hierarchy::Facing facing = h_.facing(link.receiver, link.source, &direction_error);
+        if (facing == Hierarchy::Facing::Back) return Action::Drop;
+        if (facing == Hierarchy::Facing::Mixed || direction_error > Hierarchy::kDirectionTolerance)
+            return Action::SplitReceiver;
+    }
     // No sample pair faced both ways. A few samples miss the part of a large pair that does
     // face: dropping such links for good biased the transport dark (the kept links' transport
     // comes from an independent estimate, which would not have been zero). So when the two
@@ -294,13 +315,12 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
         waiting -= frontier.size();
         // 1. Estimate the links that are new, in parallel.
         tbb::parallel_for(size_t(0), frontier.size(), [&](size_t k) {
-            if (evaluated[k] || frontier[k].receiver == frontier[k].source) return;
-            if (h_.nodes[frontier[k].receiver].cluster || must_split_clusters(frontier[k].receiver, frontier[k].source))
-                return;
+            if (evaluated[k] || !estimable(frontier[k])) return;
             frontier[k] = estimate(frontier[k].receiver, frontier[k].source);
         });
         for (size_t k = 0; k < frontier.size(); ++k)
-            if (!evaluated[k] && frontier[k].receiver != frontier[k].source && !h_.nodes[frontier[k].receiver].cluster)
+            if (!evaluated[k] && frontier[k].receiver != frontier[k].source &&
+                (!h_.nodes[frontier[k].receiver].cluster || estimable(frontier[k])))
                 ++stats.evaluated;
         // 2. Decide, in parallel; 4. grow the nodes that split and queue the children's links,
         // in frontier order so the result does not depend on threads.

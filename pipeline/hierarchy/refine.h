@@ -6,8 +6,11 @@
 // flat patch). Links (pipeline/core/link.h) are plain data: no pointers, written to disk in
 // chunks as they are.
 //
-// Receivers are always elements (a cluster cannot share gathered irradiance fairly among
-// surfaces facing different ways); sources may be clusters. Refinement is brightness weighted:
+// Sources may be clusters. Receivers are elements unless `cluster_receivers` is set: then a
+// cluster whose faces all see the source from their front (Hierarchy::facing) receives as a
+// whole, its light shared among its faces by their orientation (Hierarchy::reception), so the
+// links a million small faces need grow with the lighting, not with the faces. A cluster that
+// some of its faces see the source from behind is split; one all of whose faces do is dropped. Refinement is brightness weighted:
 // a link whose power bound B_max(S) * G exceeds epsilon (B_max: the brightest surface below
 // the source, so that sources of uneven radiosity are split) is replaced by links to the
 // children of its larger end. For a partly occluded link the
@@ -54,6 +57,7 @@ struct RefineOptions {
     uint64_t seed = 1;
     double relative = 0;       // also split a link above this fraction of its receiver's light (0: off)
     double spread = 0;         // W: close or partly visible links of uneven sources split above this (0: off)
+    bool cluster_receivers = false;  // clusters may receive (see above)
 };
 
 struct RefineStats {
@@ -96,6 +100,7 @@ private:
     Action decide(const Link& link, const std::vector<double>& peak) const;
     double link_error(const Link& link, const std::vector<double>& peak) const;
     bool must_split_clusters(uint32_t a, uint32_t b) const;
+    bool estimable(const Link& link) const;  // a pair that may be kept, so worth an estimate
     bool may_face(uint32_t a, uint32_t b) const;
     bool close_pair(uint32_t a, uint32_t b) const;
     Hierarchy& h_;

@@ -197,28 +197,40 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     const double enorm = leaf_emission_norm(h, leaves);
     // The gain limit (hierarchical_solver.h) from the couplings each node receives: one pass
     // over the links' transport in group and part order (the same sums whatever the threads).
+    // Receiving clusters (Hierarchy::reception) gather a vector irradiance instead, G (B_S -
+    // shot_S) reception(R, S) summed per cluster slot.
     LeafTerms terms;
+    bool clusters_receive = false;
     {
         std::vector<double> in(n, 0.0);
+        std::vector<Vec3> in_clusters;
         TransportLinks t;
         for (size_t g = 0; g < ng; ++g)
             for (size_t p = 0; p < chunks.parts(g); ++p) {
                 chunks.read_transport(g, p, t);
                 const std::vector<uint32_t> receivers = t.receivers();
-                for (size_t k = 0; k < receivers.size(); ++k) {
-                    if (receivers[k] >= n) throw std::runtime_error("streaming solve: a link's receiver is not a node");
-                    in[receivers[k]] += double(t.coupling[k]) / area[receivers[k]];
-                }
+                for (size_t r = 0, k = 0; r < t.runs(); ++r)
+                    for (; k < t.run_end[r]; ++k) {
+                        const uint32_t rc = receivers[k];
+                        if (rc >= n) throw std::runtime_error("streaming solve: a link's receiver is not a node");
+                        const uint32_t slot = h.slot_of(rc);
+                        if (slot == kNoNode) { in[rc] += double(t.coupling[k]) / area[rc]; continue; }
+                        if (in_clusters.empty()) in_clusters.resize(h.cluster_shapes.size());
+                        in_clusters[slot] += h.reception(rc, t.sources[r]) * double(t.coupling[k]);
+                    }
             }
-        terms = leaf_terms(h, gather_scale(h, std::move(in)));
+        clusters_receive = !in_clusters.empty();
+        terms = leaf_terms(h, gather_scale(h, std::move(in), in_clusters));
     }
+    std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
+    stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
     // before it is written).
     auto gather_and_push_pull = [&] {
         for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b, terms);
+        push_pull(h, irradiance, irradiance, b, terms, received_clusters);
     };
 
     HierarchicalSolution sol;
@@ -228,6 +240,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         StateFile cp = StateFile::read(opt.checkpoint_path);
         if (cp.fingerprint == fingerprint) {
             received = unflatten_rgb(cp.f64("received"), n, opt.checkpoint_path);
+            if (clusters_receive) {
+                const std::vector<RGB> v =
+                    unflatten_rgb(cp.f64("received_clusters"), 3 * received_clusters.size(), opt.checkpoint_path);
+                for (size_t c = 0; c < received_clusters.size(); ++c)
+                    for (int k = 0; k < 3; ++k) received_clusters[c].c[k] = v[3 * c + size_t(k)];
+            }
             shot = unflatten_rgb(cp.f64("shot"), n, opt.checkpoint_path);
             const std::vector<uint64_t>& counters = cp.u64("counters");
             if (counters.size() != 3) throw std::runtime_error(opt.checkpoint_path + ": bad counters");
@@ -243,6 +261,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         StateFile cp;
         cp.fingerprint = fingerprint;
         cp.put("received", flatten_rgb(received));
+        if (clusters_receive) {
+            std::vector<RGB> v(3 * received_clusters.size());
+            for (size_t c = 0; c < received_clusters.size(); ++c)
+                for (int k = 0; k < 3; ++k) v[3 * c + size_t(k)] = received_clusters[c].c[k];
+            cp.put("received_clusters", flatten_rgb(v));
+        }
         cp.put("shot", flatten_rgb(shot));
         cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
         cp.put("history", sol.residual_history);
@@ -358,9 +382,18 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     for (size_t r = 0, k = 0, j = 0; r < t.runs(); ++r) {
                         const RGB d = b[t.sources[r]] - shot[t.sources[r]];
                         uint32_t rc = 0;
+                        if (!clusters_receive) {
+                            for (const size_t end = t.run_end[r]; k < end; ++k) {
+                                rc += delta[k] ? delta[k] : t.escape(j++);
+                                received[rc] += d * double(coupling[k]);
+                            }
+                            continue;
+                        }
                         for (const size_t end = t.run_end[r]; k < end; ++k) {
                             rc += delta[k] ? delta[k] : t.escape(j++);
-                            received[rc] += d * double(coupling[k]);
+                            const uint32_t slot = h.slot_of(rc);
+                            if (slot == kNoNode) received[rc] += d * double(coupling[k]);
+                            else received_clusters[slot].add(d * double(coupling[k]), h.reception(rc, t.sources[r]));
                         }
                     }
                     // A group's sources shoot B - shot as it was when the group began; shot

@@ -30,6 +30,27 @@ inline Scene unit_cube(const RGB& rho = {}, const RGB& emission = {}) {
     return scene;
 }
 
+// The same cube with each side made of per_side x per_side input faces (a scene of many small
+// faces, 6 per_side^2 of them).
+inline Scene tiled_cube(int per_side, const RGB& rho = {}, const RGB& emission = {}) {
+    const Scene sides = unit_cube(rho, emission);
+    Scene scene;
+    for (const Face& side : sides.faces) {
+        const Vec3 o = side.p[0], u = side.p[1] - side.p[0], v = side.p[3] - side.p[0];
+        for (int i = 0; i < per_side; ++i)
+            for (int j = 0; j < per_side; ++j) {
+                Face f = side;
+                const double a = double(i) / per_side, b = double(j) / per_side, c = 1.0 / per_side;
+                f.p[0] = o + u * a + v * b;
+                f.p[1] = o + u * (a + c) + v * b;
+                f.p[2] = o + u * (a + c) + v * (b + c);
+                f.p[3] = o + u * a + v * (b + c);
+                scene.faces.push_back(f);
+            }
+    }
+    return scene;
+}
+
 // The same cube with every face meshed into per_side x per_side patches (the edge limit a
 // hair above 1 / per_side, so that rounding never makes one more).
 inline std::vector<Patch> unit_cube_patches(int per_side, const RGB& rho = {}, const RGB& emission = {}) {

@@ -226,7 +226,7 @@ class SolveOptions:
 class HierarchyOptions:
     """Hierarchical radiosity with clustering."""
 
-    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0, spread: float = 0.001) -> None: ...
+    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0, spread: float = 0.001, cluster_receivers: bool = False) -> None: ...
 
     @property
     def epsilon(self) -> float:
@@ -282,6 +282,15 @@ class HierarchyOptions:
 
     @spread.setter
     def spread(self, arg: float, /) -> None: ...
+
+    @property
+    def cluster_receivers(self) -> bool:
+        """
+        Clusters whose faces all see a source from their front receive its light as a whole, shared among their faces by orientation (links grow with the lighting, not with the faces); the face-by-face solvers (gauss_seidel, southwell) refuse such links.
+        """
+
+    @cluster_receivers.setter
+    def cluster_receivers(self, arg: bool, /) -> None: ...
 
 class OutOfCoreOptions:
     """The hierarchical method with links streamed through a link store."""

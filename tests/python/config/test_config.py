@@ -257,6 +257,20 @@ def test_directional_lightmaps_need_the_gather_and_gltf_needs_its_sources(tmp_pa
     assert cfg.outputs.gltf and cfg.outputs.lightmaps.directional
 
 
+def test_cluster_receivers_need_a_solver_that_gathers_at_clusters(tmp_path: Path) -> None:
+    # Gauss-Seidel and Southwell on the hierarchy work face by face; links that end on clusters
+    # are solved by Jacobi and the streaming block Southwell only. Southwell is the default.
+    err = load_error(write(tmp_path, "scene: scene.usda\nhierarchy:\n  cluster_receivers: true\n"))
+    assert err.key == "solver" and "cluster_receivers" in err.problem and "jacobi" in err.problem
+    err = load_error(write(tmp_path, "scene: scene.usda\nhierarchy:\n  cluster_receivers: true\n"
+                                     "solver:\n  method: gauss_seidel\n"))
+    assert err.key == "solver" and "'gauss_seidel'" in err.problem
+    for method in ("jacobi", "block_southwell"):
+        cfg = load_config(write(tmp_path, f"scene: scene.usda\nhierarchy:\n  cluster_receivers: true\n"
+                                          f"solver:\n  method: {method}\n"))
+        assert cfg.hierarchy.cluster_receivers
+
+
 def test_snapshots_need_progressive(tmp_path: Path) -> None:
     err = load_error(write(tmp_path, "scene: scene.usda\nsolver:\n  method: jacobi\n  snapshots: 10\n"))
     assert (err.line, err.key) == (4, "solver.snapshots")

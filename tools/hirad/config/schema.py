@@ -382,6 +382,17 @@ class HierarchyConfig(BaseModel):
         ),
     )
 
+    cluster_receivers: StrictBool = Field(
+        default=False,
+        description=(
+            "Let clusters receive as well as send (Sillion 1995; Willmott, Heckbert and Garland"
+            " 1999): a cluster all of whose faces see a source from their front takes that"
+            " source's light as a whole and shares it among its faces by their orientation, so"
+            " links grow with the lighting, not with the number of faces. Solved by"
+            " solver.method jacobi or block_southwell (the face-by-face solvers cannot)."
+        ),
+    )
+
     @field_validator("min_area")
     @classmethod
     def _element_floor(cls, value: float) -> float:
@@ -1195,7 +1206,7 @@ class Config(BaseModel):
     hierarchy: HierarchyConfig = Field(
         default_factory=HierarchyConfig, description="Hierarchical radiosity settings."
     )
-    solver: SolverConfig = Field(default_factory=SolverConfig, description="Radiosity solver.")
+    solver: SolverConfig = Field(default_factory=SolverConfig, validate_default=True, description="Radiosity solver.")
     links: LinksConfig = Field(default_factory=LinksConfig, description="Out-of-core link store.")
     reconstruction: ReconstructionConfig = Field(
         default_factory=ReconstructionConfig, description="Smoothing of patch radiosity."
@@ -1343,6 +1354,14 @@ class Config(BaseModel):
             )
         if info.data.get("method") == "flat" and value.method == "block_southwell":
             raise ValueError("solver.method block_southwell streams hierarchical links: set method: hierarchical")
+        hierarchy = info.data.get("hierarchy")
+        if (info.data.get("method") == "hierarchical" and hierarchy is not None and hierarchy.cluster_receivers
+                and value.method in ("gauss_seidel", "southwell")):
+            raise ValueError(
+                f"hierarchy.cluster_receivers: links that end on clusters are solved by solver.method jacobi or"
+                f" block_southwell; {value.method!r} works face by face (it is also the default: set"
+                " solver.method)"
+            )
         return value
 
     @field_validator("outputs", mode="after")

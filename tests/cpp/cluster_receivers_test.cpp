@@ -1,0 +1,214 @@
+// Clusters that receive (Hierarchy::facing, Hierarchy::reception, RefineOptions::
+// cluster_receivers): the furnace of many small faces, faces of mixed orientations under one
+// source against Lambert's closed form, and the solution approaching the one with element
+// receivers only as epsilon falls.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "pipeline/hierarchy/hierarchical_solver.h"
+#include "pipeline/hierarchy/hierarchy.h"
+#include "pipeline/hierarchy/refine.h"
+#include "pipeline/geometry/visibility.h"
+#include "pipeline/outofcore/streaming_solver.h"
+#include "tests/cpp/test_scenes.h"
+
+namespace hirad {
+namespace {
+
+RefineOptions receiving(double epsilon, int samples, bool on = true) {
+    RefineOptions o;
+    o.epsilon = epsilon;
+    o.min_area = 1.0;  // the input faces are the elements: what is tested is the clusters above them
+    o.samples = samples;
+    o.seed = 7;
+    o.cluster_receivers = on;
+    return o;
+}
+
+size_t cluster_receivers(const Hierarchy& h, const std::vector<Link>& links) {
+    size_t n = 0;
+    for (const Link& l : links) n += h.nodes[l.receiver].cluster;
+    return n;
+}
+
+SolverOptions tight() {
+    SolverOptions o;
+    o.tolerance = 1e-9;
+    o.max_iterations = 100000;
+    return o;
+}
+
+// Lambert's contour integral: the form factor from a point x with unit normal n to a polygon
+// (all of it above x's plane): F = 1 / (2 pi) sum_k gamma_k n . (a_k x b_k) / |a_k x b_k|,
+// a_k, b_k the edge's ends seen from x, gamma_k the angle between them.
+double lambert(const Vec3& x, const Vec3& n, const std::vector<Vec3>& poly) {
+    double f = 0;
+    for (size_t k = 0; k < poly.size(); ++k) {
+        const Vec3 a = poly[k] - x, b = poly[(k + 1) % poly.size()] - x;
+        const Vec3 c = cross(a, b);
+        f += std::atan2(length(c), dot(a, b)) * dot(n, c) / length(c);
+    }
+    return std::abs(f) / (2 * kPi);
+}
+
+// A furnace of many small faces: a closed 10 m room (6 x 2 x 2 faces, inwards) around a
+// 0.3 m box of 6 x 8 x 8 faces (outwards), everything emitting E and reflecting rho.
+Scene furnace(double rho, double E) {
+    Scene scene = test::tiled_cube(2, test::grey(rho), test::grey(E));
+    for (Face& f : scene.faces)
+        for (Vec3& p : f.p) p = p * 10.0;
+    for (Face f : test::tiled_cube(8, test::grey(rho), test::grey(E)).faces) {
+        std::swap(f.p[1], f.p[3]);  // turned outwards
+        for (Vec3& p : f.p) p = p * 0.3 + Vec3{4.85, 4.85, 1.0};
+        scene.faces.push_back(f);
+    }
+    return scene;
+}
+
+TEST(ClusterReceivers, FurnaceOfManySmallFacesGivesEOverOneMinusRho) {
+    // Every face must come to B = E / (1 - rho) = 2, with the box's faces lit through links
+    // that end on clusters, solved in memory (Jacobi) and streamed (block Southwell).
+    const double rho = 0.5, E = 1.0;
+    const Scene scene = furnace(rho, E);
+    Hierarchy h(scene);
+    Visibility vis(h.faces);
+    double emitted = 0;
+    for (const Face& f : scene.faces) emitted += E * f.area();
+    Refiner refiner(h, vis, receiving(1e-5 * emitted, 64));
+    RefineStats stats;
+    std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
+    sort_links(links);
+    EXPECT_GT(cluster_receivers(h, links), 0u) << "no link ends on a cluster";
+    const HierarchicalSolution sol = solve_push_pull(h, links, {}, tight());
+    ASSERT_TRUE(sol.converged);
+    for (uint32_t i : h.leaves())
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(sol.radiosity[i][c], E / (1 - rho), 0.01 * E / (1 - rho)) << i;
+
+    // Streamed: groups of 64 faces, each linked from the root's link to its root.
+    Hierarchy hs(scene);
+    Refiner rs(hs, vis, receiving(1e-5 * emitted, 64));
+    const SourceGroups groups = SourceGroups::cut(hs, 64);
+    std::vector<std::vector<Link>> by_group(groups.count());
+    std::vector<uint8_t> is_source(0);
+    rs.set_radiosity(node_emission(hs));
+    for (uint32_t g = 0; g < groups.count(); ++g) {
+        Link seed;
+        seed.receiver = hs.root;
+        seed.source = groups.roots[g];
+        by_group[g] = rs.run_group({seed}, {0}, stats);
+    }
+    is_source.assign(hs.nodes.size(), 0);
+    std::vector<double> outgoing(hs.nodes.size(), 0.0);
+    size_t streamed_on_clusters = 0;
+    for (auto& part : by_group) {
+        for (const Link& l : part) {
+            is_source[l.source] = 1;
+            outgoing[l.source] += hs.sent(l) / hs.nodes[l.source].area;
+            streamed_on_clusters += hs.nodes[l.receiver].cluster;
+        }
+        sort_part(part);
+    }
+    EXPECT_GT(streamed_on_clusters, 0u);
+    StreamingOptions so;
+    so.tolerance = 1e-9;
+    StreamingStats st;
+    const HierarchicalSolution streamed =
+        solve_streaming(hs, groups, MemoryChunks(by_group), is_source, outgoing, {}, so, st);
+    ASSERT_TRUE(streamed.converged);
+    for (uint32_t i : hs.leaves())
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(streamed.radiosity[i][c], E / (1 - rho), 0.01 * E / (1 - rho)) << i;
+}
+
+TEST(ClusterReceivers, FacesOfMixedOrientationsTakeTheirOwnIrradiance) {
+    // 25 small squares (1.5 cm) tilted 0 to 56 degrees every way, 6 cm apart, 30 m under a
+    // 3 m square lamp (exitance M): each must receive M F(its centre -> lamp), Lambert's
+    // closed form for its own orientation, within 2 %, through links that end on clusters.
+    const double M = 100.0;
+    Scene scene;
+    const std::vector<Vec3> lamp = {{-1.5, -1.5, 30}, {-1.5, 1.5, 30}, {1.5, 1.5, 30}, {1.5, -1.5, 30}};
+    Face emitter;
+    emitter.nv = 4;
+    for (int k = 0; k < 4; ++k) emitter.p[k] = lamp[size_t(k)];
+    emitter.emission = test::grey(M);
+    scene.faces.push_back(emitter);
+    std::vector<Vec3> centre, normal;
+    for (int i = 0; i < 5; ++i)
+        for (int j = 0; j < 5; ++j) {
+            const double tilt = (i * 5 + j) * 0.04, azimuth = (i * 5 + j) * 2.4;
+            const Vec3 n{std::sin(tilt) * std::cos(azimuth), std::sin(tilt) * std::sin(azimuth), std::cos(tilt)};
+            const Vec3 c{(i - 2) * 0.06, (j - 2) * 0.06, 0};
+            const Vec3 u = normalize(cross(n, std::abs(n.x) < 0.9 ? Vec3{1, 0, 0} : Vec3{0, 1, 0}));
+            const Vec3 v = cross(n, u);
+            const double a = 0.0075;
+            Face f;
+            f.nv = 4;
+            f.p = {c - u * a - v * a, c + u * a - v * a, c + u * a + v * a, c - u * a + v * a};
+            f.reflectance = test::grey(0.1);
+            scene.faces.push_back(f);
+            centre.push_back(c);
+            normal.push_back(n);
+        }
+    Hierarchy h(scene);
+    Visibility vis(h.faces);
+    Refiner refiner(h, vis, receiving(1e-3 * M * 9, 1024));
+    RefineStats stats;
+    std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
+    sort_links(links);
+    // Most squares take the lamp's light through a cluster (one whose cone is too wide for the
+    // 1 % direction tolerance at 30 m is lit on its own).
+    size_t own = 0;
+    for (const Link& l : links) own += l.source == h.face_node[0] && !h.nodes[l.receiver].cluster;
+    EXPECT_LE(own, 5u) << "squares lit on their own";
+    EXPECT_GT(cluster_receivers(h, links), 0u);
+    const HierarchicalSolution sol = solve_push_pull(h, links, {}, tight());
+    ASSERT_TRUE(sol.converged);
+    for (size_t k = 0; k < centre.size(); ++k) {
+        const double expected = M * lambert(centre[k], normal[k], lamp);
+        const double got = sol.irradiance[h.face_node[k + 1]].x;
+        EXPECT_NEAR(got, expected, 0.02 * expected) << "square " << k << ", tilted " << (k * 0.04) << " rad";
+    }
+}
+
+TEST(ClusterReceivers, ApproachTheElementReceiversSolutionAsEpsilonFalls) {
+    // A cube of 6 x 6 x 6 faces, one of them a lamp, rho = 0.6: the solution with receiving
+    // clusters at falling epsilon against the one with element receivers at epsilon 0 (every
+    // pair of faces linked: the flat solution over the faces).
+    Scene scene = test::tiled_cube(6, test::grey(0.6));
+    scene.faces[3].emission = test::grey(36.0);
+    const double emitted = 36.0 / 36;
+    const Hierarchy faces(scene);
+    Visibility vis(faces.faces);
+    auto solve = [&](double epsilon, bool on, size_t& link_count) {
+        Hierarchy h(scene);
+        Refiner refiner(h, vis, receiving(epsilon * emitted, 256, on));
+        RefineStats stats;
+        std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
+        sort_links(links);
+        link_count = links.size();
+        const HierarchicalSolution sol = solve_push_pull(h, links, {}, tight());
+        std::vector<double> face(scene.faces.size());
+        for (size_t f = 0; f < face.size(); ++f) face[f] = sol.radiosity[h.face_node[f]].x;
+        return face;
+    };
+    size_t flat_links = 0;
+    const std::vector<double> flat = solve(0.0, false, flat_links);
+    double previous = 1e300;
+    for (double epsilon : {1e-2, 1e-3, 1e-4, 1e-5}) {
+        size_t n = 0;
+        const std::vector<double> b = solve(epsilon, true, n);
+        double diff = 0, norm = 0;
+        for (size_t f = 0; f < b.size(); ++f) {
+            diff += std::abs(b[f] - flat[f]);
+            norm += flat[f];
+        }
+        const double error = diff / norm;
+        EXPECT_LE(error, previous * 1.05 + 1e-4) << "epsilon " << epsilon << ": " << n << " links";
+        previous = error;
+        if (epsilon == 1e-5) EXPECT_LT(error, 0.01) << n << " links against " << flat_links;
+    }
+}
+
+}  // namespace
+}  // namespace hirad
