@@ -7,6 +7,8 @@ Figures are printed, not asserted. Subcommands (each also runs alone):
     python bench/hierarchy.py accuracy [--points 400]     # 3. error vs wall time, flat and hierarchical, Cornell box
     python bench/hierarchy.py hall     [--points 200]     # 4. Modern Hall: error and wall time, hierarchical
     python bench/hierarchy.py spread   [--spreads 0,1e-3] # 5. hierarchy.spread_epsilon's cost, Cornell box
+    python bench/hierarchy.py receivers [--tess 2,4,8,16]  # 6. clusters that receive: links as the boxes get finer
+    python bench/hierarchy.py receivers-accuracy [--tess 8] # 7. the same, error against the reference at one t
     python bench/hierarchy.py all
 
 The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
@@ -134,20 +136,31 @@ def _quad(a, b, c, d, want_normal) -> list:
     return pts if n @ np.asarray(want_normal, float) > 0 else pts[::-1]
 
 
-def _box_faces(x0, z0, s, h) -> list:
+def _box_faces(x0, z0, s, h, tess: int = 1) -> list:
+    """A box's top and four sides; each side cut into tess x tess quads when tess > 1."""
     x1, z1 = x0 + s, z0 + s
-    return [
+    sides = [
         _quad((x0, h, z0), (x1, h, z0), (x1, h, z1), (x0, h, z1), (0, 1, 0)),
         _quad((x0, 0, z0), (x1, 0, z0), (x1, h, z0), (x0, h, z0), (0, 0, -1)),
         _quad((x0, 0, z1), (x1, 0, z1), (x1, h, z1), (x0, h, z1), (0, 0, 1)),
         _quad((x0, 0, z0), (x0, 0, z1), (x0, h, z1), (x0, h, z0), (-1, 0, 0)),
         _quad((x1, 0, z0), (x1, 0, z1), (x1, h, z1), (x1, h, z0), (1, 0, 0)),
     ]
+    if tess <= 1:
+        return sides
+    out = []
+    for a, b, _, d in sides:  # corners in order: a + u t + v w
+        u, v = (b - a) / tess, (d - a) / tess
+        for i in range(tess):
+            for j in range(tess):
+                p = a + u * i + v * j
+                out.append([p, p + u, p + u + v, p + v])
+    return out
 
 
-def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_h=0.6) -> None:
+def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_h=0.6, tess: int = 1) -> None:
     """A closed room (W x H x D m, Y up, faces inward) with a 1.5 m square ceiling light and
-    nx x nz boxes (5 faces each) spread over the floor."""
+    nx x nz boxes (5 sides each, each side tess x tess quads) spread over the floor."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
     W, H, D = room
@@ -188,7 +201,7 @@ def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_
         for k in range(nz):
             x = margin + (W - 2 * margin - box) * (i + 0.5) / nx
             z = margin + (D - 2 * margin - box) * (k + 0.5) / nz
-            boxes += _box_faces(x, z, box, box_h)
+            boxes += _box_faces(x, z, box, box_h, tess)
     if boxes:
         mesh("boxes", boxes, (0.5, 0.45, 0.35))
     c, s, y = (W / 2, D / 2), 0.75, H - 0.005
@@ -218,6 +231,96 @@ def cmd_family(args) -> None:
                   f"{c['links']:>12,}{c['links'] / h['elements']:>9.1f}{h['nodes']:>9,}{h['rounds']:>7}"
                   f"{sum(h['refine_seconds']):>9.2f}{sum(h['solve_seconds']):>8.2f}{r['child_wall_s']:>8.2f}"
                   f"{r['peak_rss_mib']:>8.0f}  {ld}")
+
+
+def cmd_receivers(args) -> None:
+    """The same room and boxes, the boxes' sides cut finer and finer: the lit area stays, the
+    input faces grow. Links against input faces with and without clusters that receive."""
+    tess = [int(t) for t in args.tess.split(",")]
+    print(f"# 6. Clusters that receive: 8 x 3 x 8 m room, 1.5 m ceiling light, 8 x 8 boxes 0.3 x 0.3 x 0.6 m "
+          f"whose 5 sides are cut into t x t quads; hierarchical, epsilon {args.epsilon:g}, min_area "
+          f"{args.min_area:g}, samples {args.samples}, max_rounds {args.max_rounds}, jacobi tol 1e-4")
+    print(f"{'t':>4}{'faces':>9}{'receivers':>10}{'elements':>10}{'links':>12}{'links/face':>11}{'on clusters':>12}"
+          f"{'refine s':>9}{'solve s':>8}{'wall s':>8}{'RSS MiB':>8}  load")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for t in tess:
+            scene = Path(tmp) / f"room_t{t}.usda"
+            write_room(scene, 8, 8, tess=t)
+            for on in (False, True):
+                cfg = hier_config(scene, args.epsilon, args.min_area, samples=args.samples,
+                                  max_rounds=args.max_rounds)
+                cfg["hierarchy"]["cluster_receivers"] = on
+                ld = load()
+                r = child_bake(cfg)
+                h, c = r["hierarchy"], r["counts"]
+                row = {"t": t, "faces": c["input_faces"], "cluster_receivers": on, "elements": h["elements"],
+                       "links": c["links"], "links_on_clusters": h.get("links_on_clusters"),
+                       "refine_s": sum(h["refine_seconds"]), "solve_s": sum(h["solve_seconds"]),
+                       "wall_s": r["child_wall_s"], "rss_mib": r["peak_rss_mib"],
+                       "energy_balance": r["energy_balance"]["max_relative_error"]}
+                rows.append(row)
+                print(f"{t:>4}{row['faces']:>9,}{('clusters' if on else 'elements'):>10}{row['elements']:>10,}"
+                      f"{row['links']:>12,}{row['links'] / row['faces']:>11.1f}"
+                      f"{(row['links_on_clusters'] if row['links_on_clusters'] is not None else 0):>12,}"
+                      f"{row['refine_s']:>9.1f}{row['solve_s']:>8.1f}{row['wall_s']:>8.1f}{row['rss_mib']:>8.0f}  {ld}",
+                      flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(6, 4.2))
+        for on, mark in ((False, "o-"), (True, "s-")):
+            pts = [(r["faces"], r["links"]) for r in rows if r["cluster_receivers"] == on]
+            ax.loglog([p[0] for p in pts], [p[1] for p in pts], mark,
+                      label="clusters receive" if on else "elements receive")
+        ax.set_xlabel("input faces")
+        ax.set_ylabel("links")
+        ax.set_title("Same room, same light, finer boxes")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=120)
+        print(f"plot: {args.plot}")
+
+
+def cmd_receivers_accuracy(args) -> None:
+    """One scene of the family: error against hirad's Monte Carlo reference at points uniform
+    by area, with and without clusters that receive (display mesh and final gather)."""
+    t = int(args.tess.split(",")[-1])
+    print(f"# 7. Clusters that receive, accuracy: the family's scene at t = {t}, epsilon {args.epsilon:g}, "
+          f"min_area {args.min_area:g}, samples {args.samples}, max_rounds {args.max_rounds}; {args.points} points")
+    with tempfile.TemporaryDirectory() as tmp:
+        scene_path = Path(tmp) / f"room_t{t}.usda"
+        write_room(scene_path, 8, 8, tess=t)
+        scene, model = unsplit_model(scene_path)
+        from hirad.engine import patch_dict
+        patches = patch_dict(model.patch_arrays())
+        cand, cnrm, _ = sample_points(patches, int(args.points * 1.5), seed=4343)
+        ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 78, f"receivers_t{t}")
+        del model
+        lum = ref["radiance"] @ LUM
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rse = (ref["standard_error"] @ LUM) / lum
+        ok = np.nonzero((lum > 0.01 * np.median(lum)) & (rse <= args.hall_max_se))[0][: args.points]
+        keep = np.zeros(len(cand), bool)
+        keep[ok] = True
+        print(describe_reference(ref, keep))
+        pts, nrm = cand[keep], cnrm[keep]
+        for on in (False, True):
+            cfg = hier_config(scene_path, args.epsilon, args.min_area, samples=args.samples, max_rounds=args.max_rounds)
+            cfg["hierarchy"]["cluster_receivers"] = on
+            ld = load()
+            result, wall = timed_bake(cfg, ROOT)
+            for name, values in (("display mesh", result.radiance_at(pts, nrm)),
+                                 ("final gather", result.gather(pts, nrm)["radiance"])):
+                e = rel_errors(values, ref["radiance"][keep])
+                print(f"  {'clusters' if on else 'elements'} receive, {name}: RMS {np.sqrt(np.mean(e ** 2)):.2%}, "
+                      f"mean {np.mean(e):+.2%}, median |err| {np.median(np.abs(e)):.2%}, "
+                      f"90th pct {np.quantile(np.abs(e), 0.9):.2%} ({result.report['counts']['links']:,} links, "
+                      f"bake {wall:.1f} s, {ld} at start)", flush=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -546,7 +649,8 @@ def cmd_spread(a) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "all"])
+    ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "receivers",
+                                     "receivers-accuracy", "all"])
     ap.add_argument("--hall", type=Path, default=HALL)
     ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
     ap.add_argument("--min-area", type=float, default=None,
@@ -558,6 +662,10 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=16, help="hall: hierarchy.samples")
     ap.add_argument("--max-paths", type=int, default=262144, help="most paths per reference point")
     ap.add_argument("--spreads", default="0,1e-3", help="spread: hierarchy.spread_epsilon values, comma-separated")
+    ap.add_argument("--tess", default="2,4,8,16", help="receivers: quads per box side edge, comma-separated")
+    ap.add_argument("--max-rounds", type=int, default=4, help="receivers: hierarchy.max_rounds")
+    ap.add_argument("--json", default=None, help="receivers: write the rows here")
+    ap.add_argument("--plot", default=None, help="receivers: write a log-log PNG of links against faces here")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
     for part in parts:
@@ -566,7 +674,7 @@ def main() -> None:
         a.points = args.points if args.points is not None else {"accuracy": 400, "spread": 20000}.get(part, 200)
         print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
         {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall,
-         "spread": cmd_spread}[part](a)
+         "spread": cmd_spread, "receivers": cmd_receivers, "receivers-accuracy": cmd_receivers_accuracy}[part](a)
         print()
 
 

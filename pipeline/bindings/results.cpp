@@ -145,6 +145,8 @@ void bind_results(nb::module_& m) {
         .def_ro("elements", &H::elements, "Leaves.")
         .def_ro("nodes", &H::nodes)
         .def_ro("clusters", &H::clusters)
+        .def_ro("links_on_clusters", &H::links_on_clusters,
+                "Final links that end on a cluster (hierarchy.cluster_receivers); -1 out of core (not counted).")
         .def_ro("balance_splits", &H::balance_splits, "Leaves split for the 2:1 balance of the display.")
         .def_ro("limited_leaves", &H::limited_leaves,
                 "Leaves whose gathered light the last solve scaled to rho F = 0.999 (their link estimates summed "

@@ -870,6 +870,10 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.elements = leaves.size();
     r.nodes = h.nodes.size();
     for (const Node& node : h.nodes) r.clusters += node.cluster;
+    if (state->links.size() == run.link_count) {
+        r.links_on_clusters = 0;
+        for (const Link& l : state->links) r.links_on_clusters += h.nodes[l.receiver].cluster;
+    }
     r.rounds = run.state.round;
     r.settled = run.state.settled;
     r.links_per_round = run.links_per_round;

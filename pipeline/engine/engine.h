@@ -209,6 +209,7 @@ struct HierarchicalResult {
     uint64_t elements = 0;            // leaves
     uint64_t nodes = 0;
     uint64_t clusters = 0;
+    int64_t links_on_clusters = -1;   // final links that end on a cluster (-1: out of core, not counted)
     uint64_t balance_splits = 0;      // leaves split for the 2:1 balance of the display
     // Glazing (Hierarchy::glass), W (lm): of the unpublished backs of glazed faces the direct light
     // they reflect (rho D A), what they absorb ((1 - rho - t) H A) and their light that reaches

@@ -4,7 +4,9 @@
 // pushes the gathered irradiance down to the leaves (irradiance is per unit area, so a child
 // receives its parent's unchanged: power is conserved), sets B = E + rho H at the leaves and
 // pulls B back up as area-weighted means. Iterating this is Jacobi's method on the
-// hierarchical operator.
+// hierarchical operator. A receiving cluster (Hierarchy::reception) gathers a vector
+// irradiance instead, sum of G B_S reception(R, S); it is pushed down the clusters as a vector
+// and becomes n_f . E at each face root below.
 #pragma once
 #include <vector>
 

@@ -189,6 +189,22 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     if (slot == kNoNode) return Facing::Mixed;
     const ClusterShape& c = cluster_shapes[slot];
     if (c.cos_spread <= 0) return Facing::Mixed;  // some faces at right angles to others, or worse
+    if (c.cos_spread > kPlanarCosine) {
+        // Faces of one orientation take G / A_R each whatever the direction (hierarchy.h):
+        // only a source wholly behind all of them passes nothing.
+        const Node& rn = nodes[r];
+        const Node& sn = nodes[s];
+        double r_min = 1e300, s_max = -1e300;
+        for (int k = 0; k < 8; ++k) {
+            const Vec3 a{k & 1 ? rn.hi.x : rn.lo.x, k & 2 ? rn.hi.y : rn.lo.y, k & 4 ? rn.hi.z : rn.lo.z};
+            const Vec3 b{k & 1 ? sn.hi.x : sn.lo.x, k & 2 ? sn.hi.y : sn.lo.y, k & 4 ? sn.hi.z : sn.lo.z};
+            r_min = std::min(r_min, dot(a, c.axis));
+            s_max = std::max(s_max, dot(b, c.axis));
+        }
+        if (s_max <= r_min) return Facing::Back;
+        if (direction_error) *direction_error = 0;
+        return Facing::Front;
+    }
     const Vec3 d = centre(s) - c.centre;
     const double dist = length(d);
     const double reach = c.radius + radius(s);
@@ -199,7 +215,7 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     const double beta = std::asin(std::clamp(reach / dist, 0.0, 1.0));
     if (theta + alpha + beta < std::acos(kFrontCosine)) {
         if (direction_error)
-            *direction_error = c.cos_spread > kPlanarCosine ? 0.0 : std::tan(theta + alpha) * c.radius / dist;
+            *direction_error = std::tan(theta + alpha) * c.radius / dist;
         return Facing::Front;
     }
     if (theta - alpha - beta > 0.5 * kPi) return Facing::Back;
@@ -208,6 +224,7 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
 
 Vec3 Hierarchy::reception(uint32_t r, uint32_t s) const {
     const ClusterShape& c = cluster_shapes[cluster_slot[r]];
+    if (c.cos_spread > kPlanarCosine) return c.vector_area / dot(c.vector_area, c.vector_area);  // a / A_R
     const Vec3 u = normalize(centre(s) - c.centre);
     return u / dot(c.vector_area, u);
 }

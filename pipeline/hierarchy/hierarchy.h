@@ -134,11 +134,15 @@ public:
     // How far that is from each face's own irradiance: a face at y, off R's centre by up to
     // r_R, sees S in a direction turned from d by up to r_R / |d| (to first order; S's own
     // extent moves the mean direction only to second order), and n_f . d / (A_R . d) then
-    // errs by up to tan(theta_f) r_R / |d| relative, theta_f <= angle(a, d) + alpha. A
-    // cluster of one plane (alpha = 0) has none of this error: each face gets G / A_R, the
-    // cluster's mean, exactly as an element's children do. So a cluster receives only where
-    // tan(angle(a, d) + alpha) r_R / |d| <= kDirectionTolerance (or it is planar); the light's
-    // variation in magnitude across it is the refiner's epsilon rule, as for elements.
+    // errs by up to tan(theta_f) r_R / |d| relative, theta_f <= angle(a, d) + alpha. So a
+    // cluster receives only where tan(angle(a, d) + alpha) r_R / |d| <= kDirectionTolerance.
+    // Faces of one orientation (alpha = 0: the tiles of a floor, the quads of a box's side)
+    // need neither rule: each takes G / A_R, the cluster's mean, whatever the direction,
+    // exactly as an element's children do, and the source need not be in front of them all
+    // (part of it may lie behind their plane, as the floor does for a box's side; G, estimated
+    // with their normals, counts only the part in front). For them reception is a / A_R, and
+    // they are passed over only by a source wholly behind them. The light's variation in
+    // magnitude across a cluster is the refiner's epsilon rule, as for elements.
     enum class Facing { Front, Back, Mixed };
     static constexpr double kFrontCosine = 0.05;   // cos(angle(a, d) + alpha + beta) at least this
     static constexpr double kDirectionTolerance = 0.01;  // faces' relative error from one direction

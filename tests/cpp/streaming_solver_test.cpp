@@ -156,10 +156,9 @@ TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
     }
 }
 
-TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
-    Scene scene = test::unit_cube(test::grey(0.7), test::grey(0.0));
-    scene.faces[0].emission = {3, 3, 3};
-    Problem pb(std::move(scene), 2);
+// Solves whole, then "killed" after round 3 with a checkpoint every round and resumed: the same
+// bits and iterations; a checkpoint of another fingerprint is not resumed from.
+void expect_resume_reaches_the_same_bits(const Problem& pb, const char* name) {
     const MemoryChunks chunks(pb.by_group);
     StreamingOptions opt;
     opt.tolerance = 1e-10;
@@ -168,7 +167,7 @@ TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
         solve_streaming(pb.h, pb.groups, chunks, pb.is_source, pb.outgoing, {}, opt, whole_stats);
     ASSERT_GT(whole.iterations, 3u);
 
-    const std::string dir = temp_dir("resume");
+    const std::string dir = temp_dir(name);
     fs::create_directories(dir);
     StreamingOptions killed = opt;
     killed.checkpoint_path = dir + "/checkpoint";
@@ -186,7 +185,6 @@ TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
     EXPECT_TRUE(resumed_stats.resumed);
     EXPECT_TRUE(same_bits(whole.radiosity, again.radiosity));
     EXPECT_EQ(whole.iterations, again.iterations);
-    // A checkpoint of something else (another fingerprint) is not resumed from.
     StreamingOptions other = resumed;
     other.checkpoint_fingerprint = 43;
     StreamingStats other_stats;
@@ -195,6 +193,25 @@ TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
     EXPECT_FALSE(other_stats.resumed);
     EXPECT_TRUE(same_bits(whole.radiosity, fresh.radiosity));
     fs::remove_all(dir);
+}
+
+TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
+    Scene scene = test::unit_cube(test::grey(0.7), test::grey(0.0));
+    scene.faces[0].emission = {3, 3, 3};
+    expect_resume_reaches_the_same_bits(Problem(std::move(scene), 2), "resume");
+}
+
+TEST(StreamingSolver, ResumingWithClustersThatReceiveReachesTheSameBits) {
+    // Links that end on clusters keep their vector irradiance in the checkpoint too.
+    Scene scene = test::tiled_cube(6, test::grey(0.7), test::grey(0.0));
+    scene.faces[3].emission = {36, 36, 36};
+    RefineOptions ro{1e-4, 1.0, 16, 1};
+    ro.cluster_receivers = true;
+    const Problem pb(std::move(scene), 16, ro);
+    size_t on_clusters = 0;
+    for (const Link& l : pb.links) on_clusters += pb.h.nodes[l.receiver].cluster;
+    ASSERT_GT(on_clusters, 0u);
+    expect_resume_reaches_the_same_bits(pb, "resume_clusters");
 }
 
 TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {

@@ -742,6 +742,12 @@ class HierarchicalResult:
     def clusters(self) -> int: ...
 
     @property
+    def links_on_clusters(self) -> int:
+        """
+        Final links that end on a cluster (hierarchy.cluster_receivers); -1 out of core (not counted).
+        """
+
+    @property
     def balance_splits(self) -> int:
         """Leaves split for the 2:1 balance of the display."""
 
