@@ -574,7 +574,11 @@ def cmd_hall(args) -> None:
     pts, nrm = cand[keep], cnrm[keep]
     rel_se = (ref["standard_error"] @ LUM)[keep] / lum[keep]
     ld = load()
-    result, wall = timed_bake(hier_config(args.hall, args.epsilon, args.min_area, samples=args.samples), ROOT)
+    cfg = hier_config(args.hall, args.epsilon, args.min_area, samples=args.samples)
+    if args.cluster_receivers:
+        cfg["hierarchy"]["cluster_receivers"] = True
+        print("hierarchy.cluster_receivers: true")
+    result, wall = timed_bake(cfg, ROOT)
     t0 = time.perf_counter()
     gathered = result.gather(pts, nrm)["radiance"]
     t_gather = time.perf_counter() - t0
@@ -662,6 +666,7 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=16, help="hall: hierarchy.samples")
     ap.add_argument("--max-paths", type=int, default=262144, help="most paths per reference point")
     ap.add_argument("--spreads", default="0,1e-3", help="spread: hierarchy.spread_epsilon values, comma-separated")
+    ap.add_argument("--cluster-receivers", action="store_true", help="hall: hierarchy.cluster_receivers: true")
     ap.add_argument("--tess", default="2,4,8,16", help="receivers: quads per box side edge, comma-separated")
     ap.add_argument("--max-rounds", type=int, default=4, help="receivers: hierarchy.max_rounds")
     ap.add_argument("--json", default=None, help="receivers: write the rows here")

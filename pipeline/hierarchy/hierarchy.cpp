@@ -163,8 +163,18 @@ Hierarchy::Hierarchy(const Scene& scene) {
         if (!(va > 1e-12 * node.area)) return;  // faces in every direction: no cone
         c.axis = c.vector_area / va;
         c.cos_spread = 1;
-        for (uint32_t j = node.face_begin; j < node.face_end; ++j)
-            c.cos_spread = std::min(c.cos_spread, dot(faces[face_order[j]].normal, c.axis));
+        double lo = 1e300, hi = -1e300;
+        for (uint32_t j = node.face_begin; j < node.face_end; ++j) {
+            const Patch& f = faces[face_order[j]];
+            c.cos_spread = std::min(c.cos_spread, dot(f.normal, c.axis));
+            for (int k = 0; k < f.nv; ++k) {
+                lo = std::min(lo, dot(f.p[k], c.axis));
+                hi = std::max(hi, dot(f.p[k], c.axis));
+            }
+        }
+        // Layers: deeper along the axis than one surface of that spread of normals can be.
+        const double sin_spread = std::sqrt(std::max(0.0, 1 - c.cos_spread * c.cos_spread));
+        c.layered = hi - lo > c.radius * (sin_spread + 1e-6);
     });
     for (size_t k = 0; k < glazed.size(); ++k)
         glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].diffuse_transmittance});
@@ -189,6 +199,7 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     if (slot == kNoNode) return Facing::Mixed;
     const ClusterShape& c = cluster_shapes[slot];
     if (c.cos_spread <= 0) return Facing::Mixed;  // some faces at right angles to others, or worse
+    if (c.layered) return Facing::Mixed;         // faces over faces: some may shade others
     if (c.cos_spread > kPlanarCosine) {
         // Faces of one orientation take G / A_R each whatever the direction (hierarchy.h):
         // only a source wholly behind all of them passes nothing.

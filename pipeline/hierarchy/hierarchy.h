@@ -141,8 +141,12 @@ public:
     // exactly as an element's children do, and the source need not be in front of them all
     // (part of it may lie behind their plane, as the floor does for a box's side; G, estimated
     // with their normals, counts only the part in front). For them reception is a / A_R, and
-    // they are passed over only by a source wholly behind them. The light's variation in
-    // magnitude across a cluster is the refiner's epsilon rule, as for elements.
+    // they are passed over only by a source wholly behind them. Faces over faces (a table top
+    // above the floor, both facing up) are not one surface: the top shades the floor, and
+    // sharing G evenly would light the floor under the table as the top. So a cluster whose
+    // faces reach further along the axis than one surface of normals within alpha can
+    // (r_R sin alpha: 0 for a plane) never receives. The light's variation in magnitude
+    // across a cluster is the refiner's epsilon rule, as for elements.
     enum class Facing { Front, Back, Mixed };
     static constexpr double kFrontCosine = 0.05;   // cos(angle(a, d) + alpha + beta) at least this
     static constexpr double kDirectionTolerance = 0.01;  // faces' relative error from one direction
@@ -157,6 +161,7 @@ public:
         Vec3 vector_area;
         Vec3 axis;
         double cos_spread = -1;
+        bool layered = false;   // deeper along the axis than r sin(alpha): never receives
     };
     std::vector<ClusterShape> cluster_shapes;   // per cluster slot
     std::vector<uint32_t> cluster_slot;         // per node the constructor built: its slot, or kNoNode

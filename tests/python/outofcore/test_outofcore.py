@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import box_faces, make_model
+from conftest import box_faces, make_model, quad
 from hirad_e2e_helpers import CORNELL, run_cli, write_config
 
 from hirad import _engine, usd
@@ -320,3 +320,39 @@ def test_resume_refuses_a_renamed_state_file(tmp_path):
     (store / f"solved-{last}").write_bytes((store / f"refined-{last}").read_bytes())
     with pytest.raises(RuntimeError, match=rf"solved-{last}: holds the refined state of round {last}"):
         solve(cornell_model(), store, resume=True)
+
+
+def test_clusters_that_receive_agree_out_of_core_and_in_memory(tmp_path):
+    # A 2 m room whose floor is 12 x 12 tiles, lit by its ceiling: with hierarchy.
+    # cluster_receivers the floor's tiles take light through links that end on clusters. The
+    # streaming solve (links on disk) and Jacobi in memory are different link sets of the same
+    # physics: the same area-weighted mean radiosity, both energy balances closed.
+    faces = box_faces(2, 2, 2, omit=("y0",))
+    n = 12
+    for i in range(n):
+        for j in range(n):
+            faces.append(quad([2 * i / n, 0, 2 * j / n], [0, 0, 2 / n], [2 / n, 0, 0]))
+    ceiling = [k for k, f in enumerate(faces) if np.all(np.asarray(f)[:, 1] == 2)]
+    assert len(ceiling) == 1 and len(faces) == 5 + n * n
+    emission = np.zeros(len(faces))
+    emission[ceiling[0]] = 10.0
+    ho = _engine.HierarchyOptions(epsilon=1e-4, min_area=0.05, samples=16, seed=1, max_rounds=3,
+                                  cluster_receivers=True)
+    m_mem = make_model(faces, reflectance=0.6, emission=emission)
+    mem = m_mem.solve_hierarchical(ho, _engine.SolveOptions(method="jacobi", tolerance=1e-7, max_iterations=100000))
+    m_mem.use_leaves_as_patches()
+    assert mem.links_on_clusters > 0
+    m_ooc = make_model(faces, reflectance=0.6, emission=emission)
+    ooc = m_ooc.solve_out_of_core(ho, _engine.SolveOptions(tolerance=1e-7, max_iterations=100000),
+                                  _engine.OutOfCoreOptions(store=str(tmp_path / "links"), group_faces=8))
+    m_ooc.use_leaves_as_patches()
+    assert ooc.converged and mem.converged
+    assert ooc.links_on_clusters == -1  # out of core: not counted
+    a_mem, a_ooc = m_mem.patch_arrays().area, m_ooc.patch_arrays().area
+    mean_mem = (a_mem[:, None] * mem.radiosity).sum(axis=0) / a_mem.sum()
+    mean_ooc = (a_ooc[:, None] * ooc.radiosity).sum(axis=0) / a_ooc.sum()
+    np.testing.assert_allclose(mean_ooc, mean_mem, rtol=5e-3)
+    # The face-by-face solvers refuse such links with a clear message.
+    with pytest.raises(ValueError, match="cannot solve links that end on clusters"):
+        make_model(faces, reflectance=0.6, emission=emission).solve_hierarchical(
+            ho, _engine.SolveOptions(method="southwell", tolerance=1e-6, max_iterations=100000))
