@@ -12,6 +12,7 @@
 #include "pipeline/hierarchy/refine.h"
 #include "pipeline/geometry/visibility.h"
 #include "pipeline/outofcore/streaming_solver.h"
+#include "tests/cpp/streaming_problem.h"
 #include "tests/cpp/test_scenes.h"
 
 namespace hirad {
@@ -87,37 +88,11 @@ TEST(ClusterReceivers, FurnaceOfManySmallFacesGivesEOverOneMinusRho) {
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(sol.radiosity[i][c], E / (1 - rho), 0.01 * E / (1 - rho)) << i;
 
     // Streamed: groups of 64 faces, each linked from the root's link to its root.
-    Hierarchy hs(scene);
-    Refiner rs(hs, vis, receiving(1e-5 * emitted, 64));
-    const SourceGroups groups = SourceGroups::cut(hs, 64);
-    std::vector<std::vector<Link>> by_group(groups.count());
-    std::vector<uint8_t> is_source(0);
-    rs.set_radiosity(node_emission(hs));
-    for (uint32_t g = 0; g < groups.count(); ++g) {
-        Link seed;
-        seed.receiver = hs.root;
-        seed.source = groups.roots[g];
-        by_group[g] = rs.run_group({seed}, {0}, stats);
-    }
-    is_source.assign(hs.nodes.size(), 0);
-    std::vector<double> outgoing(hs.nodes.size(), 0.0);
-    size_t streamed_on_clusters = 0;
-    for (auto& part : by_group) {
-        for (const Link& l : part) {
-            is_source[l.source] = 1;
-            outgoing[l.source] += hs.sent(l) / hs.nodes[l.source].area;
-            streamed_on_clusters += hs.nodes[l.receiver].cluster;
-        }
-        sort_part(part);
-    }
-    EXPECT_GT(streamed_on_clusters, 0u);
-    StreamingOptions so;
-    so.tolerance = 1e-9;
-    StreamingStats st;
-    const HierarchicalSolution streamed =
-        solve_streaming(hs, groups, MemoryChunks(by_group), is_source, outgoing, {}, so, st);
+    const test::Problem pb(scene, 64, receiving(1e-5 * emitted, 64));
+    EXPECT_GT(cluster_receivers(pb.h, pb.links), 0u);
+    const HierarchicalSolution streamed = pb.stream(1e-9);
     ASSERT_TRUE(streamed.converged);
-    for (uint32_t i : hs.leaves())
+    for (uint32_t i : pb.h.leaves())
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(streamed.radiosity[i][c], E / (1 - rho), 0.01 * E / (1 - rho)) << i;
 }
 

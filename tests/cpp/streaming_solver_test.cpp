@@ -18,6 +18,7 @@
 #include "pipeline/core/checks.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
+#include "tests/cpp/streaming_problem.h"
 #include "tests/cpp/test_scenes.h"
 
 namespace hirad {
@@ -25,59 +26,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Everything a streaming solve takes, from links made by refinement.
-struct Problem {
-    Scene scene;
-    Hierarchy h;
-    std::unique_ptr<Visibility> vis;
-    std::vector<Link> links;        // sorted by receiver (for the in-memory solvers)
-    SourceGroups groups;
-    std::vector<std::vector<Link>> by_group;  // per group, sorted by sort_part
-    std::vector<uint8_t> is_source;
-    std::vector<double> outgoing;
-
-    // The furnace's refinement of the in-memory test (hierarchy_test.cpp): its couplings sum
-    // to the areas within about 2 %.
-    Problem(Scene s, uint32_t group_faces, RefineOptions ro = {1e-5 * 6, 0.02, 256, 1}) : scene(std::move(s)), h(scene) {
-        vis = std::make_unique<Visibility>(h.faces);
-        Refiner refiner(h, *vis, ro);
-        RefineStats stats;
-        groups = SourceGroups::cut(h, group_faces);
-        by_group.assign(groups.count(), {});
-        // As the out-of-core rounds link: each group from the root's link to the group's root,
-        // so that every source lies in its group.
-        refiner.set_radiosity(node_emission(h));
-        for (uint32_t g = 0; g < groups.count(); ++g) {
-            Link seed;
-            seed.receiver = h.root;
-            seed.source = groups.roots[g];
-            by_group[g] = refiner.run_group({seed}, {0}, stats);
-        }
-        is_source.assign(h.nodes.size(), 0);
-        outgoing.assign(h.nodes.size(), 0.0);
-        for (uint32_t g = 0; g < groups.count(); ++g) {
-            for (const Link& l : by_group[g]) {
-                EXPECT_EQ(groups.of(h, l.source), g);
-                links.push_back(l);
-                is_source[l.source] = 1;
-                outgoing[l.source] += double(l.coupling) / h.nodes[l.source].area;
-            }
-            sort_part(by_group[g]);
-        }
-        sort_links(links);
-    }
-    // The store holding the same links: one chunk per part of kChunkLinks.
-    void write_store(const std::string& dir) const {
-        LinkStoreWriter writer(dir, {1, 2, uint32_t(h.nodes.size()), uint32_t(h.nodes.size())});
-        for (uint32_t g = 0; g < by_group.size(); ++g)
-            for (uint32_t p = 0; p * kChunkLinks < by_group[g].size(); ++p) {
-                const auto begin = by_group[g].begin() + p * kChunkLinks;
-                const auto end = by_group[g].begin() + std::min<size_t>(by_group[g].size(), (p + 1) * kChunkLinks);
-                write_part(writer, g, p, std::vector<Link>(begin, end));
-            }
-        writer.commit();
-    }
-};
+using test::Problem;
 
 std::string temp_dir(const char* name) {
     const fs::path d = fs::temp_directory_path() / ("hirad_streaming_" + std::to_string(::getpid()) + "_" + name);
@@ -137,11 +86,7 @@ TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
     jopt.max_iterations = 100000;
     const HierarchicalSolution jacobi = solve_push_pull(pb.h, pb.links, {}, jopt);
     ASSERT_TRUE(jacobi.converged);
-    StreamingOptions opt;
-    opt.tolerance = 1e-11;
-    StreamingStats stats;
-    const HierarchicalSolution streamed =
-        solve_streaming(pb.h, pb.groups, MemoryChunks(pb.by_group), pb.is_source, pb.outgoing, {}, opt, stats);
+    const HierarchicalSolution streamed = pb.stream(1e-11);
     ASSERT_TRUE(streamed.converged);
     double largest = 0;
     for (uint32_t i : pb.h.leaves()) largest = std::max(largest, jacobi.radiosity[i].x);
