@@ -298,7 +298,7 @@ def cmd_receivers_accuracy(args) -> None:
         scene, model = unsplit_model(scene_path)
         from hirad.engine import patch_dict
         patches = patch_dict(model.patch_arrays())
-        cand, cnrm, _ = sample_points(patches, int(args.points * 1.5), seed=4343)
+        cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4343)
         ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 78, f"receivers_t{t}")
         del model
         lum = ref["radiance"] @ LUM
@@ -309,6 +309,8 @@ def cmd_receivers_accuracy(args) -> None:
         keep[ok] = True
         print(describe_reference(ref, keep))
         pts, nrm = cand[keep], cnrm[keep]
+        mesh = patches["mesh"][cface[keep]]
+        names = [m.name for m in scene.meshes]
         for on in (False, True):
             cfg = hier_config(scene_path, args.epsilon, args.min_area, samples=args.samples, max_rounds=args.max_rounds)
             cfg["hierarchy"]["cluster_receivers"] = on
@@ -321,6 +323,10 @@ def cmd_receivers_accuracy(args) -> None:
                       f"mean {np.mean(e):+.2%}, median |err| {np.median(np.abs(e)):.2%}, "
                       f"90th pct {np.quantile(np.abs(e), 0.9):.2%} ({result.report['counts']['links']:,} links, "
                       f"bake {wall:.1f} s, {ld} at start)", flush=True)
+                for k in np.unique(mesh):
+                    sel = mesh == k
+                    print(f"    {names[k]:<10} {sel.sum():>4} points: RMS {np.sqrt(np.mean(e[sel] ** 2)):.2%}, "
+                          f"mean {np.mean(e[sel]):+.2%}")
 
 
 # --------------------------------------------------------------------------------------------
