@@ -76,9 +76,10 @@ void bind_options(nb::module_& m) {
                 "Close or partly visible links whose source's radiosity range could bias them by more than "
                 "spread x epsilon's power are split at the source (0: off).")
         .def_rw("cluster_receivers", &HierarchyOptions::cluster_receivers,
-                "Clusters whose faces all see a source from their front receive its light as a whole, shared "
-                "among their faces by orientation (links grow with the lighting, not with the faces); the "
-                "face-by-face solvers (gauss_seidel, southwell) refuse such links.");
+                "Clusters receive as well as send: faces of one orientation share a link's light as an "
+                "element's children do; clusters of several orientations only where every face sees the source "
+                "from its front, by orientation (Hierarchy::reception). Links grow with the lighting, not with "
+                "the faces; the face-by-face solvers (gauss_seidel, southwell) refuse such links.");
 
     const OutOfCoreOptions oc;
     nb::class_<OutOfCoreOptions>(m, "OutOfCoreOptions",

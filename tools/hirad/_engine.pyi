@@ -286,7 +286,7 @@ class HierarchyOptions:
     @property
     def cluster_receivers(self) -> bool:
         """
-        Clusters whose faces all see a source from their front receive its light as a whole, shared among their faces by orientation (links grow with the lighting, not with the faces); the face-by-face solvers (gauss_seidel, southwell) refuse such links.
+        Clusters receive as well as send: faces of one orientation share a link's light as an element's children do; clusters of several orientations only where every face sees the source from its front, by orientation (Hierarchy::reception). Links grow with the lighting, not with the faces; the face-by-face solvers (gauss_seidel, southwell) refuse such links.
         """
 
     @cluster_receivers.setter
