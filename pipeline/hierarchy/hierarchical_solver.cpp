@@ -71,24 +71,29 @@ bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links) {
     return false;
 }
 
+void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
+                  std::vector<Vec3>& fc) {
+    const uint32_t slot = h.slot_of(receiver);
+    if (slot == kNoNode) {
+        f[receiver] += coupling / h.nodes[receiver].area;
+        return;
+    }
+    if (fc.empty()) fc.resize(h.cluster_shapes.size());
+    fc[slot] += h.reception(receiver, source) * coupling;
+}
+
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
     std::vector<double> f(h.nodes.size(), 0.0);
     std::vector<Vec3> fc;
-    for (const Link& l : links) {
-        const uint32_t slot = h.slot_of(l.receiver);
-        if (slot == kNoNode) { f[l.receiver] += double(l.coupling) / h.nodes[l.receiver].area; continue; }
-        if (fc.empty()) fc.resize(h.cluster_shapes.size());
-        fc[slot] += h.reception(l.receiver, l.source) * double(l.coupling);
-    }
-    return gather_scale(h, std::move(f), fc);
+    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
+    return gather_scale(h, std::move(f), std::move(fc));
 }
 
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, const std::vector<Vec3>& fc_in) {
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std::vector<Vec3> fc) {
     const size_t n = h.nodes.size();
     if (f.size() != n) throw std::invalid_argument("gather_scale: one sum per node");
-    if (!fc_in.empty() && fc_in.size() != h.cluster_shapes.size())
+    if (!fc.empty() && fc.size() != h.cluster_shapes.size())
         throw std::invalid_argument("gather_scale: one vector per cluster");
-    std::vector<Vec3> fc = fc_in;
     std::vector<double> scale;
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];

@@ -48,7 +48,11 @@ std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& li
 // slot the sums of G reception(R, S) over the links received at it (streamed links; empty:
 // no cluster receives).
 std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received,
-                                 const std::vector<Vec3>& cluster_received = {});
+                                 std::vector<Vec3> cluster_received = {});
+// Adds one link's coupling to those sums: G / A_R to f[R] for an element, G reception(R, S)
+// to fc[slot of R] for a cluster (fc sized on first use).
+void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
+                  std::vector<Vec3>& fc);
 
 // What one link brings its receiver with the source at radiosity b: b G / A_R to an element's
 // irradiance `at`, b G reception(R, S) to a receiving cluster's vector (`clusters`, per

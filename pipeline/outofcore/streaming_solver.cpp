@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <mutex>
 #include <stdexcept>
@@ -211,19 +212,17 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                 const std::vector<uint32_t> receivers = t.receivers();
                 for (size_t r = 0, k = 0; r < t.runs(); ++r)
                     for (; k < t.run_end[r]; ++k) {
-                        const uint32_t rc = receivers[k];
-                        if (rc >= n) throw std::runtime_error("streaming solve: a link's receiver is not a node");
-                        const uint32_t slot = h.slot_of(rc);
-                        if (slot == kNoNode) { in[rc] += double(t.coupling[k]) / area[rc]; continue; }
-                        if (in_clusters.empty()) in_clusters.resize(h.cluster_shapes.size());
-                        in_clusters[slot] += h.reception(rc, t.sources[r]) * double(t.coupling[k]);
+                        if (receivers[k] >= n)
+                            throw std::runtime_error("streaming solve: a link's receiver is not a node");
+                        add_coupling(h, receivers[k], t.sources[r], double(t.coupling[k]), in, in_clusters);
                     }
             }
         clusters_receive = !in_clusters.empty();
-        terms = leaf_terms(h, gather_scale(h, std::move(in), in_clusters));
+        terms = leaf_terms(h, gather_scale(h, std::move(in), std::move(in_clusters)));
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
+    static_assert(sizeof(VectorIrradiance) == 3 * sizeof(RGB), "a cluster's vectors are three RGB rows");
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
@@ -241,10 +240,10 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         if (cp.fingerprint == fingerprint) {
             received = unflatten_rgb(cp.f64("received"), n, opt.checkpoint_path);
             if (clusters_receive) {
+                // Each cluster's vectors as three RGB-sized rows (9 doubles, as laid out).
                 const std::vector<RGB> v =
                     unflatten_rgb(cp.f64("received_clusters"), 3 * received_clusters.size(), opt.checkpoint_path);
-                for (size_t c = 0; c < received_clusters.size(); ++c)
-                    for (int k = 0; k < 3; ++k) received_clusters[c].c[k] = v[3 * c + size_t(k)];
+                std::memcpy(received_clusters.data(), v.data(), v.size() * sizeof(RGB));
             }
             shot = unflatten_rgb(cp.f64("shot"), n, opt.checkpoint_path);
             const std::vector<uint64_t>& counters = cp.u64("counters");
@@ -262,10 +261,9 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         cp.fingerprint = fingerprint;
         cp.put("received", flatten_rgb(received));
         if (clusters_receive) {
-            std::vector<RGB> v(3 * received_clusters.size());
-            for (size_t c = 0; c < received_clusters.size(); ++c)
-                for (int k = 0; k < 3; ++k) v[3 * c + size_t(k)] = received_clusters[c].c[k];
-            cp.put("received_clusters", flatten_rgb(v));
+            std::vector<RGB> rows(3 * received_clusters.size());
+            std::memcpy(rows.data(), received_clusters.data(), rows.size() * sizeof(RGB));
+            cp.put("received_clusters", flatten_rgb(rows));
         }
         cp.put("shot", flatten_rgb(shot));
         cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
