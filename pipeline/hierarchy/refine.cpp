@@ -169,9 +169,10 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
         return Action::SplitSource;
     };
     // Sources may stay clusters: the estimate sees each source surface with its own normal.
-    // A cluster receives only when all its faces see the source from their front (refine.h);
-    // otherwise irradiance gathered there would have to be shared among surfaces some of which
-    // face away, which no one vector does.
+    // A cluster receives only where Hierarchy::facing says one vector shares the light among
+    // its faces (faces of one orientation, or all of them seeing the source from their front
+    // within the direction tolerance); otherwise it is split, and a source wholly behind its
+    // faces is dropped.
     const Node& rn = h_.nodes[link.receiver];
     const Node& sn = h_.nodes[link.source];
     if (rn.cluster && !opt_.cluster_receivers) return Action::SplitReceiver;

@@ -7,10 +7,11 @@
 // chunks as they are.
 //
 // Sources may be clusters. Receivers are elements unless `cluster_receivers` is set: then a
-// cluster whose faces all see the source from their front (Hierarchy::facing) receives as a
-// whole, its light shared among its faces by their orientation (Hierarchy::reception), so the
-// links a million small faces need grow with the lighting, not with the faces. A cluster that
-// some of its faces see the source from behind is split; one all of whose faces do is dropped. Refinement is brightness weighted:
+// cluster receives as a whole where one vector shares its light among its faces by their
+// orientation (Hierarchy::facing, Hierarchy::reception: faces of one orientation, or faces
+// that all see the source from their front within a direction tolerance), so the links a
+// million small faces need grow with the lighting, not with the faces. Other clusters are
+// split; a link to faces that all see the source from behind is dropped. Refinement is brightness weighted:
 // a link whose power bound B_max(S) * G exceeds epsilon (B_max: the brightest surface below
 // the source, so that sources of uneven radiosity are split) is replaced by links to the
 // children of its larger end. For a partly occluded link the
