@@ -130,13 +130,18 @@ public:
             refine_remote(next);
         } else {
             refiner_.set_radiosity(b, next > 1);
+            uint64_t kept_links = 0;
             for (uint32_t g = 0; g < ng_; ++g) {
                 // Kept links leave for the store a part at a time, as refinement makes them; what
                 // refinement holds is bounded by kChunkLinks per level of depth.
                 const uint64_t held = refine_group(refiner_, h_, groups_, chunks_.get(), next, g, run_.refine,
-                                                   [&](std::vector<Link>& kept) { out_->add(g, kept); });
+                                                   [&](std::vector<Link>& kept) {
+                                                       kept_links += kept.size();
+                                                       out_->add(g, kept);
+                                                   });
                 run_.peak_refine_links = std::max<uint64_t>(run_.peak_refine_links, held);
                 out_->end_group(g);
+                if (progress_) progress_({next, kept_links, shots_, 1.0, g + 1, ng_});
             }
         }
         src_.resize(h_.nodes.size(), 0);

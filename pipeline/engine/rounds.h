@@ -36,6 +36,9 @@ struct RoundProgress {
     uint64_t links = 0;       // links of the round being solved
     uint64_t iteration = 0;   // iterations (or shooting rounds) so far, all rounds
     double residual = 1;      // of the running solve
+    // While a round's links are made out of core: the source groups linked so far and in all
+    // (groups 0: solving, or linking in memory), `links` then the links kept so far.
+    uint64_t groups_linked = 0, groups = 0;
 };
 using RoundProgressFn = std::function<void(const RoundProgress&)>;
 

@@ -92,7 +92,7 @@ double Gatherer::mean_coupling(const Link& l, const Node& leaf) const {
     // G / A_R over an element receiver; over a receiving cluster, what the leaf's face takes
     // of it by its orientation (Hierarchy::reception).
     if (h_.slot_of(l.receiver) == kNoNode) return double(l.coupling) / h_.nodes[l.receiver].area;
-    return double(l.coupling) * std::max(0.0, dot(leaf.shape.normal, h_.reception(l.receiver, l.source)));
+    return double(l.coupling) * std::max(0.0, h_.reception(l.receiver, l.source).along(leaf.shape.normal));
 }
 
 Gatherer::Split Gatherer::split(uint32_t leaf) const {

@@ -72,7 +72,7 @@ bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links) {
 }
 
 void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
-                  std::vector<Vec3>& fc) {
+                  std::vector<Reception>& fc) {
     const uint32_t slot = h.slot_of(receiver);
     if (slot == kNoNode) {
         f[receiver] += coupling / h.nodes[receiver].area;
@@ -84,12 +84,12 @@ void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double
 
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
     std::vector<double> f(h.nodes.size(), 0.0);
-    std::vector<Vec3> fc;
+    std::vector<Reception> fc;
     for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
     return gather_scale(h, std::move(f), std::move(fc));
 }
 
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std::vector<Vec3> fc) {
+std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std::vector<Reception> fc) {
     const size_t n = h.nodes.size();
     if (f.size() != n) throw std::invalid_argument("gather_scale: one sum per node");
     if (!fc.empty() && fc.size() != h.cluster_shapes.size())
@@ -98,9 +98,9 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
         if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
-            const Vec3& above = fc[h.cluster_slot[node.parent]];
+            const Reception& above = fc[h.cluster_slot[node.parent]];
             if (node.cluster) fc[h.cluster_slot[i]] += above;
-            else f[i] += std::max(0.0, dot(node.shape.normal, above));
+            else f[i] += std::max(0.0, above.along(node.shape.normal));
         }
         if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
         if (!node.leaf() || node.cluster) continue;
@@ -265,8 +265,8 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
     const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
-    // Receiving clusters: each link's reception vector, computed once.
-    std::vector<Vec3> reception(links.size());
+    // Receiving clusters: each link's reception, computed once.
+    std::vector<Reception> reception(links.size());
     const bool clusters_receive = any_cluster_receiver(h, links);
     std::vector<VectorIrradiance> clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     if (clusters_receive)

@@ -42,17 +42,17 @@ constexpr double kGainLimit = 0.999;
 // Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf
 // (1 at inner nodes and within the limit); empty when no leaf needs one.
 // A receiving cluster's links count at each face below it by the face's orientation
-// (Hierarchy::reception): G n_f . reception(R, S).
+// (Hierarchy::reception): G reception(R, S).along(n_f).
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links);
 // The same from the sums of G / A_R over the links received at each element, and per cluster
 // slot the sums of G reception(R, S) over the links received at it (streamed links; empty:
 // no cluster receives).
 std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received,
-                                 std::vector<Vec3> cluster_received = {});
+                                 std::vector<Reception> cluster_received = {});
 // Adds one link's coupling to those sums: G / A_R to f[R] for an element, G reception(R, S)
 // to fc[slot of R] for a cluster (fc sized on first use).
 void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
-                  std::vector<Vec3>& fc);
+                  std::vector<Reception>& fc);
 
 // What one link brings its receiver with the source at radiosity b: b G / A_R to an element's
 // irradiance `at`, b G reception(R, S) to a receiving cluster's vector (`clusters`, per

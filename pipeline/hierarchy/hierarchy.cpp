@@ -199,7 +199,6 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     if (slot == kNoNode) return Facing::Mixed;
     const ClusterShape& c = cluster_shapes[slot];
     if (c.cos_spread <= 0) return Facing::Mixed;  // some faces at right angles to others, or worse
-    if (c.layered) return Facing::Mixed;         // faces over faces: some may shade others
     if (c.cos_spread > kPlanarCosine) {
         // Faces of one orientation take G / A_R each whatever the direction (hierarchy.h):
         // only a source wholly behind all of them passes nothing.
@@ -220,24 +219,45 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     const double dist = length(d);
     const double reach = c.radius + radius(s);
     if (!(dist > reach)) return Facing::Mixed;
-    // Angles: theta between the axis and d, alpha the normals' half-angle, beta the directions'.
-    const double theta = std::acos(std::clamp(dot(c.axis, d) / dist, -1.0, 1.0));
-    const double alpha = std::acos(std::clamp(c.cos_spread, -1.0, 1.0));
-    const double beta = std::asin(std::clamp(reach / dist, 0.0, 1.0));
-    if (theta + alpha + beta < std::acos(kFrontCosine)) {
-        if (direction_error)
-            *direction_error = std::tan(theta + alpha) * c.radius / dist;
+    // Angles theta between the axis and d, alpha the normals' half-angle, beta the directions',
+    // each by its cosine and sine, added by the addition formulas: this runs for every link to
+    // a cluster, in refinement and in the solvers, and needs no inverse trigonometry.
+    const double ct = std::clamp(dot(c.axis, d) / dist, -1.0, 1.0), st = std::sqrt(std::max(0.0, 1 - ct * ct));
+    const double ca = c.cos_spread, sa = std::sqrt(std::max(0.0, 1 - ca * ca));
+    const double sb = std::clamp(reach / dist, 0.0, 1.0), cb = std::sqrt(std::max(0.0, 1 - sb * sb));
+    const double c1 = ct * ca - st * sa, s1 = st * ca + ct * sa;  // theta + alpha
+    const double c2 = c1 * cb - s1 * sb, s2 = s1 * cb + c1 * sb;  // theta + alpha + beta, in [0, 2 pi)
+    // theta + alpha + beta < acos(kFrontCosine), below 90 degrees: its cosine above
+    // kFrontCosine and its sine not negative.
+    if (s2 >= 0 && c2 > kFrontCosine) {
+        if (direction_error) *direction_error = s1 / c1 * c.radius / dist;  // tan(theta + alpha) r_R / |d|
         return Facing::Front;
     }
-    if (theta - alpha - beta > 0.5 * kPi) return Facing::Back;
+    // theta - (alpha + beta) > 90 degrees: its cosine negative and its sine not.
+    const double cg = ca * cb - sa * sb, sg = sa * cb + ca * sb;  // alpha + beta
+    const double c3 = ct * cg + st * sg, s3 = st * cg - ct * sg;
+    if (s3 >= 0 && c3 < 0) return Facing::Back;
     return Facing::Mixed;
 }
 
-Vec3 Hierarchy::reception(uint32_t r, uint32_t s) const {
+Reception Hierarchy::reception(uint32_t r, uint32_t s) const {
     const ClusterShape& c = cluster_shapes[cluster_slot[r]];
-    if (c.cos_spread > kPlanarCosine) return c.vector_area / dot(c.vector_area, c.vector_area);  // a / A_R
-    const Vec3 u = normalize(centre(s) - c.centre);
-    return u / dot(c.vector_area, u);
+    const Vec3& a = c.vector_area;
+    if (c.cos_spread > kPlanarCosine) return {a / dot(a, a), 0.0};  // a / A_R: each face G / A_R
+    if (facing(r, s) == Facing::Front) {
+        const Vec3 u = normalize(centre(s) - c.centre);
+        return {u / dot(a, u), 0.0};
+    }
+    return {Vec3{}, 1 / nodes[r].area};  // evenly (Mixed: kept only while it carries little)
+}
+
+double Hierarchy::misplaced(uint32_t r, uint32_t s) const {
+    double direction_error = 0;
+    const Facing f = facing(r, s, &direction_error);
+    if (f == Facing::Back) return 0.0;
+    // Faces over faces may shade each other, which no sharing knows of.
+    if (f == Facing::Mixed || cluster_shapes[cluster_slot[r]].layered) return 1.0;
+    return direction_error;
 }
 
 bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {

@@ -77,19 +77,38 @@ struct Node {
     double diagonal() const { return length(hi - lo); }
 };
 
-// Light received by a cluster (see Hierarchy::reception): one irradiance vector per colour
-// channel, so that a surface of unit normal n below the cluster receives H = n . E (per channel).
+// What a face of unit normal n below a receiving cluster takes, per unit area, of the power
+// G B_S a link brings the cluster: n . vector + uniform (Hierarchy::reception). A sum of
+// these over links is again one.
+struct Reception {
+    Vec3 vector;
+    double uniform = 0;
+    double along(const Vec3& n) const { return dot(n, vector) + uniform; }
+    Reception& operator+=(const Reception& o) {
+        vector += o.vector;
+        uniform += o.uniform;
+        return *this;
+    }
+    Reception operator*(double k) const { return {vector * k, uniform * k}; }
+};
+
+// Light received by a cluster (see Hierarchy::reception): per colour channel an irradiance
+// vector and a uniform part, so that a surface of unit normal n below the cluster receives
+// H = n . E + U (per channel).
 struct VectorIrradiance {
     Vec3 c[3];
-    void add(const RGB& b, const Vec3& w) {
-        c[0] += w * b.x;
-        c[1] += w * b.y;
-        c[2] += w * b.z;
+    RGB uniform;
+    void add(const RGB& b, const Reception& r) {
+        c[0] += r.vector * b.x;
+        c[1] += r.vector * b.y;
+        c[2] += r.vector * b.z;
+        uniform += b * r.uniform;
     }
     void add(const VectorIrradiance& o) {
         for (int k = 0; k < 3; ++k) c[k] += o.c[k];
+        uniform += o.uniform;
     }
-    RGB along(const Vec3& n) const { return {dot(n, c[0]), dot(n, c[1]), dot(n, c[2])}; }
+    RGB along(const Vec3& n) const { return RGB{dot(n, c[0]), dot(n, c[1]), dot(n, c[2])} + uniform; }
 };
 
 class Hierarchy {
@@ -143,10 +162,20 @@ public:
     // with their normals, counts only the part in front). For them reception is a / A_R, and
     // they are passed over only by a source wholly behind them. Faces over faces (a table top
     // above the floor, both facing up) are not one surface: the top shades the floor, and
-    // sharing G evenly would light the floor under the table as the top. So a cluster whose
-    // faces reach further along the axis than one surface of normals within alpha can
-    // (r_R sin alpha: 0 for a plane) never receives. The light's variation in magnitude
-    // across a cluster is the refiner's epsilon rule, as for elements.
+    // sharing G by the direction would light the floor under the table as the top. So a
+    // cluster whose faces reach further along the axis than one surface of normals within
+    // alpha can (r_R sin alpha: 0 for a plane) is `layered`, and may misplace all of a link's
+    // light. The light's variation in magnitude across a cluster is the refiner's epsilon
+    // rule, as for elements.
+    // Links that carry little. A cluster that fails these rules (Mixed, layered, or Front
+    // beyond the tolerance) still receives a link whose light is too little to matter, so
+    // that links from dark or distant sources do not split a large receiver down to its
+    // single directions: misplaced(R, S) bounds the fraction of the link's light its sharing
+    // may put on the wrong faces, and the refiner keeps the link while that fraction of the
+    // most it can carry stays below a small part of epsilon (refine.h). Front clusters share
+    // by the direction as above; Mixed ones evenly, G B_S / A_R to each face (Sillion's
+    // isotropic clusters), so a face of unit normal n takes n . vector + uniform of
+    // reception(R, S).
     enum class Facing { Front, Back, Mixed };
     static constexpr double kFrontCosine = 0.05;   // cos(angle(a, d) + alpha + beta) at least this
     static constexpr double kDirectionTolerance = 0.01;  // faces' relative error from one direction
@@ -161,7 +190,7 @@ public:
         Vec3 vector_area;
         Vec3 axis;
         double cos_spread = -1;
-        bool layered = false;   // deeper along the axis than r sin(alpha): never receives
+        bool layered = false;   // deeper along the axis than r sin(alpha): may shade itself
     };
     std::vector<ClusterShape> cluster_shapes;   // per cluster slot
     std::vector<uint32_t> cluster_slot;         // per node the constructor built: its slot, or kNoNode
@@ -169,12 +198,20 @@ public:
     Vec3 centre(uint32_t node) const;
     double radius(uint32_t node) const;
     // Whether the faces below cluster `r` all see node `s` from their front (Front), all from
-    // their back (Back: nothing passes), or neither; Mixed when `r` is not a cluster.
+    // their back (Back: nothing passes), or neither; Mixed when `r` is not a cluster. (By the
+    // angles alone: a layered cluster may be Front.)
     // `direction_error`: the bound tan(angle(a, d) + alpha) r_R / |d| above (0 for a planar
     // cluster), set for Front.
     Facing facing(uint32_t r, uint32_t s, double* direction_error = nullptr) const;
-    // d / (A_R . d) for a link from `s` to cluster `r` (see above).
-    Vec3 reception(uint32_t r, uint32_t s) const;
+    // How a link from `s` shares its light among the faces below cluster `r`: by the vector
+    // d / (A_R . d) where `r` faces `s` (Front); otherwise (Mixed) evenly, uniform = 1 / A_R.
+    Reception reception(uint32_t r, uint32_t s) const;
+    // The most that sharing misplaces among the faces, as a fraction of the link's light:
+    // the direction error for Front (0 for faces of one orientation), 1 for Mixed (shared
+    // evenly, whatever the faces see) and layered clusters, 0 for Back (nothing passes). The refiner lets a
+    // cluster receive where this is within kDirectionTolerance, or where this times the most
+    // the link can carry is a small part of epsilon (refine.h).
+    double misplaced(uint32_t r, uint32_t s) const;
 
     // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
     // scene rebuilds the same nodes with the same indices (what the link store refers to).

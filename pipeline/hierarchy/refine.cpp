@@ -36,12 +36,36 @@ bool Refiner::must_split_clusters(uint32_t a, uint32_t b) const {
     return node_gap(na, nb) < 0.5 * size;
 }
 
+bool Refiner::misdirected(const Link& l) const {
+    // A cluster receiver whose sharing (Hierarchy::reception) may misplace more than the
+    // direction tolerance of the link's light, and more than a small part of epsilon.
+    if (!h_.nodes[l.receiver].cluster) return false;
+    const double misplaced = h_.misplaced(l.receiver, l.source);
+    if (misplaced <= Hierarchy::kDirectionTolerance) return false;
+    return misplaced * power_bound(l) > kSlight * opt_.epsilon;
+}
+
+bool Refiner::slight(const Link& l) const { return power_bound(l) <= kSlight * opt_.epsilon; }
+
+double Refiner::power_bound(const Link& l) const {
+    // The most the link could carry, B_max(S) times a bound on G that needs no estimate: G is
+    // at most min(A_R, A_S) (F <= 1 and reciprocity), and A_R A_S / (pi d^2) for nodes d apart
+    // that are not a close pair (close pairs are judged by the first bound, as in decide).
+    const Node& nr = h_.nodes[l.receiver];
+    const Node& ns = h_.nodes[l.source];
+    double bound = std::min(nr.area, ns.area);
+    const double gap = node_gap(nr, ns);
+    if (gap > 0 && !close_pair(l.receiver, l.source)) bound = std::min(bound, nr.area * ns.area / (kPi * gap * gap));
+    return peak_[l.source] * bound;
+}
+
 bool Refiner::estimable(const Link& l) const {
-    if (l.receiver == l.source || must_split_clusters(l.receiver, l.source)) return false;
-    if (!h_.nodes[l.receiver].cluster) return true;
-    double direction_error = 0;
-    return opt_.cluster_receivers && h_.facing(l.receiver, l.source, &direction_error) == Hierarchy::Facing::Front &&
-           direction_error <= Hierarchy::kDirectionTolerance;
+    if (l.receiver == l.source) return false;
+    const bool cluster = h_.nodes[l.receiver].cluster;
+    if (!opt_.cluster_receivers) return !cluster && !must_split_clusters(l.receiver, l.source);
+    if (must_split_clusters(l.receiver, l.source) && !slight(l)) return false;
+    if (cluster && h_.facing(l.receiver, l.source) == Hierarchy::Facing::Back) return false;
+    return !misdirected(l);
 }
 
 bool Refiner::close_pair(uint32_t a, uint32_t b) const {
@@ -169,24 +193,28 @@ Refiner::Action Refiner::decide(const Link& link, const std::vector<double>& pea
         return Action::SplitSource;
     };
     // Sources may stay clusters: the estimate sees each source surface with its own normal.
-    // A cluster receives only where Hierarchy::facing says one vector shares the light among
-    // its faces (faces of one orientation, or all of them seeing the source from their front
-    // within the direction tolerance); otherwise it is split, and a source wholly behind its
-    // faces is dropped.
+    // Clusters too close to summarise by a few point pairs are split. A cluster receives
+    // where Hierarchy::facing says one vector shares the light among its faces (faces of one
+    // orientation, or all of them seeing the source from their front within the direction
+    // tolerance), and a source wholly behind its faces is dropped; other cluster receivers
+    // are split.
+    // Links that carry little (refine.h): with clusters that receive, both geometric rules
+    // give way where what they guard against is within a small part of epsilon: close
+    // clusters are kept while the most the link can carry is at most kSlight x epsilon (so
+    // is any error of its estimate), and any other cluster receiver while the light its
+    // sharing may misplace (Hierarchy::misplaced) is. Without this, round 1 (every source
+    // dark but the luminaires) split receivers down to single directions and close clusters
+    // down to faces whatever the links carried: some 500,000 links per source group of 1,024
+    // faces on a 1M-face kitchen. Later rounds judge the links by the solved radiosity.
     const Node& rn = h_.nodes[link.receiver];
     const Node& sn = h_.nodes[link.source];
     if (rn.cluster && !opt_.cluster_receivers) return Action::SplitReceiver;
-    if (must_split_clusters(link.receiver, link.source))
+    if (must_split_clusters(link.receiver, link.source) && !(opt_.cluster_receivers && slight(link)))
         return rn.cluster && !(sn.cluster && sn.diagonal() > rn.diagonal()) ? Action::SplitReceiver
                                                                               : Action::SplitSource;
-    if (rn.cluster) {
-        // Split where one direction would misplace the light among its faces (hierarchy.h).
-        double direction_error = 0;
-        const Hierarchy::Facing facing = h_.facing(link.receiver, link.source, &direction_error);
-        if (facing == Hierarchy::Facing::Back) return Action::Drop;
-        if (facing == Hierarchy::Facing::Mixed || direction_error > Hierarchy::kDirectionTolerance)
-            return Action::SplitReceiver;
-    }
+    if (rn.cluster && h_.facing(link.receiver, link.source) == Hierarchy::Facing::Back) return Action::Drop;
+    // One direction would misplace the light among its faces.
+    if (misdirected(link)) return Action::SplitReceiver;
     // No sample pair faced both ways. A few samples miss the part of a large pair that does
     // face: dropping such links for good biased the transport dark (the kept links' transport
     // comes from an independent estimate, which would not have been zero). So when the two
@@ -319,9 +347,12 @@ uint64_t Refiner::run_group(std::vector<Link> first, std::vector<uint8_t> first_
             if (evaluated[k] || !estimable(frontier[k])) return;
             frontier[k] = estimate(frontier[k].receiver, frontier[k].source);
         });
+        // (Without clusters that receive, the count also takes the element receivers of close
+        // clusters, which are not estimated: the reports' figures are kept as they were.)
         for (size_t k = 0; k < frontier.size(); ++k)
             if (!evaluated[k] && frontier[k].receiver != frontier[k].source &&
-                (!h_.nodes[frontier[k].receiver].cluster || estimable(frontier[k])))
+                (opt_.cluster_receivers ? estimable(frontier[k])
+                                        : !h_.nodes[frontier[k].receiver].cluster || estimable(frontier[k])))
                 ++stats.evaluated;
         // 2. Decide, in parallel; 4. grow the nodes that split and queue the children's links,
         // in frontier order so the result does not depend on threads.

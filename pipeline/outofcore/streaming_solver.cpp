@@ -204,7 +204,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     bool clusters_receive = false;
     {
         std::vector<double> in(n, 0.0);
-        std::vector<Vec3> in_clusters;
+        std::vector<Reception> in_clusters;
         TransportLinks t;
         for (size_t g = 0; g < ng; ++g)
             for (size_t p = 0; p < chunks.parts(g); ++p) {
@@ -222,7 +222,6 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
-    static_assert(sizeof(VectorIrradiance) == 3 * sizeof(RGB), "a cluster's vectors are three RGB rows");
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
@@ -240,10 +239,16 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         if (cp.fingerprint == fingerprint) {
             received = unflatten_rgb(cp.f64("received"), n, opt.checkpoint_path);
             if (clusters_receive) {
-                // Each cluster's vectors as three RGB-sized rows (9 doubles, as laid out).
+                // Each cluster's three vectors and its uniform part, four RGB rows.
                 const std::vector<RGB> v =
-                    unflatten_rgb(cp.f64("received_clusters"), 3 * received_clusters.size(), opt.checkpoint_path);
-                std::memcpy(received_clusters.data(), v.data(), v.size() * sizeof(RGB));
+                    unflatten_rgb(cp.f64("received_clusters"), 4 * received_clusters.size(), opt.checkpoint_path);
+                for (size_t k = 0; k < received_clusters.size(); ++k) {
+                    VectorIrradiance& c = received_clusters[k];
+                    c.c[0] = v[4 * k];
+                    c.c[1] = v[4 * k + 1];
+                    c.c[2] = v[4 * k + 2];
+                    c.uniform = v[4 * k + 3];
+                }
             }
             shot = unflatten_rgb(cp.f64("shot"), n, opt.checkpoint_path);
             const std::vector<uint64_t>& counters = cp.u64("counters");
@@ -261,8 +266,9 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         cp.fingerprint = fingerprint;
         cp.put("received", flatten_rgb(received));
         if (clusters_receive) {
-            std::vector<RGB> rows(3 * received_clusters.size());
-            std::memcpy(rows.data(), received_clusters.data(), rows.size() * sizeof(RGB));
+            std::vector<RGB> rows;
+            rows.reserve(4 * received_clusters.size());
+            for (const VectorIrradiance& c : received_clusters) rows.insert(rows.end(), {c.c[0], c.c[1], c.c[2], c.uniform});
             cp.put("received_clusters", flatten_rgb(rows));
         }
         cp.put("shot", flatten_rgb(shot));

@@ -992,12 +992,12 @@ class Engine:
 
     def solve_hierarchical(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., progress: object | None = None) -> HierarchicalResult:
         """
-        Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual). The patches stay as they were until use_leaves_as_patches().
+        Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual, groups_linked, groups) (groups 0 in memory). The patches stay as they were until use_leaves_as_patches().
         """
 
     def solve_out_of_core(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., out_of_core: OutOfCoreOptions = ..., progress: object | None = None, refine_groups: object | None = None) -> HierarchicalResult:
         """
-        Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell (HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches(). refine_groups(round, groups): distributed link generation; called (with the GIL) for every refinement, it has workers run refine_groups on ranges covering [0, groups) and returns when all are complete; the result is the same bits as without.
+        Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell (HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches(). progress(round, links, iteration, residual, groups_linked, groups): while a round is linked, the source groups done and in all and the links kept so far; groups 0 while solving. refine_groups(round, groups): distributed link generation; called (with the GIL) for every refinement, it has workers run refine_groups on ranges covering [0, groups) and returns when all are complete; the result is the same bits as without.
         """
 
     def refine_groups(self, hierarchy: HierarchyOptions, out_of_core: OutOfCoreOptions, round: int, begin: int, end: int) -> SpillLog:

@@ -848,9 +848,16 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
     the leaf elements become the model's patches."""
     hc = cfg.hierarchy
     with rep.stage("hierarchical solve", total=1.0) as update:
-        def on_progress(round_: int, links: int, iteration: int, residual: float) -> None:
-            _solve_progress(cfg, update)(iteration, residual)
-            update(None, f"round {round_}, {links} links, iteration {iteration}, residual {residual:.2e}")
+        solve_progress = _solve_progress(cfg, update)
+
+        def on_progress(round_: int, links: int, iteration: int, residual: float, linked: int = 0,
+                        groups: int = 0) -> None:
+            if groups and linked < groups:
+                update(None, f"round {round_}: linking, {linked}/{groups} source groups, {links:,} links so far")
+            elif groups:
+                update(None, f"round {round_}: {links:,} links made, solving")
+            else:
+                solve_progress(iteration, residual, f"round {round_}, {links:,} links, ")
 
         hierarchy = hierarchy_options(cfg)
         solve = _engine.SolveOptions(method=cfg.solver.method, tolerance=cfg.solver.tolerance,
@@ -887,12 +894,12 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
 def _solve_progress(cfg: Config, update):
     """Progress of an iterative solve as the fraction of the way, in log residual, to the
     tolerance."""
-    def on_progress(iteration: int, residual: float) -> None:
+    def on_progress(iteration: int, residual: float, prefix: str = "") -> None:
         if residual <= 0:
             done = 1.0
         else:
             done = 0.0 if residual >= 1 else min(1.0, np.log(residual) / np.log(cfg.solver.tolerance))
-        update(done, f"iteration {iteration}, residual {residual:.2e}")
+        update(done, f"{prefix}iteration {iteration}, residual {residual:.2e}")
     return on_progress
 
 

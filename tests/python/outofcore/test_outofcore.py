@@ -205,6 +205,37 @@ def test_cli_damaged_store_exits_non_zero_naming_the_chunk(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+def test_linking_prints_its_progress_by_source_group(tmp_path):
+    # A farm's log must show what an out-of-core bake is doing while it links (the country
+    # kitchen's first round linked for over an hour printing "iteration 0" only).
+    cfg = write_config(tmp_path / "c.yaml", CORNELL, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 3e-5, "min_area": 1e-3, "max_rounds": 2},
+                       solver={"method": "block_southwell"}, links={"group_faces": 1},
+                       outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False}})
+    env = {**os.environ, "HIRAD_PROGRESS_SECONDS": "0"}
+    proc = subprocess.run([sys.executable, "-m", "hirad.cli", "bake", str(cfg)], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    groups = {}
+    for line in proc.stderr.splitlines():
+        if ": linking, " in line:
+            round_ = int(line.split("round ")[1].split(":")[0])
+            done, total = line.split("linking, ")[1].split(" source groups")[0].split("/")
+            links = int(line.split("groups, ")[1].split(" links")[0].replace(",", ""))
+            groups.setdefault(round_, []).append((int(done), int(total), links))
+    # (Polled every 100 ms: a round that links faster may show no line.)
+    assert groups and set(groups) <= {1, 2}, proc.stderr
+    report = __import__("json").loads((tmp_path / "out" / "report.json").read_text())
+    for round_, seen in groups.items():
+        totals = {t for _, t, _ in seen}
+        assert len(totals) == 1 and totals.pop() > 1
+        assert [d for d, _, _ in seen] == sorted(d for d, _, _ in seen)  # groups counted up
+        assert [n for _, _, n in seen] == sorted(n for _, _, n in seen)  # links never counted down
+    if 2 in groups:
+        assert max(n for _, _, n in groups[2]) <= report["counts"]["links"]  # the last round is the one kept
+    assert any("round 2, " in ln and " links, iteration " in ln for ln in proc.stderr.splitlines())
+
+
 # ---------------------------------------------------------------------------------------------
 # kill -9 and resume
 # ---------------------------------------------------------------------------------------------
