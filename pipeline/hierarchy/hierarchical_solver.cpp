@@ -95,8 +95,18 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
     if (!fc.empty() && fc.size() != h.cluster_shapes.size())
         throw std::invalid_argument("gather_scale: one vector per cluster");
     std::vector<double> scale;
+    // A glazed side passes t of its mean irradiance to the other side (LeafTerms), on top of
+    // what it reflects: its leaves count rho_max + t (per node, the element trees' t).
+    std::vector<float> through;
+    if (!h.glass.empty()) {
+        through.assign(n, 0.0f);
+        for (const Hierarchy::GlassPair& g : h.glass)
+            through[g.front] = through[g.back] = static_cast<float>(g.transmittance);
+    }
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
+        if (!through.empty() && node.parent != kNoNode && !node.cluster && !h.nodes[node.parent].cluster)
+            through[i] = through[node.parent];
         if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
             const Reception& above = fc[h.cluster_slot[node.parent]];
             if (node.cluster) fc[h.cluster_slot[i]] += above;
@@ -105,7 +115,7 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
         if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
         if (!node.leaf() || node.cluster) continue;
         const RGB& rho = node.shape.reflectance;
-        const double gain = std::max({rho.x, rho.y, rho.z}) * f[i];
+        const double gain = (std::max({rho.x, rho.y, rho.z}) + (through.empty() ? 0.0 : through[i])) * f[i];
         if (!(gain > kGainLimit)) continue;
         if (scale.empty()) scale.assign(n, 1.0);
         scale[i] = kGainLimit / gain;

@@ -37,6 +37,11 @@ struct HierarchicalSolution {
 // then a contraction in the max norm (each leaf's row of rho K sums to at most kGainLimit < 1;
 // pulling up averages) and converges. Leaves with rho_max F <= kGainLimit, which is every leaf of
 // a material below 0.8 unless its estimates exceed the hemisphere by 25 %, are untouched.
+// A glazed side's leaves count rho_max + t (t its transmittance): what they gather is also
+// passed, times t, to the other side (Hierarchy::glass), so with rho + t <= 1 (the scene keeps
+// glass from creating light) every row of the operator, pass-through included, stays within
+// the limit. (Without it, panes of t = 1 whose other side's estimates summed above 1 made the
+// country kitchen's second round diverge after 317 shooting rounds.)
 constexpr double kGainLimit = 0.999;
 
 // Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf

@@ -167,6 +167,16 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     size_t arrived = 0;
     for (size_t k = 0; k < from.size(); ++k)
         if (visible[k]) { g_sum += weight[k]; ++arrived; }
+    if (!polygon_source && !polygon_receiver) {
+        // The point-to-point kernel is unbounded where the two clusters touch (1 / r^2 at
+        // points r apart), so a few pairs drawn near a shared edge can make the sum as large as
+        // a float holds. G is at most min(A_R, A_S) (F <= 1 and reciprocity): a larger estimate
+        // is that noise, and is cut to the bound (clusters that close are linked only while the
+        // link carries little: kSlight).
+        const double most = std::min(nr.area, ns.area);
+        unoccluded = std::min(unoccluded, most);
+        g_sum = std::min(g_sum, most);
+    }
     link.coupling = static_cast<float>(g_sum);
     link.unoccluded = static_cast<float>(unoccluded);
     link.visibility = from.empty() ? 0.0f : static_cast<float>(double(arrived) / from.size());

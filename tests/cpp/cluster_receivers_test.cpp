@@ -1,7 +1,8 @@
 // Clusters that receive (Hierarchy::facing, Hierarchy::reception, RefineOptions::
 // cluster_receivers): the furnace of many small faces, faces of mixed orientations under one
-// source against Lambert's closed form, and the solution approaching the one with element
-// receivers only as epsilon falls.
+// source against Lambert's closed form, the solution approaching the one with element
+// receivers only as epsilon falls, every sharing giving the faces exactly the link's power,
+// links that carry little staying coarse, and the gain limit counting glazing.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -96,19 +97,15 @@ TEST(ClusterReceivers, FurnaceOfManySmallFacesGivesEOverOneMinusRho) {
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(streamed.radiosity[i][c], E / (1 - rho), 0.01 * E / (1 - rho)) << i;
 }
 
-TEST(ClusterReceivers, FacesOfMixedOrientationsTakeTheirOwnIrradiance) {
-    // 25 small squares (1.5 cm) tilted 0 to 56 degrees every way, 6 cm apart, 30 m under a
-    // 3 m square lamp (exitance M): each must receive M F(its centre -> lamp), Lambert's
-    // closed form for its own orientation, within 2 %, through links that end on clusters.
-    const double M = 100.0;
+// 25 small squares (1.5 cm) tilted 0 to 56 degrees every way, 6 cm apart, 30 m under a 3 m
+// square lamp (`lamp`, exitance M), with their centres and normals.
+Scene tilted_squares(double M, const std::vector<Vec3>& lamp, std::vector<Vec3>& centre, std::vector<Vec3>& normal) {
     Scene scene;
-    const std::vector<Vec3> lamp = {{-1.5, -1.5, 30}, {-1.5, 1.5, 30}, {1.5, 1.5, 30}, {1.5, -1.5, 30}};
     Face emitter;
     emitter.nv = 4;
     for (int k = 0; k < 4; ++k) emitter.p[k] = lamp[size_t(k)];
     emitter.emission = test::grey(M);
     scene.faces.push_back(emitter);
-    std::vector<Vec3> centre, normal;
     for (int i = 0; i < 5; ++i)
         for (int j = 0; j < 5; ++j) {
             const double tilt = (i * 5 + j) * 0.04, azimuth = (i * 5 + j) * 2.4;
@@ -125,6 +122,18 @@ TEST(ClusterReceivers, FacesOfMixedOrientationsTakeTheirOwnIrradiance) {
             centre.push_back(c);
             normal.push_back(n);
         }
+    return scene;
+}
+
+const std::vector<Vec3> kLamp = {{-1.5, -1.5, 30}, {-1.5, 1.5, 30}, {1.5, 1.5, 30}, {1.5, -1.5, 30}};
+
+TEST(ClusterReceivers, FacesOfMixedOrientationsTakeTheirOwnIrradiance) {
+    // The tilted squares: each must receive M F(its centre -> lamp), Lambert's closed form for
+    // its own orientation, within 2 %, through links that end on clusters.
+    const double M = 100.0;
+    const std::vector<Vec3>& lamp = kLamp;
+    std::vector<Vec3> centre, normal;
+    const Scene scene = tilted_squares(M, lamp, centre, normal);
     Hierarchy h(scene);
     Visibility vis(h.faces);
     Refiner refiner(h, vis, receiving(1e-3 * M * 9, 1024));
@@ -190,6 +199,121 @@ TEST(ClusterReceivers, ApproachTheElementReceiversSolutionAsEpsilonFalls) {
         previous = error;
         if (epsilon == 1e-5) EXPECT_LT(error, 0.01) << n << " links against " << flat_links;
     }
+}
+
+TEST(ClusterReceivers, EverySharingGivesTheFacesExactlyTheLinksPower) {
+    // Sum over the faces f below R of A_f reception(R, S).along(n_f) = 1 for every way of
+    // sharing (faces of one orientation, by the direction, evenly): the faces take exactly the
+    // link's G B_S, which sent() and the energy balance count.
+    size_t checked[3] = {0, 0, 0};
+    std::vector<Vec3> centre, normal;
+    for (const Scene& scene : {furnace(0.5, 1.0), tilted_squares(1.0, kLamp, centre, normal)}) {
+    const Hierarchy h(scene);
+    for (uint32_t r = 0; r < h.nodes.size(); ++r) {
+        if (!h.nodes[r].cluster) continue;
+        std::vector<uint32_t> sources = {h.face_node[0]};
+        for (uint32_t s = 0; s < h.nodes.size(); s += 7) sources.push_back(s);
+        for (uint32_t s : sources) {
+            if (s == r || h.facing(r, s) == Hierarchy::Facing::Back) continue;
+            const Reception rec = h.reception(r, s);
+            double power = 0;
+            for (uint32_t j = h.nodes[r].face_begin; j < h.nodes[r].face_end; ++j) {
+                const Patch& f = h.faces[h.face_order[j]];
+                power += f.area * rec.along(f.normal);
+            }
+            EXPECT_NEAR(power, 1.0, 1e-9) << "cluster " << r << ", source " << s;
+            ++checked[rec.uniform > 0 ? 2 : (h.cluster_shapes[h.slot_of(r)].cos_spread > Hierarchy::kPlanarCosine ? 0 : 1)];
+        }
+    }
+    }
+    EXPECT_GT(checked[0], 0u) << "no cluster of one orientation";
+    EXPECT_GT(checked[1], 0u) << "no sharing by the direction";
+    EXPECT_GT(checked[2], 0u) << "no even sharing";
+}
+
+// A 6 m room (4 x 4 tiles a side, inwards) lit by one ceiling tile, holding 4 x 4 dark boxes
+// of 0.4 m, each side cut t x t (outwards).
+Scene cluttered_room(int t) {
+    Scene scene = test::tiled_cube(4, test::grey(0.5));
+    for (Face& f : scene.faces)
+        for (Vec3& p : f.p) p = p * 6.0;
+    for (Face& f : scene.faces)
+        if (f.normal().z < -0.5 && std::abs(f.p[0].x + f.p[2].x - 6) < 1.6 && std::abs(f.p[0].y + f.p[2].y - 6) < 1.6) {
+            f.emission = test::grey(10.0);
+            break;
+        }
+    const Scene box = test::tiled_cube(t, test::grey(0.5));
+    for (int i = 0; i < 4; ++i)
+        for (int j = 0; j < 4; ++j)
+            for (Face f : box.faces) {
+                std::swap(f.p[1], f.p[3]);
+                for (Vec3& p : f.p) p = p * 0.4 + Vec3{0.9 + 1.3 * i, 0.9 + 1.3 * j, 0.5};
+                scene.faces.push_back(f);
+            }
+    return scene;
+}
+
+TEST(ClusterReceivers, LinksThatCarryLittleStayCoarse) {
+    // Round 1 judges every source by its emission: all but the lamp's links carry nothing
+    // yet. With the geometric rules giving way for them (kSlight), round 1's links follow
+    // the lamp, not the boxes' faces: 16 times the faces (t = 2 -> 8) may not double them.
+    auto round_one = [](int t, size_t& faces) {
+        const Scene scene = cluttered_room(t);
+        faces = scene.faces.size();
+        Hierarchy h(scene);
+        Visibility vis(h.faces);
+        double emitted = 0;
+        for (const Face& f : scene.faces) emitted += f.emission.x * f.area();
+        RefineOptions o = receiving(1e-4 * emitted, 16);
+        o.min_area = 0.05;
+        Refiner refiner(h, vis, o);
+        RefineStats stats;
+        return refiner.initial_links(node_emission(h), stats).size();
+    };
+    size_t faces2 = 0, faces8 = 0;
+    const size_t coarse = round_one(2, faces2), fine = round_one(8, faces8);
+    EXPECT_EQ(faces8 - 96, 16 * (faces2 - 96));
+    EXPECT_LT(fine, 2 * coarse) << coarse << " links for " << faces2 << " faces, " << fine << " for " << faces8;
+}
+
+TEST(ClusterReceivers, TheGainLimitCountsWhatGlazingPasses) {
+    // A wall (rho 0.999, E 1) and a pane (t 1, rho 0) whose estimates are 20 % over the
+    // hemisphere both ways: the wall gathers from the pane's front (F 1.2) and the pane's back
+    // from the wall (F 1.2), which passes it on to its front. Reflection alone is limited
+    // (rho F <= kGainLimit); the pass-through must be too, or the loop gains 0.999 x 1.2 and
+    // the solve diverges. Limited, the wall's gather is scaled by 1 / 1.2 and the back's by
+    // kGainLimit / 1.2, so B_wall = E + rho kGainLimit B_wall: E / (1 - 0.999 kGainLimit).
+    Scene scene;
+    Face wall;
+    wall.nv = 4;
+    wall.p = {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{1, 1, 0}, Vec3{0, 1, 0}};
+    wall.reflectance = test::grey(0.999);
+    wall.emission = test::grey(1.0);
+    Face pane = wall;
+    pane.p = {Vec3{0, 0, 1}, Vec3{0, 1, 1}, Vec3{1, 1, 1}, Vec3{1, 0, 1}};
+    pane.reflectance = test::grey(0.0);
+    pane.emission = test::grey(0.0);
+    pane.diffuse_transmittance = 1.0;
+    scene.faces = {wall, pane};
+    const Hierarchy h(scene);
+    ASSERT_EQ(h.glass.size(), 1u);
+    const uint32_t w = h.face_node[0], front = h.glass[0].front, back = h.glass[0].back;
+    std::vector<Link> links(2);
+    links[0].receiver = w;
+    links[0].source = front;
+    links[0].coupling = links[0].unoccluded = static_cast<float>(1.2 * h.nodes[w].area);
+    links[1].receiver = back;
+    links[1].source = w;
+    links[1].coupling = links[1].unoccluded = static_cast<float>(1.2 * h.nodes[back].area);
+    for (Link& l : links) l.visibility = 1;
+    sort_links(links);
+    SolverOptions o = tight();
+    o.max_iterations = 1000000;
+    const HierarchicalSolution sol = solve_push_pull(h, links, {}, o);
+    ASSERT_TRUE(sol.converged) << "residual " << sol.residual;
+    const double expected = 1.0 / (1 - 0.999 * kGainLimit);
+    EXPECT_NEAR(sol.radiosity[w].x, expected, 1e-5 * expected);
+    EXPECT_NEAR(sol.radiosity[front].x, kGainLimit * sol.radiosity[w].x, 1e-5 * expected);
 }
 
 }  // namespace
