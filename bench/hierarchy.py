@@ -9,6 +9,7 @@ Figures are printed, not asserted. Subcommands (each also runs alone):
     python bench/hierarchy.py spread   [--spreads 0,1e-3] # 5. hierarchy.spread_epsilon's cost, Cornell box
     python bench/hierarchy.py receivers [--tess 2,4,8,16]  # 6. clusters that receive: links as the boxes get finer
     python bench/hierarchy.py receivers-accuracy [--tess 8] # 7. the same, error against the reference at one t
+    python bench/hierarchy.py kitchen  [--points 200]     # 8. the country kitchen end to end, out of core
     python bench/hierarchy.py all
 
 The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
@@ -37,6 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CORNELL = ROOT / "configs/cornell_hierarchical.yaml"
 CORNELL_SCENE = ROOT / "configs/scenes/cornell_box.usda"
 HALL = ROOT.parent / "shared/data/modern_hall/usd/modern_hall.usda"
+KITCHEN = ROOT.parent / "shared/data/country_kitchen/usd/country_kitchen.usdc"
 CACHE = Path(tempfile.gettempdir()) / "hirad_bench"
 LUM = np.array([0.2126, 0.7152, 0.0722])
 # Part of the reference cache's key: bumped when the engine's reference changes (2: points on
@@ -657,10 +659,112 @@ def cmd_spread(a) -> None:
               f"{gather:>10.2f}")
 
 
+# --------------------------------------------------------------------------------------------
+# 8. The country kitchen (1,050,941 triangles) end to end: an out-of-core bake with every
+# output in a child process (its peak RSS is the bake's alone), then the error of its final
+# gather and of its written display values at reference points.
+
+KITCHEN_CHILD = r"""
+import json, resource, sys, time
+import numpy as np
+import hirad
+from hirad.config import config_from_dict
+cfg_dict, base, pts_path, out_path = json.loads(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
+pts = np.load(pts_path)
+cfg = config_from_dict(cfg_dict, base)
+t0 = time.perf_counter()
+result = hirad.bake(cfg)
+wall = time.perf_counter() - t0
+rss_bake = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+t0 = time.perf_counter()
+gathered = result.gather(pts["points"], pts["normals"])["radiance"]
+t_gather = time.perf_counter() - t0
+shown = result.radiance_at(pts["points"], pts["normals"])
+np.savez(out_path, gathered=gathered, shown=shown)
+json.dump({"wall": wall, "gather_s": t_gather, "rss_bake_mib": rss_bake,
+           "rss_all_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "report": result.report},
+          open(out_path + ".json", "w"))
+"""
+
+
+def cmd_kitchen(args) -> None:
+    if not args.kitchen.exists():
+        print(f"# 8. {args.kitchen} is absent: country kitchen skipped")
+        return
+    budget = args.budget
+    print(f"# 8. country kitchen end to end: hierarchical, block_southwell, memory_budget {budget}, epsilon "
+          f"{args.epsilon:g}, min_area {args.min_area:g}, samples {args.samples}, max_rounds {args.max_rounds}, "
+          f"cluster_receivers {not args.element_receivers}; USD, lightmaps, preview and report written")
+    scene, model = unsplit_model(args.kitchen)
+    from hirad.engine import patch_dict
+    patches = patch_dict(model.patch_arrays())
+    cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4243)
+    with tempfile.TemporaryDirectory(dir=args.work) as tmp:
+        np.savez(Path(tmp) / "points.npz", points=cand, normals=cnrm)
+        cfg = {"scene": str(args.kitchen), "output": str(Path(tmp) / "out"), "method": "hierarchical",
+               "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": args.samples,
+                             "max_rounds": args.max_rounds, "cluster_receivers": not args.element_receivers},
+               "solver": {"method": "block_southwell", "tolerance": 1e-4},
+               "links": {"memory_budget": budget},
+               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": True},
+                           "preview": {"enabled": True}}}
+        ld = load()
+        out = str(Path(tmp) / "child")
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-c", KITCHEN_CHILD, json.dumps(cfg), str(ROOT), str(Path(tmp) / "points.npz"),
+                               out], capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0:
+            raise SystemExit(f"kitchen bake failed:\n{proc.stderr[-4000:]}")
+        got = json.loads(Path(out + ".json").read_text())
+        vals = np.load(out + ".npz")
+        store = Path(tmp) / "out.links"
+        disk = sum(f.stat().st_size for f in store.rglob("*") if f.is_file()) if store.exists() else 0
+    r = got["report"]
+    h, c, t = r["hierarchy"], r["counts"], r["timings_s"]
+    print(f"bake ({ld} at start): {got['wall']:.1f} s in the child ({wall:.1f} s with Python start-up and the gather "
+          f"at the points, {got['gather_s']:.1f} s); peak RSS {got['rss_bake_mib']:,.0f} MiB after the bake, "
+          f"{got['rss_all_mib']:,.0f} MiB after the gather at the points")
+    print(f"stages (s): {json.dumps(t)}")
+    print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
+          f"{c['links']:,} links, {h['rounds']} rounds (settled {h['settled']}), link estimates "
+          f"{h['link_estimates']:,}, limited leaves {h['limited_leaves']:,}; energy balance "
+          f"{r['energy_balance']['max_relative_error']:.2e}")
+    print(f"  {'round':>5}{'links':>13}{'refine s':>10}{'solve s':>9}")
+    for i, lk in enumerate(h["links_per_round"]):
+        print(f"  {i + 1:>5}{lk:>13,}{h['refine_seconds'][i]:>10.1f}{h['solve_seconds'][i]:>9.1f}")
+    lk = r.get("links") or {}
+    print(f"link store: {lk.get('store_bytes', 0) / 2**20:,.0f} MiB of links ({lk.get('bytes_per_link', 0):.2f} "
+          f"B/link), {disk / 2**20:,.0f} MiB on disk with the run's other files at the end")
+    ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 79, "kitchen")
+    del model
+    lum = ref["radiance"] @ LUM
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rse = (ref["standard_error"] @ LUM) / lum
+    lit_all = np.nonzero(lum > 0.01 * np.median(lum))[0]
+    lit = lit_all[rse[lit_all] <= args.hall_max_se][: args.points]
+    keep = np.zeros(len(cand), bool)
+    keep[lit] = True
+    print(f"points: {len(lit_all)} of {len(cand)} candidates lit above 1 % of the median; the first {len(lit)} with "
+          f"a reference standard error within {args.hall_max_se:.0%} kept")
+    print(describe_reference(ref, keep))
+    rel_se = rse[keep]
+    for name, key in (("final gather", "gathered"), ("written display values (radiance_at)", "shown")):
+        e = rel_errors(vals[key][keep], ref["radiance"][keep])
+        rms = float(np.sqrt(np.mean(e ** 2)))
+        print(f"{name}: RMS {rms:.2%} (reference noise removed in quadrature: "
+              f"{np.sqrt(max(0.0, rms ** 2 - np.mean(rel_se ** 2))):.2%}); mean {np.mean(e):+.2%}; median |err| "
+              f"{np.median(np.abs(e)):.2%}; 90th pct {np.quantile(np.abs(e), 0.9):.2%}; max {np.abs(e).max():.2%}")
+    e = rel_errors(vals["gathered"][keep], ref["radiance"][keep])
+    print(f"targets: <= 15 min ({got['wall'] / 60:.1f}), peak RSS <= 2.5 GB ({got['rss_bake_mib'] / 1024:.2f} GiB), "
+          f"RMS <= 5 % ({np.sqrt(np.mean(e ** 2)):.2%})")
+
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "receivers",
-                                     "receivers-accuracy", "all"])
+                                     "receivers-accuracy", "kitchen", "all"])
     ap.add_argument("--hall", type=Path, default=HALL)
     ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
     ap.add_argument("--min-area", type=float, default=None,
@@ -677,6 +781,10 @@ def main() -> None:
     ap.add_argument("--max-rounds", type=int, default=4, help="receivers: hierarchy.max_rounds")
     ap.add_argument("--json", default=None, help="receivers: write the rows here")
     ap.add_argument("--plot", default=None, help="receivers: write a log-log PNG of links against faces here")
+    ap.add_argument("--kitchen", type=Path, default=KITCHEN)
+    ap.add_argument("--budget", default="2GB", help="kitchen: links.memory_budget")
+    ap.add_argument("--element-receivers", action="store_true", help="kitchen: hierarchy.cluster_receivers: false")
+    ap.add_argument("--work", default=None, help="kitchen: where the bake's temporary folder goes (default $TMPDIR)")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
     for part in parts:
@@ -685,7 +793,8 @@ def main() -> None:
         a.points = args.points if args.points is not None else {"accuracy": 400, "spread": 20000}.get(part, 200)
         print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
         {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall,
-         "spread": cmd_spread, "receivers": cmd_receivers, "receivers-accuracy": cmd_receivers_accuracy}[part](a)
+         "spread": cmd_spread, "receivers": cmd_receivers, "receivers-accuracy": cmd_receivers_accuracy,
+         "kitchen": cmd_kitchen}[part](a)
         print()
 
 

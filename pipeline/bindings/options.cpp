@@ -77,9 +77,11 @@ void bind_options(nb::module_& m) {
                 "spread x epsilon's power are split at the source (0: off).")
         .def_rw("cluster_receivers", &HierarchyOptions::cluster_receivers,
                 "Clusters receive as well as send: faces of one orientation share a link's light as an "
-                "element's children do; clusters of several orientations only where every face sees the source "
-                "from its front, by orientation (Hierarchy::reception). Links grow with the lighting, not with "
-                "the faces; the face-by-face solvers (gauss_seidel, southwell) refuse such links.");
+                "element's children do; clusters of several orientations where every face sees the source "
+                "from its front, by orientation (Hierarchy::reception); any cluster while the link carries "
+                "little (its power bound, times the share its sharing may misplace, within kSlight of epsilon), "
+                "then evenly if its faces face several ways. Links grow with the lighting, not with the faces; "
+                "the face-by-face solvers (gauss_seidel, southwell) refuse such links.");
 
     const OutOfCoreOptions oc;
     nb::class_<OutOfCoreOptions>(m, "OutOfCoreOptions",

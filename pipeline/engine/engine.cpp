@@ -9,6 +9,7 @@
 #include <atomic>
 #include <chrono>
 #include <stdexcept>
+#include <utility>
 
 #include "pipeline/geometry/formfactors.h"
 #include "pipeline/geometry/hemicube.h"
@@ -253,7 +254,7 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
     h.measure_open(vis);
     for (uint32_t i = 0; i < h.nodes.size(); ++i)
         if (!h.nodes[i].cluster) {
-            shapes.push_back(&h.nodes[i].shape);
+            shapes.push_back(&h.shape(i));
             ids.push_back(i);
         }
     std::vector<RGB> emission(shapes.size()), direct(shapes.size());
@@ -314,7 +315,7 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
     for (uint32_t i = 0; i < h.nodes.size(); ++i)
         if (!h.nodes[i].cluster && !h.nodes[i].lit) {
             ids.push_back(i);
-            shapes.push_back(&h.nodes[i].shape);
+            shapes.push_back(&h.shape(i));
         }
     light_patches(shapes, vis, spread);
     // The direct light of the element's open part (Hierarchy::open), like its links' light.
@@ -323,7 +324,7 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
         h.nodes[i].lit = true;
         const double open = h.open_share(i);
         if (open > 0 && open < 1) {  // the emission the solve starts from holds rho x direct too
-            Patch& p = h.nodes[i].shape;
+            Patch& p = h.shape(i);
             const RGB own = self_emission(p);
             p.direct = p.direct / open;
             p.emission = own + mul(p.reflectance, p.direct);
@@ -769,7 +770,7 @@ void Engine::glazing_balance(const Hierarchy& h, const HierarchicalSolution& sol
                              HierarchicalResult& r) const {
     for (uint32_t i : backs) {
         const Node& node = h.nodes[i];
-        const Patch& p = node.shape;
+        const Patch& p = h.shape(i);
         const double t = scene_.faces[p.face].diffuse_transmittance;
         const double open_area = node.area * h.open_share(i);  // B, H, D are the open part's
         r.glass_back_entered += mul(p.reflectance, p.direct) * open_area;
@@ -818,10 +819,10 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     // The backs of glazed faces are solved with the rest but not published: their light shows
     // on the fronts (what they pass through) and in the energy balance's glazing terms.
     std::vector<uint32_t> leaves, backs;
-    for (uint32_t i : h.leaves()) (h.nodes[i].shape.back ? backs : leaves).push_back(i);
+    for (uint32_t i : h.leaves()) (h.shape(i).back ? backs : leaves).push_back(i);
     if (!groups.empty()) {
         std::vector<Patch*> shapes;
-        for (uint32_t i : leaves) shapes.push_back(&h.nodes[i].shape);
+        for (uint32_t i : leaves) shapes.push_back(&h.shape(i));
         const size_t batch = group_batch(shapes.size());
         std::vector<RGB> lit;
         for (size_t k = 0; k < groups.size(); ++k) {
@@ -852,7 +853,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.open.resize(leaves.size());
     for (size_t k = 0; k < leaves.size(); ++k) {
         const Node& node = h.nodes[leaves[k]];
-        state->leaf_patches.push_back(node.shape);
+        state->leaf_patches.push_back(h.shape(leaves[k]));
         r.radiosity[k] = sol.radiosity[leaves[k]];
         r.irradiance[k] = sol.irradiance[leaves[k]];
         // Signed, as for the flat method: the per-leaf shares only add up unclamped.
@@ -1017,7 +1018,7 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data(), options.directional ? mo.data() : nullptr);
     if (!lums.empty()) {
         std::vector<Vec3> ln(leaf.size());
-        for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.nodes[leaf[k]].shape.normal;
+        for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.shape(leaf[k]).normal;
         std::vector<RGB> d(x.size());
         const double lift = 1e-5 * solved_->visibility->scene_size();
         luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(), lift);
@@ -1034,7 +1035,7 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
         }
     }
     for (size_t k = 0; k < leaf.size(); ++k) {
-        const Patch& s = solved_->hierarchy.nodes[leaf[k]].shape;
+        const Patch& s = std::as_const(solved_->hierarchy).shape(leaf[k]);
         out.irradiance[slot[k]] = e[k];
         out.radiance[slot[k]] = group < 0 ? exitant(s, e[k])
                                           : (group_emission(groups_[group], s.face) + mul(s.reflectance, e[k])) / kPi;

@@ -84,15 +84,15 @@ Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, c
     steps_.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h_.nodes[i];
-        steps_[i] = DescentStep{node.first_child, node.child_count, static_cast<uint8_t>(node.shape.nv)};
+        steps_[i] = DescentStep{node.first_child, node.child_count, static_cast<uint8_t>(h_.shape(uint32_t(i)).nv)};
     }
 }
 
-double Gatherer::mean_coupling(const Link& l, const Node& leaf) const {
+double Gatherer::mean_coupling(const Link& l, uint32_t leaf) const {
     // G / A_R over an element receiver; over a receiving cluster, what the leaf's face takes
     // of it by its orientation (Hierarchy::reception).
     if (h_.slot_of(l.receiver) == kNoNode) return double(l.coupling) / h_.nodes[l.receiver].area;
-    return double(l.coupling) * std::max(0.0, h_.reception(l.receiver, l.source).along(leaf.shape.normal));
+    return double(l.coupling) * std::max(0.0, h_.reception(l.receiver, l.source).along(h_.shape(leaf).normal));
 }
 
 Gatherer::Split Gatherer::split(uint32_t leaf) const {
@@ -108,7 +108,7 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const Link& l = links_[k];
             const Node& s = h_.nodes[l.source];
-            const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, me);
+            const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, leaf);
             total += share;
             double gap2 = 0;
             for (int a = 0; a < 3; ++a) {
@@ -116,7 +116,7 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
                 gap2 += d * d;
             }
             const bool close = std::sqrt(gap2) < std::max(me.diagonal(), s.diagonal());
-            const bool emitter = !s.cluster && luminance(s.shape.emission) > 0;
+            const bool emitter = !s.cluster && luminance(h_.shape(l.source).emission) > 0;
             if (close || emitter) out.links.push_back(k);
             else weak.push_back({share, k});
         }
@@ -128,7 +128,7 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     for (; taken < weak.size() && rest + weak[taken].share <= opt_.importance * total; ++taken) {
         rest += weak[taken].share;
         const Link& l = links_[weak[taken].link];
-        out.rest += radiosity_[l.source] * mean_coupling(l, me);
+        out.rest += radiosity_[l.source] * mean_coupling(l, leaf);
     }
     for (size_t k = taken; k < weak.size(); ++k) out.links.push_back(weak[k].link);
     std::sort(out.links.begin(), out.links.end());  // chain order: the samples drawn do not depend on the ranking
@@ -160,7 +160,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
             return sum;
         }
     }
-    const Patch& s = node.shape;
+    const Patch& s = h_.shape(link.source);
     const double f = point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
     if (f <= 0) return {};
     // A link all of whose estimate rays arrived is taken as unoccluded: refinement already
@@ -265,7 +265,7 @@ RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, R
 }
 
 RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments* mo, const Split* sp) const {
-    const Patch& shape = h_.nodes[leaf].shape;
+    const Patch& shape = h_.shape(leaf);
     const Vec3 n = shape.normal;
     // On the leaf's plane, whatever small offset the query point had.
     const Vec3 x = x_in - n * dot(x_in - shape.p[0], n);
@@ -313,7 +313,7 @@ void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* k
 void Gatherer::radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {
     irradiance(leaf, x, key, count, out);
     for (size_t k = 0; k < count; ++k) {
-        const Patch& s = h_.nodes[leaf[k]].shape;
+        const Patch& s = h_.shape(leaf[k]);
         out[k] = (s.emission + mul(s.reflectance, out[k])) / kPi;
     }
 }

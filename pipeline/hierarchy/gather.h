@@ -107,7 +107,7 @@ private:
         RGB rest;
     };
     Split split(uint32_t leaf) const;
-    double mean_coupling(const Link& l, const Node& leaf) const;  // the link's mean irradiance at leaf per unit B_S
+    double mean_coupling(const Link& l, uint32_t leaf) const;  // the link's mean irradiance at leaf per unit B_S
     uint32_t leaf_at(uint32_t node, double s, double t) const {
         return descend_to_leaf([this](uint32_t k) { return steps_[k]; }, node, s, t);
     }

@@ -20,7 +20,7 @@ void sort_links(std::vector<Link>& links) {
 double leaf_emission_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves) {
     return emission_norm(
         leaves.size(), [&](size_t k) { return h.nodes[leaves[k]].area; },
-        [&](size_t k) { return h.nodes[leaves[k]].shape.emission; });
+        [&](size_t k) { return h.shape(leaves[k]).emission; });
 }
 
 std::vector<RGB> node_emission(const Hierarchy& h) {
@@ -29,7 +29,7 @@ std::vector<RGB> node_emission(const Hierarchy& h) {
     for (size_t i = h.nodes.size(); i-- > 0;) {
         const Node& n = h.nodes[i];
         if (n.leaf()) {
-            e[i] = n.cluster ? RGB{} : n.shape.emission;
+            e[i] = n.cluster ? RGB{} : h.shape(uint32_t(i)).emission;
             continue;
         }
         RGB acc;
@@ -110,11 +110,11 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
         if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
             const Reception& above = fc[h.cluster_slot[node.parent]];
             if (node.cluster) fc[h.cluster_slot[i]] += above;
-            else f[i] += std::max(0.0, above.along(node.shape.normal));
+            else f[i] += std::max(0.0, above.along(h.shape(uint32_t(i)).normal));
         }
         if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
         if (!node.leaf() || node.cluster) continue;
-        const RGB& rho = node.shape.reflectance;
+        const RGB& rho = h.shape(uint32_t(i)).reflectance;
         const double gain = (std::max({rho.x, rho.y, rho.z}) + (through.empty() ? 0.0 : through[i])) * f[i];
         if (!(gain > kGainLimit)) continue;
         if (scale.empty()) scale.assign(n, 1.0);
@@ -189,7 +189,7 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
             if (node.parent == kNoNode || !h.nodes[node.parent].cluster) continue;
             const VectorIrradiance& above = pushed[h.cluster_slot[node.parent]];
             if (node.cluster) pushed[h.cluster_slot[i]].add(above);
-            else irradiance[i] += above.along(node.shape.normal);
+            else irradiance[i] += above.along(h.shape(uint32_t(i)).normal);
         }
     }
     if (!terms.scale.empty())
@@ -202,7 +202,8 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
         const Node& node = h.nodes[i];
         if (node.leaf()) {
             if (node.cluster) { radiosity[i] = RGB{}; continue; }
-            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]);
+            const Patch& shape = h.shape(uint32_t(i));
+            radiosity[i] = shape.emission + mul(shape.reflectance, irradiance[i]);
             if (!terms.side_of.empty() && terms.side_of[i] >= 0) radiosity[i] += through[size_t(terms.side_of[i])];
             continue;
         }
@@ -362,7 +363,7 @@ void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const
         const uint32_t i = tree[k];
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            radiosity[i] = node.shape.emission + mul(node.shape.reflectance, irradiance[i]) + through;
+            radiosity[i] = h.shape(uint32_t(i)).emission + mul(h.shape(uint32_t(i)).reflectance, irradiance[i]) + through;
             continue;
         }
         RGB acc;
@@ -542,7 +543,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
                 if (node.leaf()) {
                     const RGB got = terms.scale.empty() ? pushed[i] : pushed[i] * terms.scale[i];
                     r2 -= node.area * dot(r[i], r[i]);
-                    r[i] += mul(node.shape.reflectance, got);
+                    r[i] += mul(h.shape(uint32_t(i)).reflectance, got);
                     r2 += node.area * dot(r[i], r[i]);
                     if (side >= 0) through += got * (node.area / h.nodes[trees.roots[g]].area);
                 }

@@ -20,13 +20,13 @@ namespace {
 // tree is built from median splits of the faces' centroids.
 void finish_shape(Patch& p) { finish_patch(p, PatchCentroid::CornerMean); }
 
-void bound_shape(Node& node) {
+void bound_shape(Node& node, const Patch& shape) {
     node.lo = {1e300, 1e300, 1e300};
     node.hi = {-1e300, -1e300, -1e300};
-    for (int k = 0; k < node.shape.nv; ++k)
+    for (int k = 0; k < shape.nv; ++k)
         for (int a = 0; a < 3; ++a) {
-            node.lo[a] = std::min(node.lo[a], node.shape.p[k][a]);
-            node.hi[a] = std::max(node.hi[a], node.shape.p[k][a]);
+            node.lo[a] = std::min(node.lo[a], shape.p[k][a]);
+            node.hi[a] = std::max(node.hi[a], shape.p[k][a]);
         }
 }
 
@@ -88,10 +88,10 @@ Hierarchy::Hierarchy(const Scene& scene) {
         node.face_end = t.end;
         if (t.end - t.begin == 1) {
             const uint32_t f = face_order[t.begin];
-            node.shape = faces[f];
+            node.element = f;  // an element root is its face
             node.area = faces[f].area;
             node.cluster = false;
-            bound_shape(node);
+            bound_shape(node, faces[f]);
             face_node[f] = t.node;
             continue;
         }
@@ -182,13 +182,13 @@ Hierarchy::Hierarchy(const Scene& scene) {
 
 Vec3 Hierarchy::centre(uint32_t i) const {
     const uint32_t slot = slot_of(i);
-    return slot != kNoNode ? cluster_shapes[slot].centre : nodes[i].shape.centroid;
+    return slot != kNoNode ? cluster_shapes[slot].centre : shape(i).centroid;
 }
 
 double Hierarchy::radius(uint32_t i) const {
     const uint32_t slot = slot_of(i);
     if (slot != kNoNode) return cluster_shapes[slot].radius;
-    const Patch& p = nodes[i].shape;
+    const Patch& p = shape(i);
     double r = 0;
     for (int k = 0; k < p.nv; ++k) r = std::max(r, length(p.p[k] - p.centroid));
     return r;
@@ -268,7 +268,7 @@ bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
 
 void Hierarchy::subdivide(uint32_t i) {
     if (nodes[i].child_count > 0 || nodes[i].cluster) return;
-    const Patch s = nodes[i].shape;
+    const Patch s = shape(i);
     Patch kids[4];
     if (s.nv == 4) {
         const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m23 = mid(s.p[2], s.p[3]), m30 = mid(s.p[3], s.p[0]);
@@ -295,15 +295,16 @@ void Hierarchy::subdivide(uint32_t i) {
     const uint16_t level = nodes[i].level + 1;
     for (int k = 0; k < 4; ++k) {
         Node child;
-        child.shape = kids[k];
-        finish_shape(child.shape);
-        child.area = child.shape.area;
+        finish_shape(kids[k]);
+        child.element = static_cast<uint32_t>(faces.size() + pieces.size());
+        pieces.push_back(kids[k]);
+        child.area = kids[k].area;
         child.parent = i;
         child.level = level;
         child.face_begin = nodes[i].face_begin;  // its face's place in face_order
         child.face_end = nodes[i].face_end;
         child.key = hash_pair(nodes[i].key, uint64_t(k) + 1, 0xC41Dull);
-        bound_shape(child);
+        bound_shape(child, kids[k]);
         nodes.push_back(child);
     }
     nodes[i].first_child = first;
@@ -328,8 +329,9 @@ void Hierarchy::replay(const std::vector<uint32_t>& log) {
 void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point, Vec3& normal) const {
     const Node& node = nodes[i];
     if (!node.cluster) {
-        point = node.shape.point(s, t);
-        normal = node.shape.normal;
+        const Patch& p = shape(i);
+        point = p.point(s, t);
+        normal = p.normal;
         return;
     }
     const double lo = area_prefix[node.face_begin], hi = area_prefix[node.face_end];
@@ -346,7 +348,7 @@ uint32_t Hierarchy::leaf_at(uint32_t i, double s, double t) const {
     return descend_to_leaf(
         [this](uint32_t k) {
             const Node& n = nodes[k];
-            return DescentStep{n.first_child, n.child_count, static_cast<uint8_t>(n.shape.nv)};
+            return DescentStep{n.first_child, n.child_count, static_cast<uint8_t>(shape(k).nv)};
         },
         i, s, t);
 }
@@ -386,10 +388,10 @@ uint64_t Hierarchy::balance() {
         const std::vector<uint32_t> leaf = leaves();
         std::unordered_set<std::string> corners;
         for (uint32_t i : leaf)
-            for (int k = 0; k < nodes[i].shape.nv; ++k) corners.insert(corner_key(nodes[i].shape.mesh, nodes[i].shape.p[k]));
+            for (int k = 0; k < shape(i).nv; ++k) corners.insert(corner_key(shape(i).mesh, shape(i).p[k]));
         std::vector<uint32_t> marked;
         for (uint32_t i : leaf) {
-            const Patch& s = nodes[i].shape;
+            const Patch& s = shape(i);
             for (int k = 0; k < s.nv; ++k) {
                 const Vec3& a = s.p[k];
                 const Vec3& b = s.p[(k + 1) % s.nv];
@@ -415,7 +417,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
     tbb::parallel_for(first, nodes.size(), [&](size_t i) {
         const Node& node = nodes[i];
         if (node.cluster) return;
-        const Patch& s = node.shape;
+        const Patch& s = shape(static_cast<uint32_t>(i));
         const Vec3 n = s.normal;
         // a tangent frame: the four slanted directions at 60 degrees from n
         const Vec3 a = std::fabs(n.x) < 0.6 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <utility>
 
 #include "pipeline/geometry/formfactors.h"
 
@@ -95,9 +96,9 @@ bool Refiner::may_face(uint32_t a, uint32_t b) const {
         return false;
     };
     if (na.cluster && nb.cluster) return true;
-    if (na.cluster) return box_in_front(na, nb.shape);
-    if (nb.cluster) return box_in_front(nb, na.shape);
-    return in_front(nb.shape, na.shape) && in_front(na.shape, nb.shape);
+    if (na.cluster) return box_in_front(na, h_.shape(b));
+    if (nb.cluster) return box_in_front(nb, h_.shape(a));
+    return in_front(h_.shape(b), h_.shape(a)) && in_front(h_.shape(a), h_.shape(b));
 }
 
 Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
@@ -125,7 +126,7 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const bool polygon_source = !ns.cluster;
     const bool polygon_receiver = !polygon_source && !nr.cluster;
     const uint32_t sampled = polygon_source ? r : (polygon_receiver ? s : r);
-    const Node& target = polygon_source ? ns : nr;
+    const Patch& target = std::as_const(h_).shape(polygon_source ? s : r);  // (empty between clusters)
     const double area = h_.nodes[sampled].area;
     for (int k = 0; k < n; ++k) {
         const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
@@ -137,14 +138,14 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
             // visible share of F, however large the polygon is next to x.
             Vec3 y;
             bool drawn = false;
-            const double f = point_polygon_form_factor_and_point(x, nx, target.shape.p.data(), target.shape.nv,
-                                                                 target.shape.normal, rng, y, drawn);
+            const double f = point_polygon_form_factor_and_point(x, nx, target.p.data(), target.nv, target.normal, rng,
+                                                                 y, drawn);
             if (f <= 0) continue;
             const double w = f * area / n;
             unoccluded += w;
             from.push_back(x + nx * lift);
-            if (!drawn) y = target.shape.point(s1, t1);
-            to.push_back(y + target.shape.normal * lift);
+            if (!drawn) y = target.point(s1, t1);
+            to.push_back(y + target.normal * lift);
             weight.push_back(w);
         } else {
             Vec3 y, ny;
@@ -307,7 +308,7 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity, bool solved) {
     for (size_t i = 0; i < h_.nodes.size(); ++i) {
         const Node& node = h_.nodes[i];
         if (node.cluster) continue;
-        const double rho = luminance(node.shape.reflectance);
+        const double rho = luminance(h_.shape(uint32_t(i)).reflectance);
         if (rho > 0) gathered_[i] = std::max(0.0, luminance(radiosity[i])) / rho;
     }
 }

@@ -44,7 +44,7 @@ TEST(Hierarchy, SubdivisionTilesTheParent) {
         const Node& child = h.nodes[h.nodes[e].first_child + c];
         sum += child.area;
         EXPECT_EQ(child.parent, e);
-        EXPECT_NEAR(dot(child.shape.normal, h.nodes[e].shape.normal), 1.0, 1e-12);
+        EXPECT_NEAR(dot(h.shape(h.nodes[e].first_child + c).normal, h.shape(e).normal), 1.0, 1e-12);
     }
     EXPECT_NEAR(sum, h.nodes[e].area, 1e-12);
 }
@@ -86,9 +86,10 @@ TEST(Hierarchy, BalanceLeavesAtMostOneLevelBetweenNeighbours) {
     int deep = 0;
     for (uint32_t i : h.leaves()) {
         const Node& n = h.nodes[i];
-        if (n.shape.face != 0) continue;
+        const Patch& s = h.shape(i);
+        if (s.face != 0) continue;
         double xmax = 0, ymax = 0;
-        for (int k = 0; k < 4; ++k) { xmax = std::max(xmax, n.shape.p[k].x); ymax = std::max(ymax, n.shape.p[k].y); }
+        for (int k = 0; k < 4; ++k) { xmax = std::max(xmax, s.p[k].x); ymax = std::max(ymax, s.p[k].y); }
         if (xmax == 1.0 && ymax <= 0.5) { EXPECT_GE(n.level, 2); ++deep; }
     }
     EXPECT_GT(deep, 0);

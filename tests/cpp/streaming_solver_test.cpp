@@ -95,8 +95,8 @@ TEST(StreamingSolver, AgreesWithTheInMemoryJacobiSolveOfTheSameLinks) {
             EXPECT_NEAR(streamed.radiosity[i][c], jacobi.radiosity[i][c], 1e-8 * largest) << "leaf " << i;
     // The irradiance handed out goes with the radiosity: B = E + rho H at every leaf.
     for (uint32_t i : pb.h.leaves()) {
-        const Node& n = pb.h.nodes[i];
-        const RGB b = n.shape.emission + mul(n.shape.reflectance, streamed.irradiance[i]);
+        const Patch& n = pb.h.shape(i);
+        const RGB b = n.emission + mul(n.reflectance, streamed.irradiance[i]);
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(streamed.radiosity[i][c], b[c], 1e-9 * largest);
     }
 }
@@ -163,8 +163,8 @@ TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
     Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Problem pb(std::move(scene), 2);
     // A NaN that got past the scene's checks (they refuse it in Scene::build).
-    for (Node& n : pb.h.nodes)
-        if (!n.cluster && n.shape.face == 4) n.shape.emission.z = std::nan("");
+    for (uint32_t i = 0; i < pb.h.nodes.size(); ++i)
+        if (!pb.h.nodes[i].cluster && pb.h.shape(i).face == 4) pb.h.shape(i).emission.z = std::nan("");
     StreamingOptions opt;
     opt.tolerance = 1e-12;
     uint64_t rounds = 0;

@@ -286,7 +286,7 @@ class HierarchyOptions:
     @property
     def cluster_receivers(self) -> bool:
         """
-        Clusters receive as well as send: faces of one orientation share a link's light as an element's children do; clusters of several orientations only where every face sees the source from its front, by orientation (Hierarchy::reception). Links grow with the lighting, not with the faces; the face-by-face solvers (gauss_seidel, southwell) refuse such links.
+        Clusters receive as well as send: faces of one orientation share a link's light as an element's children do; clusters of several orientations where every face sees the source from its front, by orientation (Hierarchy::reception); any cluster while the link carries little (its power bound, times the share its sharing may misplace, within kSlight of epsilon), then evenly if its faces face several ways. Links grow with the lighting, not with the faces; the face-by-face solvers (gauss_seidel, southwell) refuse such links.
         """
 
     @cluster_receivers.setter

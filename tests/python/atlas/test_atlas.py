@@ -629,3 +629,20 @@ def test_a_stuck_charting_child_is_killed_and_the_work_done_again(tmp_path, monk
     t0 = time.monotonic()
     assert charts._isolated(_stuck_once, str(tmp_path / "flag"), 21) == 42
     assert time.monotonic() - t0 < 10  # the first child was killed, not waited for
+
+
+def test_the_attempts_time_limits_grow_with_the_triangles(tmp_path, monkeypatch):
+    # A child that takes 1.5 s is killed under a 0.5 s limit and finishes under 0.5 s x 4.
+    import time
+
+    from hirad.atlas import charts
+
+    seen = []
+    monkeypatch.setattr(charts, "_ATTEMPT_SECONDS", (0.5, None))
+    real = charts._attempt
+    monkeypatch.setattr(charts, "_attempt", lambda fn, args, limit: seen.append(limit) or real(fn, args, limit))
+    assert charts._isolated(time.sleep, 1.5, scale=4.0) is None
+    assert seen == [2.0]
+    seen.clear()
+    assert charts._isolated(time.sleep, 1.5) is None
+    assert seen == [0.5, None]

@@ -103,9 +103,10 @@ def build_atlas(meshes: Sequence[Mesh], texels_per_metre: float, padding: int, m
     if page_max != int(max_size):
         warnings.append(f"max_size {max_size} is not a power of two: pages are at most {page_max}")
     # Charting and packing in one child process (see _isolated): one fork per atlas.
+    triangles = sum(len(t) for _, t in geometry)
     sizes, layouts, more = _isolated(_layout_all, geometry, existing_uvs, names, float(texels_per_metre),
                                      padding, page_max, existing_layout, groups, bool(shrink_pages),
-                                     float(chart_cost), polygons)
+                                     float(chart_cost), polygons, scale=max(1.0, triangles / _ATTEMPT_TRIANGLES))
     warnings += more
     for i, layout in enumerate(layouts):
         layout.prototype = None if prototypes is None else prototypes[i]
@@ -351,10 +352,14 @@ def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit
 # Seconds each forked attempt may take before it is killed and started again (the last has no
 # limit): xatlas's scheduler can also lose a wake-up while it computes, and a child stuck that
 # way would block the bake forever. The result is deterministic, so a retry gives the same bits.
+# The limits are for up to _ATTEMPT_TRIANGLES triangles and grow in proportion beyond: charting
+# the 1M-triangle country kitchen takes minutes, and fixed limits killed two sound attempts
+# (after 30 and 120 s) before the third could finish.
 _ATTEMPT_SECONDS = (30.0, 120.0, 600.0, None)
+_ATTEMPT_TRIANGLES = 100_000
 
 
-def _isolated(fn, *args):
+def _isolated(fn, *args, scale: float = 1.0):
     """fn(*args) computed in a forked child process, its result returned through a pipe.
 
     xatlas's task scheduler can lose the wake-up it sends its worker threads when an Atlas is
@@ -362,10 +367,10 @@ def _isolated(fn, *args):
     worker's predicate check and its wait), and the destructor then joins that worker
     forever. The child never destroys its Atlas: it writes the result and leaves with
     os._exit, which runs no destructors. A child that gives no result within its attempt's
-    time is killed and the work started again (_ATTEMPT_SECONDS). The child's exception is
+    time (_ATTEMPT_SECONDS times `scale`) is killed and the work started again. The child's exception is
     raised here; a child that dies without a result is an error."""
     for limit in _ATTEMPT_SECONDS:
-        done, value = _attempt(fn, args, limit)
+        done, value = _attempt(fn, args, None if limit is None else limit * scale)
         if done:
             return value
     raise AssertionError("unreachable: the last attempt has no time limit")

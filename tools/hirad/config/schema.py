@@ -387,8 +387,10 @@ class HierarchyConfig(BaseModel):
         description=(
             "Let clusters receive as well as send (Sillion 1995; Willmott, Heckbert and Garland"
             " 1999): a cluster all of whose faces see a source from their front takes that"
-            " source's light as a whole and shares it among its faces by their orientation, so"
-            " links grow with the lighting, not with the number of faces. Solved by"
+            " source's light as a whole and shares it among its faces by their orientation, and any"
+            " cluster takes a link that carries little (its power bound within 1 % of epsilon's"
+            " power), evenly if its faces face several ways, so links grow with the lighting, not"
+            " with the number of faces. Solved by"
             " solver.method jacobi or block_southwell (the face-by-face solvers cannot)."
         ),
     )
