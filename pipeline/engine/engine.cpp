@@ -80,7 +80,7 @@ struct Engine::Solved {
     std::vector<Link> links;                 // sorted by receiver
     std::vector<RGB> radiosity;              // per node
     std::vector<uint32_t> leaves;            // node of each leaf (of each published patch)
-    std::vector<Patch> leaf_patches;         // the leaves' shapes, until published
+    std::vector<Patch> leaf_patches;         // the leaves' shapes, until published (then freed)
     std::vector<std::vector<RGB>> group_radiosity;  // per light group, per node
     std::string store_round;                 // out of core: the final links' store
     size_t groups = 0;                       // and its number of source groups
@@ -915,6 +915,7 @@ void Engine::use_leaves_as_patches() {
     if (!solved_) throw std::invalid_argument("use_leaves_as_patches needs a hierarchical solve first");
     if (leaves_published_) return;
     replace_patches(weld_patches(solved_->leaf_patches));
+    std::vector<Patch>().swap(solved_->leaf_patches);  // published: the patches hold them now
     leaves_published_ = true;
 }
 

@@ -62,6 +62,22 @@ def test_hierarchical_element_bound_is_area_over_min_area(tmp_path):
     assert lo <= est["links_typical"] <= hi
 
 
+def test_with_clusters_that_receive_links_follow_the_area_not_the_faces(tmp_path):
+    # The same 4 m^2 cut into 4 or into 40,000 faces: with element receivers every face is
+    # linked on its own (at least 50 links each); with clusters that receive the links follow
+    # the surface the lighting resolves, whatever its faces (bench/README.md: the family room
+    # from 1k to 328k faces), so the estimate must not grow with them.
+    def cut(n):
+        return _quads([(2.0 / n, 2.0 / n)] * (n * n))
+    base = {"method": "hierarchical", "hierarchy": {"min_area": 0.01, "cluster_receivers": True},
+            "solver": {"method": "jacobi"}}
+    coarse, fine = estimate(cut(2), _cfg(tmp_path, **base)), estimate(cut(200), _cfg(tmp_path, **base))
+    assert fine["links_typical"] == pytest.approx(coarse["links_typical"])
+    assert fine["links_range"][0] < 50 * 40_000
+    off = estimate(cut(200), _cfg(tmp_path, method="hierarchical", hierarchy={"min_area": 0.01}))
+    assert off["links_range"][0] >= 50 * 40_000
+
+
 def test_hirad_info_with_a_config_estimates_the_bundled_box_near_its_real_patch_count():
     """The estimate against the engine's own meshing of the same scene and limits."""
     import re
