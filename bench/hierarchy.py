@@ -419,6 +419,19 @@ def rel_errors(values: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return (values @ LUM) / (ref @ LUM) - 1
 
 
+def lit_points(ref: dict, n: int, max_se: float):
+    """Of the reference's points: luminance, relative standard error, those lit above 1 % of the
+    median, the first n of them with a standard error within max_se, and that choice as a mask."""
+    lum = ref["radiance"] @ LUM
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rse = (ref["standard_error"] @ LUM) / lum
+    lit_all = np.nonzero(lum > 0.01 * np.median(lum))[0]
+    lit = lit_all[rse[lit_all] <= max_se][:n]
+    keep = np.zeros(len(lum), bool)
+    keep[lit] = True
+    return lum, rse, lit_all, lit, keep
+
+
 def describe_reference(ref: dict, keep: np.ndarray) -> str:
     rel = (ref["standard_error"] @ LUM)[keep] / (ref["radiance"] @ LUM)[keep]
     assert np.all(np.isfinite(rel))
@@ -567,17 +580,11 @@ def cmd_hall(args) -> None:
     cand, cnrm, cface = sample_points(patches, int(args.points * 1.5), seed=4242)
     ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 77, "hall")
     del model
-    lum = ref["radiance"] @ LUM
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rse = (ref["standard_error"] @ LUM) / lum
-    lit_all = np.nonzero(lum > 0.01 * np.median(lum))[0]
-    lit = lit_all[rse[lit_all] <= args.hall_max_se][: args.points]
+    lum, rse, lit_all, lit, keep = lit_points(ref, args.points, args.hall_max_se)
     print(f"points: {len(lit_all)} of {len(cand)} candidates (uniform by area on non-emitting faces) have reference "
           f"luminance above 1 % of the median; {len(lit_all) - (rse[lit_all] <= args.hall_max_se).sum()} of them "
           f"have a reference standard error above {args.hall_max_se:.0%} even at {args.max_paths:,} paths and are "
           f"dropped; the first {len(lit)} of the rest kept")
-    keep = np.zeros(len(cand), bool)
-    keep[lit] = True
     print(describe_reference(ref, keep))
     pts, nrm = cand[keep], cnrm[keep]
     rel_se = (ref["standard_error"] @ LUM)[keep] / lum[keep]
@@ -738,13 +745,7 @@ def cmd_kitchen(args) -> None:
           f"B/link), {disk / 2**20:,.0f} MiB on disk with the run's other files at the end")
     ref = reference(model, cand, cnrm, args.hall_target_se, 4096, args.max_paths, 79, "kitchen")
     del model
-    lum = ref["radiance"] @ LUM
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rse = (ref["standard_error"] @ LUM) / lum
-    lit_all = np.nonzero(lum > 0.01 * np.median(lum))[0]
-    lit = lit_all[rse[lit_all] <= args.hall_max_se][: args.points]
-    keep = np.zeros(len(cand), bool)
-    keep[lit] = True
+    lum, rse, lit_all, lit, keep = lit_points(ref, args.points, args.hall_max_se)
     print(f"points: {len(lit_all)} of {len(cand)} candidates lit above 1 % of the median; the first {len(lit)} with "
           f"a reference standard error within {args.hall_max_se:.0%} kept")
     print(describe_reference(ref, keep))

@@ -78,6 +78,14 @@ def test_bake_json_is_the_report(cli_bake):
     assert printed == json.loads((out / "report.json").read_text())
     assert Path(printed["config"]) == cli_bake["cfg"].resolve()
     assert Path(printed["scene"]) == cli_bake["scene"].resolve()
+    # Peak memory so far at each stage's end: one per timed stage, never falling, and no
+    # more than this process tree's peak (getrusage of the finished children: the bake's).
+    import resource
+
+    peaks = printed["peak_rss_mib"]
+    assert list(peaks) == [k for k in printed["timings_s"] if k != "total"]
+    assert list(peaks.values()) == sorted(peaks.values()) and min(peaks.values()) > 10
+    assert max(peaks.values()) <= resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 + 1
 
 
 def test_bake_energy_balance_and_emitted_power(cli_bake):

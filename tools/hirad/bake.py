@@ -452,6 +452,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "scene": str(cfg.scene),
         "threads": cfg.thread_count(),
         "timings_s": {**rep.timings, "total": round(time.perf_counter() - wall, 4)},
+        "peak_rss_mib": dict(rep.peak_rss_mib),
         "counts": {
             "meshes": len(scene.meshes),
             "input_faces": stats.input_faces,

@@ -18,6 +18,13 @@ import numpy as np
 # --------------------------------------------------------------------------------------
 
 
+
+def _peak_rss_mib() -> float:
+    """The process's peak resident set so far, MiB (getrusage; Linux counts KiB)."""
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+
 class Reporter:
     """Stage timings and warnings; progress on stderr unless quiet.
 
@@ -45,6 +52,9 @@ class Reporter:
         if self._jsonl and interval is None and "HIRAD_PROGRESS_SECONDS" not in os.environ:
             interval = 1.0
         self.timings: dict[str, float] = {}
+        # The process's peak resident memory so far at the end of each stage (MiB): where a
+        # bake's memory rises (report.json's peak_rss_mib).
+        self.peak_rss_mib: dict[str, float] = {}
         self.warnings: list[str] = []
         self.stream = stream if stream is not None else sys.stderr
         if interval is None:
@@ -138,6 +148,7 @@ class Reporter:
             current_stage = None  # (kept when the stage raises: the CLI names it)
         finally:
             self.timings[name] = round(time.perf_counter() - start, 4)
+            self.peak_rss_mib[name] = _peak_rss_mib()
             if task is not None:
                 self._progress.update(task, total=total or 1, completed=total or 1)
             elif self._log:
