@@ -353,10 +353,11 @@ def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit
 # limit): xatlas's scheduler can also lose a wake-up while it computes, and a child stuck that
 # way would block the bake forever. The result is deterministic, so a retry gives the same bits.
 # The limits are for up to _ATTEMPT_TRIANGLES triangles and grow in proportion beyond: charting
-# the 1M-triangle country kitchen takes minutes, and fixed limits killed two sound attempts
-# (after 30 and 120 s) before the third could finish.
+# the 1M-triangle country kitchen takes over 5 minutes, and fixed limits killed two sound
+# attempts (after 30 and 120 s) before the third could finish; limits scaled per 100k
+# triangles still killed the first after 315 s.
 _ATTEMPT_SECONDS = (30.0, 120.0, 600.0, None)
-_ATTEMPT_TRIANGLES = 100_000
+_ATTEMPT_TRIANGLES = 20_000
 
 
 def _isolated(fn, *args, scale: float = 1.0):
