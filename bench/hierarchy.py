@@ -701,7 +701,8 @@ def cmd_kitchen(args) -> None:
     budget = args.budget
     print(f"# 8. country kitchen end to end: hierarchical, block_southwell, memory_budget {budget}, epsilon "
           f"{args.epsilon:g}, min_area {args.min_area:g}, samples {args.samples}, max_rounds {args.max_rounds}, "
-          f"cluster_receivers {not args.element_receivers}; USD, lightmaps, preview and report written")
+          f"cluster_receivers {not args.element_receivers}; USD, {'' if args.no_lightmaps else 'lightmaps, '}preview "
+          f"and report written")
     scene, model = unsplit_model(args.kitchen)
     from hirad.engine import patch_dict
     patches = patch_dict(model.patch_arrays())
@@ -713,7 +714,7 @@ def cmd_kitchen(args) -> None:
                              "max_rounds": args.max_rounds, "cluster_receivers": not args.element_receivers},
                "solver": {"method": "block_southwell", "tolerance": 1e-4},
                "links": {"memory_budget": budget},
-               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": True},
+               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": not args.no_lightmaps},
                            "preview": {"enabled": True}}}
         ld = load()
         out = str(Path(tmp) / "child")
@@ -733,6 +734,7 @@ def cmd_kitchen(args) -> None:
           f"at the points, {got['gather_s']:.1f} s); peak RSS {got['rss_bake_mib']:,.0f} MiB after the bake, "
           f"{got['rss_all_mib']:,.0f} MiB after the gather at the points")
     print(f"stages (s): {json.dumps(t)}")
+    print(f"peak RSS at each stage's end (MiB): {json.dumps(r.get('peak_rss_mib'))}")
     print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
           f"{c['links']:,} links, {h['rounds']} rounds (settled {h['settled']}), link estimates "
           f"{h['link_estimates']:,}, limited leaves {h['limited_leaves']:,}; energy balance "
@@ -785,6 +787,7 @@ def main() -> None:
     ap.add_argument("--kitchen", type=Path, default=KITCHEN)
     ap.add_argument("--budget", default="2GB", help="kitchen: links.memory_budget")
     ap.add_argument("--element-receivers", action="store_true", help="kitchen: hierarchy.cluster_receivers: false")
+    ap.add_argument("--no-lightmaps", action="store_true", help="kitchen: outputs.lightmaps.enabled: false")
     ap.add_argument("--work", default=None, help="kitchen: where the bake's temporary folder goes (default $TMPDIR)")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]
