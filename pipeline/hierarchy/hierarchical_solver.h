@@ -40,8 +40,10 @@ struct HierarchicalSolution {
 // A glazed side's leaves count rho_max + t (t its transmittance): what they gather is also
 // passed, times t, to the other side (Hierarchy::glass), so with rho + t <= 1 (the scene keeps
 // glass from creating light) every row of the operator, pass-through included, stays within
-// the limit. (Without it, panes of t = 1 whose other side's estimates summed above 1 made the
-// country kitchen's second round diverge after 317 shooting rounds.)
+// the limit. (The country kitchen, with panes of t = 1, diverged in its second round after 317
+// shooting rounds before this and the cut of cluster-pair estimates to min(A_R, A_S) in
+// refine.cpp came in together; which of the two it needed was not isolated. The C++ test
+// ClusterReceivers.TheGainLimitCountsWhatGlazingPasses shows the loop this one closes.)
 constexpr double kGainLimit = 0.999;
 
 // Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf
