@@ -91,11 +91,10 @@ FlatSolveResult solve(Engine& e, const SolveOptions& o, const FormFactorOptions&
 // groups_linked, groups) (RoundProgress); `serve` is ticked too (RemoteCall).
 template <typename Call, typename Serve = void (*)()>
 HierarchicalResult solve_rounds(nb::object progress, Call&& call, Serve serve = [] {}) {
-    std::atomic<int> round{0};
-    std::atomic<uint64_t> links{0}, iteration{0}, linked{0}, groups{0};
+    std::atomic<uint64_t> round{0}, links{0}, iteration{0}, linked{0}, groups{0};
     std::atomic<double> residual{1.0};
     RoundProgressFn fn = [&](const RoundProgress& p) {
-        round = p.round; links = p.links; iteration = p.iteration; residual = p.residual;
+        round = uint64_t(p.round); links = p.links; iteration = p.iteration; residual = p.residual;
         linked = p.groups_linked; groups = p.groups;
     };
     HierarchicalResult r;
@@ -106,7 +105,6 @@ HierarchicalResult solve_rounds(nb::object progress, Call&& call, Serve serve = 
     });
     return r;
 }
-
 
 std::vector<RGB> rgb_rows(const In<double>& a, size_t n, const char* what) { return vec3_rows(a, what, long(n)); }
 
@@ -199,8 +197,7 @@ void bind_engine(nb::module_& m) {
              },
              "hierarchy"_a, "solve"_a = SolveOptions{"jacobi"}, "progress"_a.none() = nb::none(),
              "Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual, "
-             "groups_linked, groups) (groups 0 in memory). "
-             "The patches stay as they were until use_leaves_as_patches().")
+             "groups_linked, groups) (groups 0). The patches stay as they were until use_leaves_as_patches().")
         .def("solve_out_of_core",
              [](Engine& e, const HierarchyOptions& h, const SolveOptions& s, const OutOfCoreOptions& c,
                 nb::object progress, nb::object refine_groups) {
@@ -218,8 +215,8 @@ void bind_engine(nb::module_& m) {
              "Refine -> solve rounds streamed through a link store, each solved by streaming block Southwell "
              "(HierarchicalResult); resumable. The patches stay as they were until use_leaves_as_patches(). "
              "progress(round, links, iteration, residual, groups_linked, groups): while a round is linked, the "
-             "source groups done and in all and the links kept so far; groups 0 while solving. "
-             "refine_groups(round, groups): distributed link generation; called (with the GIL) for every "
+             "source groups done and in all and the links kept so far; groups 0 while solving. refine_groups(round, "
+             "groups): distributed link generation; called (with the GIL) for every "
              "refinement, it has workers run refine_groups on ranges covering [0, groups) and returns when all are "
              "complete; the result is the same bits as without.")
         .def("refine_groups",

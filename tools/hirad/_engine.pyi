@@ -992,7 +992,7 @@ class Engine:
 
     def solve_hierarchical(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., progress: object | None = None) -> HierarchicalResult:
         """
-        Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual, groups_linked, groups) (groups 0 in memory). The patches stay as they were until use_leaves_as_patches().
+        Refine -> solve rounds in memory (HierarchicalResult); progress(round, links, iteration, residual, groups_linked, groups) (groups 0). The patches stay as they were until use_leaves_as_patches().
         """
 
     def solve_out_of_core(self, hierarchy: HierarchyOptions, solve: SolveOptions = ..., out_of_core: OutOfCoreOptions = ..., progress: object | None = None, refine_groups: object | None = None) -> HierarchicalResult:
