@@ -26,7 +26,7 @@ from .outputs.lightmaps import write_lightmaps
 from .photometry.luminaires import with_config_lights
 from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
-from .report import Reporter, energy_balance, write_json
+from .report import Reporter, energy_balance, release_free_memory, write_json
 from .solution import LUMINAIRES_FILE, Result, SurfaceSolution, load_solution, luminance_y, save_luminaires  # noqa: F401  (the API: hirad.bake.load_solution)
 from .studies import StudyError, build_grids, evaluate_grids, resolve_room
 
@@ -252,6 +252,16 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if stats.faces == 0:
         raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate, not finite "
                         "or self-intersecting)")
+    # The report's count, taken now: without lightmaps, grids or light groups nothing after this
+    # reads the scene's per-face and per-corner arrays (the engine holds its own copy), so they
+    # are let go (the kitchen: about 150 MB).
+    emitter_meshes = sum(1 for m in scene.meshes if m.is_light) + len({
+        int(scene.face_mesh[f]) for f in np.nonzero(scene.face_emission.max(axis=1) > 0)[0]
+        if not scene.meshes[int(scene.face_mesh[f])].is_light})
+    if not (cfg.outputs.lightmaps.enabled or grids or cfg.light_groups or day_groups):
+        for k in ("points", "face_vertex_counts", "face_vertex_indices", "face_mesh", "face_source",
+                  "face_reflectance", "face_emission", "face_transmittance", "corner_uv"):
+            setattr(scene, k, None)
 
 
     if cfg.method == "hierarchical":
@@ -320,6 +330,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                       transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
 
     result = make_result(vertex_radiance, vertex_irradiance)
+    display_info = None
     values = cfg.reconstruction.values
     if values == "auto":
         values = "final_gather" if cfg.method == "hierarchical" else "patches"
@@ -330,16 +341,26 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         from .outputs.vertex_values import gathered_vertex_values
 
         rc = cfg.reconstruction
+        refine = rc.refine_levels if not day_groups else 0  # daylight coefficients read the engine's mesh
         with rep.stage("vertex gather"):
-            g_rad, g_irr, missed = gathered_vertex_values(result, display, patches, rays=rc.gather_rays,
-                                                          importance=rc.gather_importance,
-                                                          sample_offset=cfg.outputs.lightmaps.sample_offset)
+            display, g_rad, g_irr, gathered = gathered_vertex_values(
+                result, display, patches, rays=rc.gather_rays, importance=rc.gather_importance,
+                sample_offset=cfg.outputs.lightmaps.sample_offset, refine_levels=refine,
+                refine_tolerance=rc.refine_tolerance)
+        n_old = len(vertex_radiance)
+        if len(display["points"]) > n_old:  # refinement's new points: their face's patch, by the vertex rule's
+            owner = np.zeros(len(display["points"]), np.int64)        # fallback where a gather found nothing
+            owner[np.asarray(display["faces"]).reshape(-1)] = np.repeat(display["face_patch"], 4)
+            vertex_radiance = np.concatenate([vertex_radiance, np.asarray(b)[owner[n_old:]] / np.pi])
+            vertex_irradiance = np.concatenate([vertex_irradiance, np.asarray(h)[owner[n_old:]]])
+        faces = display["faces"]
         found = np.isfinite(g_rad).all(axis=1)
         vertex_radiance = np.where(found[:, None], g_rad, vertex_radiance)
         vertex_irradiance = np.where(found[:, None], g_irr, vertex_irradiance)
-        if missed:
-            rep.warn(f"reconstruction.values: final_gather: {missed} face corners found no surface to gather on "
-                     f"({int((~found).sum())} vertices kept the patches' values)")
+        if gathered["unfound"]:
+            rep.warn(f"reconstruction.values: final_gather: {gathered['unfound']} display points found no surface to "
+                     f"gather on ({gathered['unfilled']} vertices kept the patches' values)")
+        display_info = gathered
         result = make_result(vertex_radiance, vertex_irradiance)
 
     outputs: dict[str, object] = {}
@@ -374,6 +395,9 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                              mesh_faces, groups=light_groups, n_specs=len(specs)))
             usd.write_solution_layer(cfg.scene, path, scene, meshes, meta, view=cfg.outputs.usd_view)
             outputs["usd"] = "solution.usda"
+    if not grouped:  # only the light groups' files read the per-mesh arrays after this
+        meshes = mesh_faces = None
+        release_free_memory()
     if cfg.outputs.gltf:  # the config requires usd and lightmaps with it
         from .outputs.gltf import write_glb
 
@@ -459,9 +483,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             "faces": stats.faces,
             "patches": n,
             "emitter_patches": int(np.count_nonzero(patches["emission"].max(axis=1) > 0)),
-            "emitter_meshes": sum(1 for m in scene.meshes if m.is_light) + len({
-                int(scene.face_mesh[f]) for f in np.nonzero(scene.face_emission.max(axis=1) > 0)[0]
-                if not scene.meshes[int(scene.face_mesh[f])].is_light}),
+            "emitter_meshes": emitter_meshes,
             "links": solved.links if hierarchical else stats.links,
             "link_bytes": stats.link_bytes,
             "rays": stats.rays + (solved.rays if hierarchical else 0),
@@ -504,6 +526,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                                             merge_seconds=list(solved.merge_seconds)),
         },
         "energy_balance": balance,
+        # the written display mesh; with values: final_gather, its gather's counts (vertex_values.py)
+        "display": {"values": "final_gather" if display_info is not None else "patches",
+                    "faces": int(len(display["face_nv"])), "points": int(len(display["points"])),
+                    **(display_info or {})},
         "light_groups": None if not grouped else {
             g.name: {"dimmer": g.dimmer, "color": list(g.color), "members": g.members, "residual": r}
             for g, r in zip(light_groups, grouped.residuals)},

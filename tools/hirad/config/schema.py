@@ -565,6 +565,26 @@ class ReconstructionConfig(BaseModel):
         "values: final_gather on a hierarchical bake: the weakest links, together at most this"
         " share of an element's light, at their mean (outputs.lightmaps.gather_importance)."
     )
+    refine_levels: StrictInt = Field(
+        default=2, ge=0, le=6,
+        description=(
+            "values: final_gather: how many times a display face may be split in four where its"
+            " gathered light varies more than its corners show (a contact shadow at an object's"
+            " foot, a shadow edge crossing it); each level gathers every tested face at its edge"
+            " midpoints and centre. 0: the solution's elements as they are. Not applied to bakes"
+            " with daylight coefficients (their annual results read the elements' mesh)."
+        ),
+    )
+    refine_tolerance: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction"},
+        default=0.02, gt=0.0, le=1.0,
+        description=(
+            "values: final_gather with refine_levels: a face is split where the light gathered at"
+            " an edge midpoint or its centre differs from what its vertices interpolate there by"
+            " more than this fraction of the larger (differences below 1 % of the median vertex"
+            " luminance never split)."
+        ),
+    )
 
 
 class LightmapOutputConfig(BaseModel):

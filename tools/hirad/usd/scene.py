@@ -911,22 +911,28 @@ class _Builder:
 
     # --- result --------------------------------------------------------------------------------
     def build(self, cameras, mpu, up_axis, source) -> SceneArrays:
+        # Each per-mesh list is emptied as soon as its whole array is made, so that the lists
+        # and the whole arrays are never all held at once (the read's peak).
+        def whole(parts: list, dtype) -> np.ndarray:
+            out = np.concatenate(parts).astype(dtype, copy=False)
+            parts.clear()
+            return out
+
         has_uv = any(u is not None for u in self.uvs)
         corner_uv = None
         if has_uv:
-            corner_uv = np.concatenate(
-                [u if u is not None else np.zeros((len(i), 2)) for u, i in zip(self.uvs, self.indices)]
-            ).astype(np.float64)
+            corner_uv = whole([u if u is not None else np.zeros((len(i), 2)) for u, i in zip(self.uvs, self.indices)],
+                              np.float64)
+        self.uvs.clear()
         face_mesh = np.concatenate([np.full(len(c), k, dtype=np.int32) for k, c in enumerate(self.counts)])
+        arrays = dict(points=whole(self.points, np.float64), face_vertex_counts=whole(self.counts, np.int32),
+                      face_vertex_indices=whole(self.indices, np.int32), face_source=whole(self.face_source, np.int32),
+                      face_reflectance=whole(self.reflectance, np.float64),
+                      face_emission=whole(self.emission, np.float64),
+                      face_transmittance=whole(self.transmittance, np.float64))
         return SceneArrays(
-            points=np.concatenate(self.points).astype(np.float64),
-            face_vertex_counts=np.concatenate(self.counts).astype(np.int32),
-            face_vertex_indices=np.concatenate(self.indices).astype(np.int32),
+            **arrays,
             face_mesh=face_mesh,
-            face_source=np.concatenate(self.face_source).astype(np.int32),
-            face_reflectance=np.concatenate(self.reflectance).astype(np.float64),
-            face_emission=np.concatenate(self.emission).astype(np.float64),
-            face_transmittance=np.concatenate(self.transmittance).astype(np.float64),
             corner_uv=corner_uv,
             meshes=self.meshes,
             cameras=cameras,
