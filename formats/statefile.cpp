@@ -5,6 +5,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <stdexcept>
 
 #include "pipeline/core/atomic_file.h"
@@ -79,9 +80,35 @@ std::vector<uint8_t> StateFile::encode() const {
     return out;
 }
 
+// The same bytes as encode(), written as they are hashed: a checkpoint of the streaming solver
+// holds the solver's state once (its arrays here), not once more as one encoded buffer (on the
+// 1M-triangle kitchen about 360 MB more at every checkpoint).
 void StateFile::write(const std::string& path) const {
-    const std::vector<uint8_t> bytes = encode();
-    write_file_atomic(path, bytes.data(), bytes.size());
+    AtomicFile file(path);
+    std::unique_ptr<XXH3_state_t, XXH_errorcode (*)(XXH3_state_t*)> hash(XXH3_createState(), XXH3_freeState);
+    if (!hash || XXH3_64bits_reset(hash.get()) != XXH_OK) throw std::runtime_error(path + ": cannot start a checksum");
+    auto put = [&](const void* data, size_t size) {
+        XXH3_64bits_update(hash.get(), data, size);
+        file.write(data, size);
+    };
+    auto put_value = [&](const auto& v) { put(&v, sizeof(v)); };
+    put(kMagic, 8);
+    put_value(kVersion);
+    put_value(static_cast<uint32_t>(u32_.size() + u64_.size() + f64_.size()));
+    put_value(fingerprint);
+    auto put_array = [&](const std::string& name, uint32_t type, const auto& a) {
+        put_value(static_cast<uint32_t>(name.size()));
+        put(name.data(), name.size());
+        put_value(type);
+        put_value(static_cast<uint64_t>(a.size()));
+        if (!a.empty()) put(a.data(), a.size() * sizeof(a[0]));
+    };
+    for (const auto& [name, a] : u32_) put_array(name, kU32, a);
+    for (const auto& [name, a] : u64_) put_array(name, kU64, a);
+    for (const auto& [name, a] : f64_) put_array(name, kF64, a);
+    const uint64_t sum = XXH3_64bits_digest(hash.get());
+    file.write(&sum, sizeof(sum));
+    file.commit();
 }
 
 StateFile StateFile::decode(const uint8_t* data, size_t size, const std::string& path) {

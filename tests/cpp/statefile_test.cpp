@@ -7,6 +7,8 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <stdexcept>
 #include <string>
 
@@ -37,6 +39,10 @@ TEST(StateFile, RoundTripsThroughAFile) {
     EXPECT_EQ(g.f64("radiosity"), (std::vector<double>{0.5, -1e-300, 3.25}));
     EXPECT_TRUE(g.f64("empty").empty());
     EXPECT_FALSE(g.has("missing"));
+    // write() streams the file as it hashes it: the bytes are encode()'s, one for one
+    std::ifstream in(path, std::ios::binary);
+    const std::vector<uint8_t> written((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(written, sample().encode());
     try {
         g.u32("missing");
         FAIL() << "an absent array was returned";
