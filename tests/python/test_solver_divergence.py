@@ -79,7 +79,7 @@ def test_the_hierarchical_solve_keeps_the_gain_limit_and_converges(tmp_path, sol
     assert report["solver"]["converged"]
     limited = report["hierarchy"]["limited_leaves"]
     assert limited > 0
-    assert any(f"{limited} elements reflect nearly all they receive" in w for w in report["warnings"])
+    assert any(f"{limited} elements have reflectance x (the sum of their link estimates) above 0.999" in w for w in report["warnings"])
     radiance = _layer_radiance(out)  # B / pi per vertex
     exitance = 1.0  # the box's E, W/m^2
     assert radiance.max() * np.pi <= exitance / (1 - 0.999) * (1 + 1e-9)

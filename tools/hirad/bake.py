@@ -908,9 +908,9 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
     if not solved.settled and solved.rounds >= hc.max_rounds:
         rep.warn(f"hierarchy.max_rounds ({hc.max_rounds}) reached while links still wanted to split")
     if solved.limited_leaves:
-        rep.warn(f"{solved.limited_leaves} elements reflect nearly all they receive (reflectance near 1) and their "
-                 f"link estimates sum above the hemisphere: their gathered light was scaled to reflect at most 0.999 of "
-                 f"it so the solve converges (raise hierarchy.samples, or lower those materials' reflectance)")
+        rep.warn(f"{solved.limited_leaves} elements have reflectance x (the sum of their link estimates) above 0.999 "
+                 f"(sampled estimates can sum above the hemisphere's 1), where the solve would not converge: their "
+                 f"gathered light was scaled to that limit (raise hierarchy.samples, or lower reflectances near 1)")
     # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
     model.use_leaves_as_patches()
     # per leaf, the share of its area outside other geometry: its B, H and direct light are that
