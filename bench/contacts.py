@@ -53,7 +53,7 @@ def main() -> None:
                             solver=cfg["solver"], reconstruction={"values": "final_gather"},
                             outputs={"usd": True, "lightmaps": {"enabled": False}, "volume": {"enabled": False},
                                      "preview": {"enabled": False}, "report": True})
-        r = hirad.bake(path)
+        r = hirad.bake(path, keep_hierarchy=True)  # (r.gather)
         rep = r.report
         print(f"hierarchy {hierarchy}: {rep['counts']['links']:,} links, {rep['hierarchy']['elements']:,} leaves, "
               f"bake {rep['timings_s']['total']:.1f} s")

@@ -58,7 +58,7 @@ def main() -> None:
             "outputs": {"usd": False, "lightmaps": {"enabled": False}, "preview": {"enabled": False}, "report": True}})
         ld = load()
         t0 = time.perf_counter()
-        res = bake(cfg)
+        res = bake(cfg, keep_hierarchy=True)  # (res.gather)
         print(f"bake: {time.perf_counter() - t0:.1f} s ({ld}), {len(res.patches['area'])} leaves")
     p = res.patches
     emitted = np.ascontiguousarray(p["emission"] / np.pi)

@@ -448,7 +448,7 @@ def timed_bake(cfg_dict: dict, base_dir: Path):
     with tempfile.TemporaryDirectory() as tmp:
         cfg = config_from_dict(dict(cfg_dict, output=str(Path(tmp) / "out")), base_dir)
         t0 = time.perf_counter()
-        result = hirad.bake(cfg)
+        result = hirad.bake(cfg, keep_hierarchy=True)  # (result.gather at the points)
         return result, time.perf_counter() - t0
 
 
@@ -680,27 +680,34 @@ def cmd_spread(a) -> None:
 # gather and of its written display values at reference points.
 
 KITCHEN_CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 import numpy as np
 import hirad
 from hirad.config import config_from_dict
-cfg_dict, base, pts_path, out_path = json.loads(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
+mode, cfg_dict, base, pts_path, out_path = sys.argv[1], json.loads(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
 pts = np.load(pts_path)
-cfg = config_from_dict(cfg_dict, base)
-t0 = time.perf_counter()
-result = hirad.bake(cfg)
-wall = time.perf_counter() - t0
 def hwm():  # VmHWM: ru_maxrss would carry this parent's peak (the kitchen it loaded) across fork + exec
     return next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM:")) / 1024
-rss_bake = hwm()
-t0 = time.perf_counter()
-gathered = result.gather(pts["points"], pts["normals"])["radiance"]
-t_gather = time.perf_counter() - t0
-shown = result.radiance_at(pts["points"], pts["normals"])
-np.savez(out_path, gathered=gathered, shown=shown)
-json.dump({"wall": wall, "gather_s": t_gather, "rss_bake_mib": rss_bake,
-           "rss_all_mib": hwm(), "report": result.report},
-          open(out_path + ".json", "w"))
+if mode == "bake":  # the bake as `hirad bake` runs it (the hierarchy let go once nothing gathers)
+    cfg = config_from_dict(cfg_dict, base)
+    t0 = time.perf_counter()
+    result = hirad.bake(cfg)
+    wall = time.perf_counter() - t0
+    shown = result.radiance_at(pts["points"], pts["normals"])
+    np.savez(out_path, shown=shown)
+    json.dump({"wall": wall, "rss_bake_mib": hwm(), "report": result.report}, open(out_path + ".json", "w"))
+else:  # the final gather at the points: the same links (reuse_links: no estimate), the hierarchy kept
+    cfg_dict = dict(cfg_dict, output=cfg_dict["output"] + "_gather",
+                    outputs={"usd": False, "report": False, "lightmaps": {"enabled": False},
+                             "preview": {"enabled": False}})
+    cfg = config_from_dict(cfg_dict, base)
+    t0 = time.perf_counter()
+    result = hirad.bake(cfg, reuse_links=True, keep_hierarchy=True)
+    solve = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    gathered = result.gather(pts["points"], pts["normals"])["radiance"]
+    np.savez(out_path, gathered=gathered)
+    json.dump({"solve_s": solve, "gather_s": time.perf_counter() - t0}, open(out_path + ".json", "w"))
 """
 
 
@@ -723,28 +730,33 @@ def cmd_kitchen(args) -> None:
                "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": args.samples,
                              "max_rounds": args.max_rounds, "cluster_receivers": not args.element_receivers},
                "solver": {"method": "block_southwell", "tolerance": 1e-4},
-               "links": {"memory_budget": budget},
+               "links": {"memory_budget": budget, "store": str(Path(tmp) / "out.links")},
                "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": not args.no_lightmaps},
                            "preview": {"enabled": True}}}
         ld = load()
         out = str(Path(tmp) / "child")
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", KITCHEN_CHILD, json.dumps(cfg), str(ROOT), str(Path(tmp) / "points.npz"),
-                               out], capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        if proc.returncode != 0:
-            raise SystemExit(f"kitchen bake failed:\n{proc.stderr[-4000:]}")
-        got = json.loads(Path(out + ".json").read_text())
-        vals = np.load(out + ".npz")
+        for mode in ("bake", "gather"):
+            proc = subprocess.run([sys.executable, "-c", KITCHEN_CHILD, mode, json.dumps(cfg), str(ROOT),
+                                   str(Path(tmp) / "points.npz"), out + mode], capture_output=True, text=True)
+            if proc.returncode != 0:
+                raise SystemExit(f"kitchen {mode} failed:\n{proc.stderr[-4000:]}")
+            if mode == "bake":
+                wall = time.perf_counter() - t0
+        got = json.loads(Path(out + "bake.json").read_text())
+        got_gather = json.loads(Path(out + "gather.json").read_text())
+        vals = {**np.load(out + "bake.npz"), **np.load(out + "gather.npz")}
         store = Path(tmp) / "out.links"
         disk = sum(f.stat().st_size for f in store.rglob("*") if f.is_file()) if store.exists() else 0
     r = got["report"]
     h, c, t = r["hierarchy"], r["counts"], r["timings_s"]
-    print(f"bake ({ld} at start): {got['wall']:.1f} s in the child ({wall:.1f} s with Python start-up and the gather "
-          f"at the points, {got['gather_s']:.1f} s); peak RSS {got['rss_bake_mib']:,.0f} MiB after the bake, "
-          f"{got['rss_all_mib']:,.0f} MiB after the gather at the points")
+    print(f"bake ({ld} at start): {got['wall']:.1f} s in the child ({wall:.1f} s with Python start-up); peak RSS "
+          f"{got['rss_bake_mib']:,.0f} MiB; then, in a second child, the same links solved again (reuse_links, "
+          f"{got_gather['solve_s']:.1f} s) with the hierarchy kept for the gather at the points "
+          f"({got_gather['gather_s']:.1f} s)")
     print(f"stages (s): {json.dumps(t)}")
     print(f"peak RSS at each stage's end (MiB): {json.dumps(r.get('peak_rss_mib'))}")
+    print(f"resident after each stage (MiB): {json.dumps(r.get('held_rss_mib'))}")
     print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
           f"{c['links']:,} links, {h['rounds']} rounds (settled {h['settled']}), link estimates "
           f"{h['link_estimates']:,}, limited leaves {h['limited_leaves']:,}; energy balance "
@@ -768,6 +780,18 @@ def cmd_kitchen(args) -> None:
         print(f"{name}: RMS {rms:.2%} (reference noise removed in quadrature: "
               f"{np.sqrt(max(0.0, rms ** 2 - np.mean(rel_se ** 2))):.2%}); mean {np.mean(e):+.2%}; median |err| "
               f"{np.median(np.abs(e)):.2%}; 90th pct {np.quantile(np.abs(e), 0.9):.2%}; max {np.abs(e).max():.2%}")
+    names = np.array([m.name for m in scene.meshes])[patches["mesh"][cface[keep]]]
+    for name, key in (("final gather", "gathered"), ("written display values", "shown")):
+        e = rel_errors(vals[key][keep], ref["radiance"][keep])
+        print(f"  {name}, the 6 worst points:")
+        for i in np.argsort(-np.abs(e))[:6]:
+            print(f"    {e[i]:+8.1%}  L_ref {lum[keep][i]:.4g} (se {rel_se[i]:.1%})  at {np.round(cand[keep][i], 3)} "
+                  f"n {np.round(cnrm[keep][i], 2)}  {names[i]}")
+    if args.save:
+        np.savez(args.save, points=cand[keep], normals=cnrm[keep], mesh=names, reference=ref["radiance"][keep],
+                 standard_error=ref["standard_error"][keep], gathered=vals["gathered"][keep],
+                 shown=vals["shown"][keep])
+        print(f"points, reference and both read-outs saved to {args.save}")
     e = rel_errors(vals["gathered"][keep], ref["radiance"][keep])
     print(f"targets: <= 15 min ({got['wall'] / 60:.1f}), peak RSS <= 2.5 GB ({got['rss_bake_mib'] / 1024:.2f} GiB), "
           f"RMS <= 5 % ({np.sqrt(np.mean(e ** 2)):.2%})")
@@ -857,6 +881,7 @@ def main() -> None:
                     help="cornell: epsilon:min_area:samples triples, comma-separated (default: a ladder)")
     ap.add_argument("--values", default="patches,final_gather",
                     help="cornell: reconstruction.values to run, comma-separated")
+    ap.add_argument("--save", default=None, help="kitchen: an .npz of the points, reference and read-outs")
     ap.add_argument("--work", default=None, help="kitchen: where the bake's temporary folder goes (default $TMPDIR)")
     args = ap.parse_args()
     parts = ["counts", "family", "accuracy", "hall"] if args.part == "all" else [args.part]

@@ -31,15 +31,10 @@ SceneInput scene_input(In<double> points, In<int32_t> counts, In<int32_t> indice
     require_shape(reflectance, {nf, 3}, "reflectance");
     require_shape(emission, {nf, 3}, "emission");
     SceneInput in;
-    in.points = points.data();
-    in.num_points = points.shape(0);
-    in.face_vertex_counts = counts.data();
-    in.num_faces = counts.shape(0);
-    in.face_vertex_indices = indices.data();
-    in.face_mesh = face_mesh.data();
-    in.face_source = face_source.data();
-    in.face_reflectance = reflectance.data();
-    in.face_emission = emission.data();
+    in.points = points.data(), in.num_points = points.shape(0);
+    in.face_vertex_counts = counts.data(), in.num_faces = counts.shape(0);
+    in.face_vertex_indices = indices.data(), in.face_mesh = face_mesh.data(), in.face_source = face_source.data();
+    in.face_reflectance = reflectance.data(), in.face_emission = emission.data();
     if (corner_uv) {
         require_shape(*corner_uv, {long(indices.shape(0)), 2}, "corner_uv");
         in.corner_uv = corner_uv->data();
@@ -234,6 +229,9 @@ void bind_engine(nb::module_& m) {
              "Makes the last hierarchical solve's leaves the patches (in the order of its per-leaf arrays), for "
              "patch_arrays, display_mesh, vertex_values, gather and reference.")
         .def_prop_ro("leaves_are_patches", &Engine::leaves_are_patches)
+        .def("release_hierarchy", &Engine::release_hierarchy, "Lets go of the solved hierarchy (engine.h).")
+        .def_prop_ro("has_hierarchy", &Engine::has_hierarchy)
+        .def("release_scene", &Engine::release_scene, "Lets go of the input faces (engine.h).")
         .def("display_mesh", [](Engine& e, double crease) { return e.display_mesh(crease); }, "crease_angle"_a,
              "Welded display mesh of the patches (DisplayMesh), kept for vertex_values.")
         .def("vertex_values",

@@ -34,6 +34,15 @@ auto rows(std::vector<T> C::*p, size_t C::*count, std::initializer_list<size_t> 
     };
 }
 
+// A vector moved into a numpy array (the struct's is left empty): large results held once.
+template <class T>
+Array<T> moved(std::vector<T>& v, std::vector<size_t> shape) {
+    auto* data = new std::vector<T>(std::move(v));
+    v = {};
+    nb::capsule owner(data, [](void* q) noexcept { delete static_cast<std::vector<T>*>(q); });
+    return Array<T>(data->data(), shape.size(), shape.data(), owner);
+}
+
 void bind_results(nb::module_& m) {
     nb::class_<Stats>(m, "Stats", "Counts of the scene and of what has been built from it so far.")
         .def_ro("input_faces", &Stats::input_faces, "Polygons given.")
@@ -71,7 +80,21 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("transmittance", arr(&PatchArrays::transmittance), kOwned,
                      "(n) glazing: the normal transmittance of direct light (0: opaque).")
         .def_prop_ro("diffuse_transmittance", arr(&PatchArrays::diffuse_transmittance), kOwned,
-                     "(n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).");
+                     "(n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).")
+        .def("take", [](PatchArrays& a) {
+            const size_t n = a.count;
+            nb::dict d;
+            d["corners"] = moved(a.corners, {n, 4, 3}), d["uv"] = moved(a.uv, {n, 4, 2});
+            d["area"] = moved(a.area, {n}), d["normal"] = moved(a.normal, {n, 3});
+            d["centroid"] = moved(a.centroid, {n, 3}), d["reflectance"] = moved(a.reflectance, {n, 3});
+            d["emission"] = moved(a.emission, {n, 3}), d["direct"] = moved(a.direct, {n, 3});
+            d["nv"] = moved(a.nv, {n}), d["mesh"] = moved(a.mesh, {n}), d["face"] = moved(a.face, {n});
+            d["source_face"] = moved(a.source_face, {n}), d["transmittance"] = moved(a.transmittance, {n});
+            d["diffuse_transmittance"] = moved(a.diffuse_transmittance, {n});
+            a.count = 0;
+            return d;
+        }, "Every field as {name: array}, moved out (the struct is left with none): the patches held once, "
+           "not twice (hirad.engine.patch_dict).");
 
     nb::class_<FlatSolveResult>(m, "FlatSolveResult", "A flat solve.")
         .def_prop_ro("radiosity", rgb(&FlatSolveResult::radiosity), kOwned, "(n, 3) B per patch, W/m^2.")

@@ -119,7 +119,7 @@ Engine::~Engine() = default;
 Stats Engine::stats() const {
     Stats s;
     s.input_faces = scene_.stats.input_faces;
-    s.faces = scene_.faces.size();
+    s.faces = scene_released_ ? scene_faces_ : scene_.faces.size();
     s.degenerate_faces = scene_.stats.degenerate_faces;
     s.nonfinite_faces = scene_.stats.nonfinite_faces;
     s.self_intersecting_faces = scene_.stats.self_intersecting_faces;
@@ -130,6 +130,11 @@ Stats Engine::stats() const {
     s.link_bytes = links_ ? links_->bytes() : 0;
     s.rays = rays_cast();
     return s;
+}
+
+void Engine::require_scene(const char* what) const {
+    if (scene_released_)
+        throw std::invalid_argument(std::string(what) + ": the input faces were let go (release_scene)");
 }
 
 void Engine::require_mesh() const {
@@ -150,6 +155,7 @@ void Engine::replace_patches(PatchSet patches) {
 }
 
 void Engine::mesh(const MeshOptions& o) {
+    require_scene("mesh");
     if (!(o.max_patch_area > 0) || !(o.max_edge_length > 0)) throw std::invalid_argument("meshing limits must be positive");
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     leaves_published_ = false;
@@ -178,6 +184,7 @@ RGB Engine::luminaire_flux() const {
 }
 
 void Engine::set_light_groups(std::vector<LightGroup> groups) {
+    require_scene("set_light_groups");
     uint32_t meshes = 0;
     for (const Face& f : scene_.faces) meshes = std::max(meshes, f.mesh + 1);
     std::vector<std::vector<uint8_t>> in(groups.size());
@@ -384,6 +391,7 @@ std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::
 }
 
 PatchArrays Engine::patch_arrays() const {
+    require_scene("patch_arrays");
     const auto& P = patches_.patches;
     const size_t n = P.size();
     PatchArrays a;
@@ -610,6 +618,7 @@ RefineOptions refine_options(const HierarchyOptions& o, double emitted) {
 }  // namespace
 
 std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& o, double& emitted) {
+    require_scene("a hierarchical solve");
     if (scene_.faces.empty()) throw std::invalid_argument("the scene has no usable faces");
     if (!(o.epsilon >= 0) || !(o.min_area > 0)) throw std::invalid_argument("epsilon >= 0 and min_area > 0 required");
     if (!(o.relative >= 0 && o.relative < 1)) throw std::invalid_argument("relative must be in [0, 1)");
@@ -617,6 +626,7 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     if (o.max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
     links_.reset();
     solved_.reset();
+    hierarchy_released_ = false;
     auto state = std::make_unique<Solved>(scene_);
     state->visibility =
         std::make_unique<Visibility>(state->hierarchy.faces, &glazing_, state->hierarchy.scene_faces);
@@ -919,6 +929,20 @@ void Engine::use_leaves_as_patches() {
     leaves_published_ = true;
 }
 
+void Engine::release_scene() {
+    if (scene_released_) return;
+    scene_faces_ = scene_.faces.size();
+    std::vector<Face>().swap(scene_.faces);
+    scene_released_ = true;
+}
+
+void Engine::release_hierarchy() {
+    if (!solved_) return;
+    if (!leaves_published_) throw std::invalid_argument("release_hierarchy: call use_leaves_as_patches() first");
+    solved_.reset();
+    hierarchy_released_ = true;
+}
+
 // ---- outputs -----------------------------------------------------------------------------
 
 const DisplayMesh& Engine::display_mesh(double crease_angle) {
@@ -983,7 +1007,11 @@ void add_luminaire_moments(const std::vector<Luminaire>& lums, const Visibility&
 
 PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const GatherOptions& options, double max_distance, int group) {
-    if (!solved_) throw std::invalid_argument("gather needs a hierarchical solve first");
+    if (!solved_)
+        throw std::invalid_argument(hierarchy_released_
+                                        ? "gather: the solved hierarchy was let go once no output needed it "
+                                          "(release_hierarchy; hirad.bake(..., keep_hierarchy=True) keeps it)"
+                                        : "gather needs a hierarchical solve first");
     if (group >= 0 && size_t(group) >= solved_->group_radiosity.size())
         throw std::invalid_argument("gather: light group " + std::to_string(group) + " out of range (" +
                                     std::to_string(solved_->group_radiosity.size()) + " solved)");

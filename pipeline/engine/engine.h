@@ -341,6 +341,15 @@ public:
     // reference work on them. Until then the patches are the flat meshing's (if any).
     void use_leaves_as_patches();
     bool leaves_are_patches() const { return leaves_published_; }
+    // Lets go of the solved hierarchy once no output will gather from it: its nodes, face
+    // polygons and their BVH, its links (when held in memory) and per-node radiosity. The
+    // patches (the published leaves), the display mesh and everything read from them stay.
+    // On the 1M-triangle kitchen this is about 0.7 GB. gather then refuses, saying why.
+    void release_hierarchy();
+    bool has_hierarchy() const { return solved_ != nullptr; }
+    // Lets go of the input faces once nothing will mesh, solve or read patch_arrays again
+    // (those then refuse): about 240 bytes a face. Stats keep their counts.
+    void release_scene();
 
     // ---- outputs
     const DisplayMesh& display_mesh(double crease_angle_degrees);   // kept for vertex_values
@@ -417,6 +426,10 @@ private:
     std::unique_ptr<Solved> solved_;
     bool leaves_published_ = false;
     DisplayMesh display_;
+    bool hierarchy_released_ = false;
+    bool scene_released_ = false;
+    size_t scene_faces_ = 0;  // their count, kept when they are let go
+    void require_scene(const char* what) const;
 };
 
 }  // namespace hirad

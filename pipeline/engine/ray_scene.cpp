@@ -13,7 +13,7 @@ CornerValues corner_values(const double* a, size_t n) {
     for (size_t i = 0; i < n; ++i)
         for (int k = 0; k < 4; ++k) {
             const double* c = a + (i * 4 + k) * 3;
-            v[i][k] = {c[0], c[1], c[2]};
+            for (int a = 0; a < 3; ++a) v[i].v[3 * k + a] = static_cast<float>(c[a]);
         }
     return v;
 }

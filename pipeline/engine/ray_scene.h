@@ -24,8 +24,6 @@
 
 namespace hirad {
 
-using CornerValues = std::vector<std::array<RGB, 4>>;
-
 struct ProbeResult {
     std::vector<int32_t> patch;       // closest patch (-1: none within max_distance)
     std::vector<double> distance;     // to it, m (-1 when none)

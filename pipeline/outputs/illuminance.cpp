@@ -104,7 +104,7 @@ std::vector<Patch> patch_pieces(const Patch& patch, int g) {
 }
 
 Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
-                           const std::vector<std::array<RGB, 4>>& corner_radiance, const std::vector<RGB>& emitted,
+                           const CornerValues& corner_radiance, const std::vector<RGB>& emitted,
                            const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const IlluminanceOptions& o) {
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");

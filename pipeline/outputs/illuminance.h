@@ -58,7 +58,7 @@ struct Illuminance {
 // its self-emitted part Le, W/(m^2 sr). Throws std::invalid_argument on mismatched lengths,
 // a zero normal or non-finite input.
 Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
-                           const std::vector<std::array<RGB, 4>>& corner_radiance, const std::vector<RGB>& emitted,
+                           const CornerValues& corner_radiance, const std::vector<RGB>& emitted,
                            const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const IlluminanceOptions& options);
 

@@ -20,7 +20,7 @@ Vec3 camera_direction(const Camera& cam, double x, double y) {
 }
 
 std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
-                                   const std::vector<std::array<RGB, 4>>& corner_radiance, const Camera& cam,
+                                   const CornerValues& corner_radiance, const Camera& cam,
                                    int samples) {
     const int w = cam.width, h = cam.height;
     if (w <= 0 || h <= 0)

@@ -32,7 +32,7 @@ Vec3 camera_direction(const Camera& camera, double x, double y);
 // std::invalid_argument for a size that is not positive, std::length_error for one above
 // kMaxRenderPixels.
 std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
-                                   const std::vector<std::array<RGB, 4>>& corner_radiance,
+                                   const CornerValues& corner_radiance,
                                    const Camera& camera, int samples);
 
 }  // namespace hirad

@@ -36,7 +36,7 @@ void sh2_basis(const Vec3& d, double y[9]) {
 }
 
 std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const Visibility& visibility,
-                                        const std::vector<std::array<RGB, 4>>& corner_radiance,
+                                        const CornerValues& corner_radiance,
                                         const std::vector<Vec3>& points, int rays, uint64_t seed) {
     const int k = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(std::max(rays, 1))))));
     const int n = k * k;

@@ -46,7 +46,7 @@ TEST(Illuminance, UniformBoxReadsPiLEverywhere) {
     const std::vector<Patch> patches = test::unit_cube_patches(3, test::grey(0.5));
     Visibility vis(patches);
     const RGB L{0.5, 1.0, 2.0};
-    std::vector<std::array<RGB, 4>> radiance(patches.size(), {L, L, L, L});
+    CornerValues radiance(patches.size(), {L, L, L, L});
     const std::vector<RGB> emitted(patches.size(), RGB{});
     const std::vector<Vec3> points = {{0.5, 0.5, 0.5}, {0.1, 0.2, 0.9}, {0.93, 0.5, 0.07}};
     const std::vector<Vec3> normals = {{0, 0, 1}, {1, 1, 0}, {-0.3, 0.2, -1}};
@@ -63,7 +63,7 @@ TEST(Illuminance, LitCeilingIsExactAndShadowed) {
     std::vector<Patch> patches = test::unit_cube_patches(3);
     const double le = 100;
     std::vector<RGB> emitted(patches.size(), RGB{});
-    std::vector<std::array<RGB, 4>> radiance(patches.size());
+    CornerValues radiance(patches.size());
     for (size_t i = 0; i < patches.size(); ++i)
         if (patches[i].normal.z < -0.5) {
             emitted[i] = test::grey(le);

@@ -42,7 +42,7 @@ TEST(Render, ConstantRadianceQuadFacingTheCamera) {
     std::vector<Patch> patches = square(true);
     Visibility vis(patches);
     const Camera cam = camera();
-    std::vector<std::array<RGB, 4>> radiance = {{RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}}};
+    CornerValues radiance = {{RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}}};
     std::vector<float> img = render_radiance(patches, vis, radiance, cam, 4);
     ASSERT_EQ(img.size(), size_t(cam.width * cam.height * 3));
     const RGB centre = pixel(img, cam, 16, 16);
@@ -56,7 +56,7 @@ TEST(Render, BackFaceShowsNothing) {
     std::vector<Patch> patches = square(false);
     Visibility vis(patches);
     const Camera cam = camera();
-    std::vector<std::array<RGB, 4>> radiance = {{RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}}};
+    CornerValues radiance = {{RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}, RGB{2, 2, 2}}};
     std::vector<float> img = render_radiance(patches, vis, radiance, cam, 1);
     for (float v : img) EXPECT_EQ(v, 0.0f);
 }
@@ -100,7 +100,7 @@ namespace {
 TEST(Render, ImpossibleSizesAreRefusedWithTheNumbers) {
     std::vector<Patch> patches = square(true);
     Visibility vis(patches);
-    std::vector<std::array<RGB, 4>> radiance(1);
+    CornerValues radiance(1);
     Camera cam = camera();
     cam.width = 100000;
     cam.height = 100000;

@@ -40,7 +40,7 @@ TEST(VolumeSH2, UniformRadianceProjectsOntoTheConstantOnly) {
     const std::vector<Patch> patches = test::unit_cube_patches(3, test::grey(0.5));
     Visibility vis(patches);
     const RGB L{0.5, 1.0, 2.0};
-    std::vector<std::array<RGB, 4>> radiance(patches.size(), {L, L, L, L});
+    CornerValues radiance(patches.size(), {L, L, L, L});
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, {{0.5, 0.5, 0.5}, {0.2, 0.7, 0.1}}, 1024, 5);
     for (const ProbeMoments& p : m)
         for (int c = 0; c < 3; ++c) {
@@ -54,7 +54,7 @@ TEST(VolumeSH2, UniformRadianceProjectsOntoTheConstantOnly) {
 TEST(VolumeSH2, OnlyTheCeilingLitMatchesAQuadratureOverTheCeiling) {
     const std::vector<Patch> patches = test::unit_cube_patches(2, test::grey(0.5));
     Visibility vis(patches);
-    std::vector<std::array<RGB, 4>> radiance(patches.size());
+    CornerValues radiance(patches.size());
     for (size_t i = 0; i < patches.size(); ++i)
         if (patches[i].normal.z < -0.5) radiance[i] = {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}};
     const Vec3 x{0.5, 0.4, 0.35};  // off-centre: x, y and the L2 terms all differ from zero

@@ -17,7 +17,7 @@ TEST(VolumeProbes, UniformRadianceInAClosedBoxIntegratesToFourPiL) {
     const std::vector<Patch> patches = test::unit_cube_patches(3, test::grey(0.5));
     Visibility vis(patches);
     const RGB L{0.5, 1.0, 2.0};
-    std::vector<std::array<RGB, 4>> radiance(patches.size(), {L, L, L, L});
+    CornerValues radiance(patches.size(), {L, L, L, L});
     const std::vector<Vec3> points = {{0.5, 0.5, 0.5}, {0.1, 0.2, 0.9}, {0.93, 0.5, 0.07}};
     const int rays = 1024;  // 32 x 32 strata
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, points, rays, 3);
@@ -43,7 +43,7 @@ TEST(VolumeProbes, UniformRadianceInAClosedBoxIntegratesToFourPiL) {
 TEST(VolumeProbes, OnlyTheCeilingLitSeenFromTheCentre) {
     const std::vector<Patch> patches = test::unit_cube_patches(2, test::grey(0.5));
     Visibility vis(patches);
-    std::vector<std::array<RGB, 4>> radiance(patches.size());
+    CornerValues radiance(patches.size());
     const RGB L{1, 1, 1};
     for (size_t i = 0; i < patches.size(); ++i)
         if (patches[i].normal.z < -0.5) radiance[i] = {L, L, L, L};  // the ceiling faces down
@@ -63,7 +63,7 @@ TEST(VolumeProbes, AProbeInsideASolidSeesBackFaces) {
     // Outside the inward-facing cube, every ray that hits it meets the back of a face.
     const std::vector<Patch> patches = test::unit_cube_patches(1, test::grey(0.5));
     Visibility vis(patches);
-    std::vector<std::array<RGB, 4>> radiance(patches.size(), {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}});
+    CornerValues radiance(patches.size(), {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}});
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, {{0.5, 0.5, 3.0}}, 4096, 1);
     EXPECT_GT(m[0].hit_fraction, 0.0);
     EXPECT_EQ(m[0].back_fraction, m[0].hit_fraction);

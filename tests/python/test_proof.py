@@ -34,7 +34,7 @@ def _bake(tmp_path: Path, scene: Path, name: str, **sections):
     shutil.rmtree(out, ignore_errors=True)
     cfg = {"scene": str(scene), "output": str(out), "outputs": NO_OUTPUTS}
     cfg.update(sections)
-    return hirad.bake(config_from_dict(cfg, tmp_path))
+    return hirad.bake(config_from_dict(cfg, tmp_path), keep_hierarchy=True)  # (r.gather)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -528,6 +528,11 @@ class PatchArrays:
         (n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).
         """
 
+    def take(self) -> dict:
+        """
+        Every field as {name: array}, moved out (the struct is left with none): the patches held once, not twice (hirad.engine.patch_dict).
+        """
+
 class FlatSolveResult:
     """A flat solve."""
 
@@ -1012,6 +1017,15 @@ class Engine:
 
     @property
     def leaves_are_patches(self) -> bool: ...
+
+    def release_hierarchy(self) -> None:
+        """Lets go of the solved hierarchy (engine.h)."""
+
+    @property
+    def has_hierarchy(self) -> bool: ...
+
+    def release_scene(self) -> None:
+        """Lets go of the input faces (engine.h)."""
 
     def display_mesh(self, crease_angle: float) -> DisplayMesh:
         """

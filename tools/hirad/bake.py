@@ -43,7 +43,7 @@ class OptionError(BakeError):
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False,
          overrides: tuple[str, ...] | list[str] = (), progress: str = "auto", scheduler: str | None = None,
-         link_threads: int = 1) -> Result:
+         link_threads: int = 1, keep_hierarchy: bool = False) -> Result:
     """Runs the whole pipeline for a config (a Config or a YAML path) and writes its outputs.
 
     Outputs are assembled in a hidden sibling directory (`.NAME.partial-PID-X/`) and moved into
@@ -62,7 +62,10 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     validation (hirad.config.load_config). `progress` is hirad.report.Reporter's mode (auto,
     bar, plain, jsonl, none). `scheduler` (a Dask scheduler's address; out of core, from a config
     file) spreads link generation over the cluster's workers, `link_threads` engine threads in
-    each task (hirad.batch.links): the same bits as a bake on this machine.
+    each task (hirad.batch.links): the same bits as a bake on this machine. A hierarchical bake
+    lets go of its solved hierarchy once no output gathers from it any more (memory), so the
+    returned Result's `gather` works only with `keep_hierarchy` (or when an output gathered last:
+    light groups, daylight coefficients).
     """
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
@@ -121,7 +124,8 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
                 files.make_link_store(store, __version__)
             with Reporter(quiet, mode=progress) as rep:
                 try:
-                    result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides), remote)
+                    result = _run(cfg, staging, rep, source, resume, reuse_links, tuple(overrides), remote,
+                                  keep_hierarchy)
                 finally:
                     if remote is not None:
                         remote.close()
@@ -218,7 +222,8 @@ def out_of_core_options(cfg: Config, resume: bool = False, reuse_links: bool = F
 
 
 def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, resume: bool = False,
-         reuse_links: bool = False, overrides: tuple[str, ...] = (), remote=None) -> Result:
+         reuse_links: bool = False, overrides: tuple[str, ...] = (), remote=None,
+         keep_hierarchy: bool = False) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
         scene, specs = read_inputs(cfg)
@@ -263,9 +268,27 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                   "face_reflectance", "face_emission", "face_transmittance", "corner_uv"):
             setattr(scene, k, None)
 
+    values = cfg.reconstruction.values
+    if values == "auto":
+        values = "final_gather" if cfg.method == "hierarchical" else "patches"
+    # The solved hierarchy (its nodes, faces, BVH and links: about 0.7 GB on the 1M-triangle
+    # kitchen) is kept only while an output still gathers from it: the vertex gather and
+    # final-gather lightmaps, until they are done; light groups and daylight coefficients
+    # throughout; or the caller's Result.gather (keep_hierarchy).
+    gathering = {"vertex gather": values == "final_gather" and not cfg.light_groups,
+                 "lightmaps": cfg.outputs.lightmaps.enabled and cfg.outputs.lightmaps.mode == "final_gather"}
+
+    def done_gathering(stage: str | None = None) -> None:
+        if stage:
+            gathering[stage] = False
+        if (cfg.method == "hierarchical" and not (keep_hierarchy or light_groups or day_groups)
+                and not any(gathering.values()) and model.has_hierarchy):
+            model.release_hierarchy()
+            release_free_memory()
 
     if cfg.method == "hierarchical":
-        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote)
+        # (done_gathering: let go as soon as the leaves are the patches, when nothing gathers)
+        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote, done_gathering)
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
         glazing = solved  # the backs of glazed faces and what passes through glass
@@ -307,6 +330,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                                  np.sum([s.flux for s in specs], axis=0)) if luminaires else None,
                                  glazing=glazing)
 
+
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
         vertex_radiance = model.vertex_values(b) / np.pi
@@ -331,9 +355,6 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
 
     result = make_result(vertex_radiance, vertex_irradiance)
     display_info = None
-    values = cfg.reconstruction.values
-    if values == "auto":
-        values = "final_gather" if cfg.method == "hierarchical" else "patches"
     if values == "final_gather" and grouped:
         rep.warn("reconstruction.values: final_gather is not applied to bakes with light groups yet: their vertex "
                  "values are the patches' (the seed's vertex rule); the lightmaps' final gather is per group")
@@ -362,6 +383,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                      f"gather on ({gathered['unfilled']} vertices kept the patches' values)")
         display_info = gathered
         result = make_result(vertex_radiance, vertex_irradiance)
+    done_gathering("vertex gather")
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
@@ -379,6 +401,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         with rep.stage("lightmaps"):
             outputs["lightmaps"], outputs["lightmap_atlas"] = write_lightmaps(
                 cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces, staging, result, rep.warn)
+    done_gathering("lightmaps")
     if cfg.outputs.volume.enabled:
         with rep.stage("irradiance volume"):
             outputs["volume"] = write_volume(cfg, result, scene, staging)
@@ -477,6 +500,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "threads": cfg.thread_count(),
         "timings_s": {**rep.timings, "total": round(time.perf_counter() - wall, 4)},
         "peak_rss_mib": dict(rep.peak_rss_mib),
+        "held_rss_mib": dict(rep.held_rss_mib),
         "counts": {
             "meshes": len(scene.meshes),
             "input_faces": stats.input_faces,
@@ -870,7 +894,7 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
 
 
 def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False,
-                        remote=None):
+                        remote=None, published=None):
     """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
     the leaf elements become the model's patches."""
     hc = cfg.hierarchy
@@ -913,9 +937,15 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
                  f"gathered light was scaled to that limit (raise hierarchy.samples, or lower reflectances near 1)")
     # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
     model.use_leaves_as_patches()
+    if published is not None:
+        published()
     # per leaf, the share of its area outside other geometry: its B, H and direct light are that
     # part's, so its powers are over open x area (energy balance)
-    return solved, dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
+    patches = dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
+    if not model.has_hierarchy:  # nothing gathers: nor will anything read the input faces again
+        model.release_scene()
+        release_free_memory()
+    return solved, patches
 
 
 def _solve_progress(cfg: Config, update):

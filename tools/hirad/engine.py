@@ -51,8 +51,10 @@ def build_engine(scene, *, face_source=None, with_uv: bool = True) -> "_engine.E
 
 
 def patch_dict(arrays: "_engine.PatchArrays") -> dict:
-    """The patches as {name: array}, each read once (every attribute access copies)."""
-    return {k: getattr(arrays, k) for k in PATCH_FIELDS}
+    """The patches as {name: array}, moved out of `arrays` (which is left empty): a million
+    patches' 330 MB are held once, not copied."""
+    taken = arrays.take()
+    return {k: taken[k] for k in PATCH_FIELDS}
 
 
 def display_dict(mesh: "_engine.DisplayMesh") -> dict:

@@ -19,17 +19,25 @@ import numpy as np
 
 
 
+def _status_mib(key: str) -> float | None:
+    """A /proc/self/status memory line (VmHWM, VmRSS), MiB; None where there is none."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        pass
+    return None
+
+
 def _peak_rss_mib() -> float:
     """The process's peak resident set so far, MiB: /proc/self/status VmHWM where there is one
     (getrusage's ru_maxrss carries the parent's peak across fork + exec: a bake spawned by a
     process holding 1.9 GB reported 1.9 GB from its first stage), else getrusage (KiB on Linux)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return round(int(line.split()[1]) / 1024.0, 1)
-    except OSError:
-        pass
+    peak = _status_mib("VmHWM")
+    if peak is not None:
+        return peak
     import resource
 
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
@@ -76,6 +84,9 @@ class Reporter:
         # The process's peak resident memory so far at the end of each stage (MiB): where a
         # bake's memory rises (report.json's peak_rss_mib).
         self.peak_rss_mib: dict[str, float] = {}
+        # What stays resident after each stage (VmRSS once its freed pages are handed back):
+        # what the next stages start from (report.json's held_rss_mib; Linux only).
+        self.held_rss_mib: dict[str, float] = {}
         self.warnings: list[str] = []
         self.stream = stream if stream is not None else sys.stderr
         if interval is None:
@@ -173,6 +184,9 @@ class Reporter:
             # and pages handed back by malloc_trim leave the current RSS below an unrecorded peak
             self.peak_rss_mib[name] = max([_peak_rss_mib(), *self.peak_rss_mib.values()])
             release_free_memory()
+            held = _status_mib("VmRSS")
+            if held is not None:
+                self.held_rss_mib[name] = held
             if task is not None:
                 self._progress.update(task, total=total or 1, completed=total or 1)
             elif self._log:

@@ -459,7 +459,7 @@ def room(tmp_path_factory):
                        outputs={"preview": {"enabled": False},
                                 "lightmaps": {"texels_per_metre": ROOM_TPM, "padding": 2, "max_size": 256,
                                               "supersample": 2, "mode": "final_gather"}})
-    return bake(cfg), root / "out"
+    return bake(cfg, keep_hierarchy=True), root / "out"  # (result.gather below)
 
 
 def test_no_light_under_the_walls_of_a_room(room):

@@ -79,7 +79,7 @@ def baked(tmp_path_factory):
                                               "supersample": 2, "mode": "final_gather", "gather_rays": 16,
                                               "uv_primvars": ["st1", "st"],
                                               "encodings": ["unity-rgbm", "unity-dldr"]}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (result.gather)
     return root, scene, before, result, root / "out"
 
 
@@ -276,7 +276,7 @@ def test_source_view_shows_the_input_meshes_and_keeps_the_solution_for_hirad(tmp
                        meshing={"max_patch_area": 0.1, "max_edge_length": 0.5},
                        outputs={"preview": {"enabled": False}, "usd_view": "source", "gltf": True,
                                 "lightmaps": {"texels_per_metre": 8.0, "mode": "interpolate"}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (result.gather)
     # outputs.gltf: the GLB is part of the bake, with every original mesh
     import pygltflib
 
@@ -325,7 +325,7 @@ def test_instances_share_one_uv_set_and_get_their_own_rectangles(tmp_path):
                        outputs={"preview": {"enabled": False},
                                 "lightmaps": {"texels_per_metre": 32.0, "padding": 2, "max_size": 512,
                                               "mode": "final_gather", "gather_rays": 16}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (result.gather)
     out = tmp_path / "out"
     manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
     copies = [i for i in manifest["instances"] if i["mesh"] == "/World/crates/Prototypes/crate"]
@@ -406,7 +406,7 @@ def test_native_instances_get_st1_and_their_own_rectangles(tmp_path):
                        outputs={"preview": {"enabled": False}, "gltf": True,
                                 "lightmaps": {"texels_per_metre": 32.0, "padding": 2, "max_size": 512,
                                               "mode": "final_gather", "gather_rays": 16}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (result.gather)
     out = tmp_path / "out"
     # the GLB export finds every copy's lightmap UVs (it warns of a mesh with a page and no st1)
     warnings = json.loads((out / "report.json").read_text())["warnings"]
@@ -550,7 +550,7 @@ def test_directional_maps_decode_to_the_gathered_light(tmp_path):
                        outputs={"preview": {"enabled": False},
                                 "lightmaps": {"texels_per_metre": TPM, "padding": 2, "max_size": 512,
                                               "mode": "final_gather", "gather_rays": 16, "directional": True}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (result.gather)
     out = tmp_path / "out"
     manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
     godot_m, unity_m = engine_frame("Y", "godot"), engine_frame("Y", "unity")
