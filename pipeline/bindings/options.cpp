@@ -104,11 +104,11 @@ void bind_options(nb::module_& m) {
     const GatherOptions go;
     nb::class_<GatherOptions>(m, "GatherOptions", "The final gather at points after a hierarchical solve.")
         .def("__init__",
-             [](GatherOptions* o, int rays, int cs, uint64_t seed, bool directional, double importance) {
-                 new (o) GatherOptions{rays, cs, seed, directional, importance};
+             [](GatherOptions* o, int rays, int cs, uint64_t seed, bool directional, double importance, double sb) {
+                 new (o) GatherOptions{rays, cs, seed, directional, importance, sb};
              },
              "rays"_a = go.rays, "cluster_samples"_a = go.cluster_samples, "seed"_a = go.seed,
-             "directional"_a = go.directional, "importance"_a = go.importance)
+             "directional"_a = go.directional, "importance"_a = go.importance, "second_bounce"_a = go.second_bounce)
         .def_rw("rays", &GatherOptions::rays, "Visibility rays per partly visible element source.")
         .def_rw("cluster_samples", &GatherOptions::cluster_samples, "Faces drawn per cluster source.")
         .def_rw("seed", &GatherOptions::seed, "Seeds each point's samples with its index.")
@@ -116,7 +116,10 @@ void bind_options(nb::module_& m) {
                 "Also PointValues.l0 and l1, the moments of the arriving radiance (the irradiance is unchanged).")
         .def_rw("importance", &GatherOptions::importance,
                 "0: every link of a point's chain at the point; else the weakest links, together at most this share "
-                "of a leaf's light, at their mean over the receiver (not emitters, not close sources; gather.h).");
+                "of a leaf's light, at their mean over the receiver (not emitters, not close sources; gather.h).")
+        .def_rw("second_bounce", &GatherOptions::second_bounce,
+                "0: off; else leaf sources nearer than this times their diagonal have their radiosity gathered at "
+                "kernel-drawn points (gather.h: contacts).");
 
     const ReferenceOptions ro;
     nb::class_<ReferenceOptions>(m, "ReferenceOptions", "The Monte Carlo path-traced reference.")

@@ -35,6 +35,32 @@ void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, do
     t = std::clamp(t, 0.0, 1.0);
 }
 
+void split_in_four(const Patch& s, Patch kids[4]) {
+    auto mid = [](const Vec3& a, const Vec3& b) { return (a + b) * 0.5; };
+    auto mid2 = [](const Vec2& a, const Vec2& b) { return Vec2{(a.u + b.u) * 0.5, (a.v + b.v) * 0.5}; };
+    if (s.nv == 4) {
+        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m23 = mid(s.p[2], s.p[3]), m30 = mid(s.p[3], s.p[0]);
+        const Vec3 c = mid(m01, m23);
+        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u23 = mid2(s.uv[2], s.uv[3]),
+                   u30 = mid2(s.uv[3], s.uv[0]), uc = mid2(u01, u23);
+        const Vec3 corners[4][4] = {{s.p[0], m01, c, m30}, {m01, s.p[1], m12, c}, {c, m12, s.p[2], m23}, {m30, c, m23, s.p[3]}};
+        const Vec2 uvs[4][4] = {{s.uv[0], u01, uc, u30}, {u01, s.uv[1], u12, uc}, {uc, u12, s.uv[2], u23}, {u30, uc, u23, s.uv[3]}};
+        for (int k = 0; k < 4; ++k) {
+            kids[k] = s;
+            for (int c2 = 0; c2 < 4; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
+        }
+    } else {
+        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m20 = mid(s.p[2], s.p[0]);
+        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u20 = mid2(s.uv[2], s.uv[0]);
+        const Vec3 corners[4][3] = {{s.p[0], m01, m20}, {m01, s.p[1], m12}, {m20, m12, s.p[2]}, {m12, m20, m01}};
+        const Vec2 uvs[4][3] = {{s.uv[0], u01, u20}, {u01, s.uv[1], u12}, {u20, u12, s.uv[2]}, {u12, u20, u01}};
+        for (int k = 0; k < 4; ++k) {
+            kids[k] = s;
+            for (int c2 = 0; c2 < 3; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
+        }
+    }
+}
+
 Vec2 Patch::coordinates(const Vec3& x, Vec2 guess) const {
     // In a frame of the patch's plane: the corners and x projected onto it.
     const Vec3 e1 = normalize(p[1] - p[0]), e2 = cross(normal, e1);

@@ -43,6 +43,12 @@ struct Patch {
     Vec2 coordinates(const Vec3& x, Vec2 guess = {0.5, 0.5}) const;
 };
 
+// The four children of a patch at its edge midpoints (and a quad's centre; a triangle's fourth
+// child is the middle one), with their texture coordinates; each child is a copy of the patch
+// with its own corners (p, uv; area, normal and centroid still to be finished). Hierarchical
+// subdivision and the final gather's second bounce cut elements the same way.
+void split_in_four(const Patch& s, Patch kids[4]);
+
 // Finishing a patch whose corners (p, uv, nv) are set: its area and unit normal from Newell's
 // formula, its centroid, and for a triangle corner 3 = corner 2. Meshing uses the
 // area-weighted centroid; the hierarchy the mean of the corners, which its cluster splits

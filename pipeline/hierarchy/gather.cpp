@@ -135,7 +135,8 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     return out;
 }
 
-RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
+RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
+                               int depth) const {
     // F(x -> S) exactly, times the mean of V(x, y) B(y) over stratified points y of S, B(y)
     // from the leaf below S that holds y: where S is partly hidden from x and its radiosity
     // uneven (the floor under a block), the mean B_S times the visible fraction would count
@@ -155,22 +156,36 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
             for (uint32_t c = 0; c < node.child_count; ++c) {
                 Link child = link;
                 child.source = node.first_child + c;
-                sum += element_transfer(child, x, n, rng, mo);
+                sum += element_transfer(child, x, n, rng, mo, depth);
             }
             return sum;
         }
+    }
+    // A close leaf: its radiosity gathered at kernel-drawn points (GatherOptions::second_bounce).
+    if (depth == 0 && opt_.second_bounce > 0 && node.leaf()) {
+        double gap2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = std::max({0.0, node.lo[k] - x[k], x[k] - node.hi[k]});
+            gap2 += d * d;
+        }
+        if (std::sqrt(gap2) < opt_.second_bounce * node.diagonal()) return close_transfer(link, link.source, x, n, rng, mo);
     }
     const Patch& s = h_.shape(link.source);
     const double f = point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
     if (f <= 0) return {};
     // A link all of whose estimate rays arrived is taken as unoccluded: refinement already
-    // split the links whose visibility varies and that carry enough power to matter.
-    const bool trace = link.visibility < 1.0f;
+    // split the links whose visibility varies and that carry enough power to matter. The second
+    // bounce's own gather (depth 1) traces only emitters' links, whose shadows are what changes
+    // within a millimetre of a contact; other partly visible links carry their estimate's
+    // visible fraction there.
+    const bool emitter = luminance(s.emission - mul(s.reflectance, s.direct)) > 0;  // self-emission
+    const bool trace = link.visibility < 1.0f && (depth == 0 || emitter);
+    const double seen_share = trace ? 1.0 : double(link.visibility);
     SolidAngleMoments geo;
     if (mo) geo = polygon_solid_angle_moments(x, n, s.p.data(), s.nv, s.normal);
     if (!trace && node.leaf()) {
         if (mo) add_moments(*mo, radiosity_[link.source], geo);
-        return radiosity_[link.source] * f;
+        return radiosity_[link.source] * (f * seen_share);
     }
     // The mean of V(x, y) B(y) over the part of S above x's tangent plane, the part F counts:
     // a point of S below the horizon reaches x from under its own surface (a floor element
@@ -178,7 +193,8 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     // low by the hidden share of S (-5 to -11 % at the foot of the Cornell box's blocks).
     // Stratified points, each one below the horizon redrawn uniformly over S (rejection:
     // uniform over the clipped part).
-    const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(opt_.rays))))));
+    // (The second bounce's own gather, depth 1, traces one ray: its samples are averaged.)
+    const int g = depth > 0 ? 1 : std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(opt_.rays))))));
     const int m = g * g;
     const double lift = 1e-5 * vis_.scene_size();
     Vec3 from[16], to[16];
@@ -209,7 +225,77 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         return sum / used;
     }();
     if (mo) add_moments(*mo, mean, geo);
-    return mean * f;
+    return mean * (f * (used == 0 ? 1.0 : seen_share));  // (with none drawn, mean has the visibility)
+}
+
+RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, const RGB& mean_h) const {
+    const uint64_t key = uint64_t(source) << 16 | code;  // code: the path (2 bits a level), then the depth
+    {
+        CellCache::const_accessor hit;
+        if (cells_.find(hit, key)) return hit->second;
+    }
+    // B(y) = B_S + rho_S (H(y) - H_S) at the cell's centre y: H(y) from the leaf's chain at y,
+    // its sources at their leaves' radiosity. Seeded by the leaf's key and the cell: whichever
+    // point asks first, the same bits.
+    const Patch& s = h_.shape(source);
+    Vec3 centre;
+    for (int k = 0; k < cell.nv; ++k) centre += cell.p[k];
+    centre = centre / double(cell.nv);
+    Rng rng(hash_pair(h_.nodes[source].key, code, opt_.seed ^ 0x5EC0Dull));
+    const RGB b = radiosity_[source] + mul(s.reflectance, chain(source, centre, s.normal, rng, nullptr, 1) - mean_h);
+    CellCache::accessor slot;
+    if (cells_.insert(slot, key)) slot->second = b;  // (another thread's, if first: the same bits)
+    return slot->second;
+}
+
+RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
+                            const RGB& mean_h, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
+    // Cells near x compared with their size are cut in four again (split_in_four), down to
+    // kCellDepth levels below the leaf: the kernel from x sits on the cells next to it.
+    Vec3 lo = cell.p[0], hi = cell.p[0];
+    for (int k = 1; k < cell.nv; ++k)
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], cell.p[k][a]);
+            hi[a] = std::max(hi[a], cell.p[k][a]);
+        }
+    double gap2 = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double d = std::max({0.0, lo[a] - x[a], x[a] - hi[a]});
+        gap2 += d * d;
+    }
+    if (depth < kCellDepth && std::sqrt(gap2) < opt_.second_bounce * length(hi - lo)) {
+        Patch kids[4];
+        split_in_four(cell, kids);
+        RGB sum;
+        for (int c = 0; c < 4; ++c)
+            sum += cell_transfer(link, source, kids[c], code | (uint64_t(c) << (2 * depth)), depth + 1, mean_h, x, n,
+                                 rng, mo);
+        return sum;
+    }
+    const double f = point_polygon_form_factor(x, n, cell.p.data(), cell.nv, cell.normal);
+    if (f <= 0) return {};
+    const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth), mean_h);
+    if (link.visibility < 1.0f) {  // one ray to the cell, above x's horizon
+        Vec3 y = cell.point(rng.uniform(), rng.uniform());
+        for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
+        const double lift = 1e-5 * vis_.scene_size();
+        const Vec3 from = x + n * lift, to = y + cell.normal * lift;
+        uint8_t seen = 0;
+        vis_.segments_visible(&from, &to, 1, &seen);
+        if (!seen) return {};
+    }
+    if (mo) add_moments(*mo, b, polygon_solid_angle_moments(x, n, cell.p.data(), cell.nv, cell.normal));
+    return b * f;
+}
+
+RGB Gatherer::close_transfer(const Link& link, uint32_t source, const Vec3& x, const Vec3& n, Rng& rng,
+                             RadianceMoments* mo) const {
+    // H_S: the leaf's irradiance in the solution, its chain's links at their mean coupling.
+    RGB mean_h;
+    for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
+        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k)
+            mean_h += radiosity_[links_[k].source] * mean_coupling(links_[k], source);
+    return cell_transfer(link, source, h_.shape(source), 0, 0, mean_h, x, n, rng, mo);
 }
 
 RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
@@ -270,17 +356,26 @@ RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments*
     // On the leaf's plane, whatever small offset the query point had.
     const Vec3 x = x_in - n * dot(x_in - shape.p[0], n);
     Rng rng(hash_pair(leaf, key, opt_.seed ^ 0x6A7Eull));
-    auto transfer = [&](const Link& l) {
-        return h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
-    };
-    RGB h;
-    if (sp) {
-        h = sp->rest;
-        for (uint64_t k : sp->links) h += transfer(links_[k]);
-        return h;
+    if (!sp) return chain(leaf, x, n, rng, mo, 0);
+    RGB h = sp->rest;
+    for (uint64_t k : sp->links) {
+        const Link& l = links_[k];
+        h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
     }
+    return h;
+}
+
+RGB Gatherer::chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo, int depth) const {
+    RGB h;
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
-        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) h += transfer(links_[k]);
+        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
+            const Link& l = links_[k];
+            if (!h_.nodes[l.source].cluster) h += element_transfer(l, x, n, rng, mo, depth);
+            // The second bounce's own gather takes cluster sources (far, by construction) at
+            // their mean over the receiver: the light they bring varies slowly across it.
+            else if (depth > 0) h += radiosity_[l.source] * mean_coupling(l, leaf);
+            else h += cluster_transfer(l, x, n, rng, mo);
+        }
     return h;
 }
 

@@ -50,6 +50,8 @@
 // A1 = 2 pi / 3) is E1(n) = l0 / 4 + n . l1 / 2, within l0 / 4 of the true E(n) for light
 // from the hemisphere above n (|max(c, 0) - 1/4 - c/2| <= 1/4 for c = n . w in [-1, 1]).
 #pragma once
+#include <tbb/concurrent_hash_map.h>
+
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -75,6 +77,27 @@ struct GatherOptions {
     // weak links' share times their variation over the leaf). The directional moments always
     // evaluate every link.
     double importance = 0;
+    // Close sources gathered once more (0: off). A leaf source S whose box is nearer to the
+    // point x than `second_bounce` times its diagonal is not taken at its one radiosity B_S:
+    // S is cut in four (as subdivision cuts elements), and again each cell still that close to
+    // x compared with its own size (down to 1/32 of S's side), and each cell's radiosity is
+    // gathered at its centre y, B(y) = E_S + rho_S H(y) = B_S + rho_S (H(y) - H_S),
+    // H(y) from S's own chain of links at y (those taken at their leaves' radiosity: one bounce
+    // more, not two) and H_S the leaf's mean irradiance from the same links at their mean
+    // coupling, so that
+    //   E(x) from S = sum over cells c of F(x -> c) V_c B(y_c),
+    // F exact per cell. The cells are gathered once per leaf (cached; every point near the same
+    // contact shares them). Along a contact (a block's wall at the
+    // floor) the kernel from a point millimetres away sits on the strip of S next to it, where
+    // the radiosity falls towards the corner (the block's own shadow, the two surfaces hiding
+    // each other's light) while a 1 cm element holds its mean: taking B_S read +99 % 3.4 mm
+    // up the Cornell box's tall block. E_S (never used itself: B_S - rho_S H_S, so a light
+    // group's gather needs no emission of its own) holds the luminaires' direct light as its
+    // mean over the leaf; the light from emitting surfaces is gathered at y (cluster sources of
+    // y's chain at their mean, element sources with one visibility ray). Costs one chain
+    // gather per cell, once (cells are cached: every point near the same contact shares them),
+    // and a few form factors per close source at each point.
+    double second_bounce = 0;
 };
 
 // The moments of the radiance arriving at a surface point over its hemisphere (see above).
@@ -112,7 +135,20 @@ private:
         return descend_to_leaf([this](uint32_t k) { return steps_[k]; }, node, s, t);
     }
     RGB at(uint32_t leaf, const Vec3& x, uint64_t key, RadianceMoments* mo, const Split* sp) const;
-    RGB element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
+    // The irradiance at x on `leaf` from its whole chain; `depth` 1: the second bounce's own
+    // gather (its sources at their leaves' radiosity).
+    RGB chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo, int depth) const;
+    RGB element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
+                         int depth = 0) const;
+    // The second bounce (GatherOptions::second_bounce): a close leaf cut into cells where x is
+    // close to them, each cell's radiosity gathered at its centre (cached by leaf and cell).
+    static constexpr int kCellDepth = 3;  // cells down to 1/8 of the leaf's side
+    static_assert(2 * kCellDepth + 3 <= 16, "a cell's path and depth fill 16 bits of its cache key");
+    RGB close_transfer(const Link& link, uint32_t source, const Vec3& x, const Vec3& n, Rng& rng,
+                       RadianceMoments* mo) const;
+    RGB cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
+                      const RGB& mean_h, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
+    RGB cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, const RGB& mean_h) const;
     RGB cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng,
                          RadianceMoments* mo) const;  // B-weighted
 
@@ -123,6 +159,9 @@ private:
     GatherOptions opt_;
     std::vector<uint64_t> first_link_;  // per node: its links are [first_link_[i], first_link_[i + 1])
     std::vector<DescentStep> steps_;    // per node, for leaf_at
+    // Per close leaf its cells' radiosity, made by the first point that needs it.
+    using CellCache = tbb::concurrent_hash_map<uint64_t, RGB>;
+    mutable CellCache cells_;
 };
 
 // The same gather from a flat solution: every patch j is a source, F(x -> j) exact, its

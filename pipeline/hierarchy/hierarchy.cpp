@@ -33,7 +33,6 @@ void bound_shape(Node& node, const Patch& shape) {
 // Midpoints are computed as (a + b) / 2, which is symmetric in a and b: the two faces of a
 // shared edge produce the same bits and their vertices weld.
 Vec3 mid(const Vec3& a, const Vec3& b) { return (a + b) * 0.5; }
-Vec2 mid2(const Vec2& a, const Vec2& b) { return {(a.u + b.u) * 0.5, (a.v + b.v) * 0.5}; }
 
 }  // namespace
 
@@ -268,29 +267,8 @@ bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
 
 void Hierarchy::subdivide(uint32_t i) {
     if (nodes[i].child_count > 0 || nodes[i].cluster) return;
-    const Patch s = shape(i);
     Patch kids[4];
-    if (s.nv == 4) {
-        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m23 = mid(s.p[2], s.p[3]), m30 = mid(s.p[3], s.p[0]);
-        const Vec3 c = mid(m01, m23);
-        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u23 = mid2(s.uv[2], s.uv[3]),
-                   u30 = mid2(s.uv[3], s.uv[0]), uc = mid2(u01, u23);
-        const Vec3 corners[4][4] = {{s.p[0], m01, c, m30}, {m01, s.p[1], m12, c}, {c, m12, s.p[2], m23}, {m30, c, m23, s.p[3]}};
-        const Vec2 uvs[4][4] = {{s.uv[0], u01, uc, u30}, {u01, s.uv[1], u12, uc}, {uc, u12, s.uv[2], u23}, {u30, uc, u23, s.uv[3]}};
-        for (int k = 0; k < 4; ++k) {
-            kids[k] = s;
-            for (int c2 = 0; c2 < 4; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
-        }
-    } else {
-        const Vec3 m01 = mid(s.p[0], s.p[1]), m12 = mid(s.p[1], s.p[2]), m20 = mid(s.p[2], s.p[0]);
-        const Vec2 u01 = mid2(s.uv[0], s.uv[1]), u12 = mid2(s.uv[1], s.uv[2]), u20 = mid2(s.uv[2], s.uv[0]);
-        const Vec3 corners[4][3] = {{s.p[0], m01, m20}, {m01, s.p[1], m12}, {m20, m12, s.p[2]}, {m12, m20, m01}};
-        const Vec2 uvs[4][3] = {{s.uv[0], u01, u20}, {u01, s.uv[1], u12}, {u20, u12, s.uv[2]}, {u12, u20, u01}};
-        for (int k = 0; k < 4; ++k) {
-            kids[k] = s;
-            for (int c2 = 0; c2 < 3; ++c2) { kids[k].p[c2] = corners[k][c2]; kids[k].uv[c2] = uvs[k][c2]; }
-        }
-    }
+    split_in_four(shape(i), kids);
     const uint32_t first = static_cast<uint32_t>(nodes.size());
     const uint16_t level = nodes[i].level + 1;
     for (int k = 0; k < 4; ++k) {

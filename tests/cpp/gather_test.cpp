@@ -41,6 +41,23 @@ Face quad(const std::vector<Vec3>& c, double rho, double emission) {
     return f;
 }
 
+// A scene linked from its root (Refiner::initial_links) and solved to 1e-12.
+struct Linked {
+    Hierarchy h;
+    Visibility vis;
+    std::vector<Link> links;
+    HierarchicalSolution sol;
+    Linked(const Scene& scene, const RefineOptions& options) : h(scene), vis(h.faces) {
+        Refiner refiner(h, vis, options);
+        RefineStats stats;
+        links = refiner.initial_links(node_emission(h), stats);
+        sort_links(links);
+        SolverOptions opt;
+        opt.tolerance = 1e-12;
+        sol = solve_push_pull(h, links, {}, opt);
+    }
+};
+
 TEST(Gather, PointUnderAnEmittingRectangleIsBTimesTheClosedForm) {
     // Floor [0, 2] x [0, 1] at z = 0 facing up, light of the same size at z = 0.8 facing
     // down; neither reflects, so B = E on the light and H = E F on the floor.
@@ -50,17 +67,10 @@ TEST(Gather, PointUnderAnEmittingRectangleIsBTimesTheClosedForm) {
     scene.faces.push_back(quad({{0, 0, c}, {0, 1, c}, {2, 1, c}, {2, 0, c}}, 0.0, E));
     for (const double epsilon : {1e-2, 1e-4}) {  // coarse and fine links
         SCOPED_TRACE(epsilon);
-        Hierarchy h(scene);
-        Visibility vis(h.faces);
-        Refiner refiner(h, vis, {epsilon * 2 * E, 1e-3, 16, 1});
-        RefineStats stats;
-        std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
-        sort_links(links);
-        SolverOptions opt;
-        opt.tolerance = 1e-12;
-        const HierarchicalSolution sol = solve_push_pull(h, links, {}, opt);
-        ASSERT_TRUE(sol.converged);
-        Gatherer gatherer(h, links, sol.radiosity, vis, GatherOptions{});
+        const Linked linked(scene, {epsilon * 2 * E, 1e-3, 16, 1});
+        const Hierarchy& h = linked.h;
+        ASSERT_TRUE(linked.sol.converged);
+        Gatherer gatherer(h, linked.links, linked.sol.radiosity, linked.vis, GatherOptions{});
         const uint32_t floor = h.face_node[0];
         std::vector<uint32_t> leaf;
         std::vector<Vec3> x;
@@ -91,16 +101,9 @@ TEST(Gather, RadianceIsEmissionPlusReflectedOverPi) {
     Scene scene;
     scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, rho, Ef));
     scene.faces.push_back(quad({{0, 0, c}, {0, 1, c}, {1, 1, c}, {1, 0, c}}, 0.0, E));
-    Hierarchy h(scene);
-    Visibility vis(h.faces);
-    Refiner refiner(h, vis, {1e-4, 1e-3, 16, 1});
-    RefineStats stats;
-    std::vector<Link> links = refiner.initial_links(node_emission(h), stats);
-    sort_links(links);
-    SolverOptions opt;
-    opt.tolerance = 1e-12;
-    const HierarchicalSolution sol = solve_push_pull(h, links, {}, opt);
-    Gatherer gatherer(h, links, sol.radiosity, vis, GatherOptions{});
+    const Linked linked(scene, {1e-4, 1e-3, 16, 1});
+    const Hierarchy& h = linked.h;
+    Gatherer gatherer(h, linked.links, linked.sol.radiosity, linked.vis, GatherOptions{});
     const uint32_t leaf = h.leaf_at(h.face_node[0], 0.25, 0.6);
     const Vec3 x = h.faces[0].point(0.25, 0.6);
     const uint64_t key = 7;
@@ -108,6 +111,74 @@ TEST(Gather, RadianceIsEmissionPlusReflectedOverPi) {
     gatherer.radiance(&leaf, &x, &key, 1, &l);
     const double want = (Ef + rho * E * under_rectangle(x.x, x.y, 1.0, 1.0, c)) / kPi;
     EXPECT_NEAR(l.y, want, 1e-9 * want);
+}
+
+TEST(Gather, SecondBounceTakesACloseSourcesRadiosityWhereTheKernelIs) {
+    // A floor [0, 1]^2 that emits E and reflects nothing, and a wall on x = 0 (y, z in [0, 1])
+    // facing it with reflectance rho, each one element. The wall's radiosity is
+    // B(y) = rho E F(dy -> floor): about rho E / 2 at its foot, far less at its top. At a floor
+    // point d from the wall the light from it is the integral of B(y) dF(x -> dy), weighted
+    // towards the foot, while the element holds the mean of B over the wall: without the
+    // second bounce the gather takes that mean (far too dark here); with it each kernel-drawn
+    // y's B is gathered at y, which is exact here (the floor's light at y is its exact form
+    // factor). The reference is the same integral by quadrature, with F(dy -> floor) by its
+    // contour integral (Lambert).
+    const double E = 2.0, rho = 0.5, d = 0.05;
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 0.0, E));
+    scene.faces.push_back(quad({{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, rho, 0.0));
+    const Linked linked(scene, {1e-9, 10.0, 16, 1});  // nothing is split (min_area 10 m^2)
+    const Hierarchy& h = linked.h;
+    const Visibility& vis = linked.vis;
+    const std::vector<Link>& links = linked.links;
+    const HierarchicalSolution& sol = linked.sol;
+    ASSERT_TRUE(sol.converged);
+    const Vec3 x{d, 0.5, 0};
+    const std::array<Vec3, 4> floor{Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{1, 1, 0}, Vec3{0, 1, 0}};
+    // Quadrature over the wall: z = t^2 (dense at the foot), v uniform; midpoints.
+    const int nz = 400, nv = 400;
+    double want = 0;
+    for (int i = 0; i < nz; ++i) {
+        const double t = (i + 0.5) / nz, z = t * t, dz = 2 * t / nz;
+        for (int j = 0; j < nv; ++j) {
+            const double v = (j + 0.5) / nv, dv = 1.0 / nv;
+            const Vec3 y{0, v, z};
+            const double b = rho * E * point_polygon_form_factor(y, {1, 0, 0}, floor.data(), 4, {0, 0, 1});
+            const Vec3 r = y - x;
+            const double r2 = dot(r, r);
+            want += b * (z * d) / (kPi * r2 * r2) * dz * dv;  // cos_x cos_y / (pi r^2) dA
+        }
+    }
+    const uint32_t leaf = h.leaf_at(h.face_node[0], d, 0.5);
+    auto gathered = [&](double second_bounce) {
+        GatherOptions o;
+        o.rays = 16;
+        o.second_bounce = second_bounce;
+        Gatherer g(h, links, sol.radiosity, vis, o);
+        const int n = 64;  // the same point with other samples, averaged
+        std::vector<uint32_t> leaves(n, leaf);
+        std::vector<Vec3> xs(n, x);
+        std::vector<uint64_t> keys(n);
+        for (int k = 0; k < n; ++k) keys[k] = uint64_t(k + 1);
+        std::vector<RGB> got(n);
+        g.irradiance(leaves.data(), xs.data(), keys.data(), n, got.data());
+        double sum = 0;
+        for (const RGB& e : got) sum += e.y;
+        return sum / n;
+    };
+    const double with = gathered(0.5), without = gathered(0);
+    EXPECT_NEAR(with, want, 0.02 * want) << "without: " << without;
+    EXPECT_LT(without, 0.8 * want);  // the element's mean: the case the second bounce is for
+    // Far from the wall (beyond half its diagonal) nothing changes, bit for bit.
+    const Vec3 far{0.9, 0.5, 0};
+    const uint32_t far_leaf = h.leaf_at(h.face_node[0], 0.9, 0.5);
+    const uint64_t key = 3;
+    RGB a, b;
+    GatherOptions on;
+    on.second_bounce = 0.5;
+    Gatherer(h, links, sol.radiosity, vis, on).irradiance(&far_leaf, &far, &key, 1, &a);
+    Gatherer(h, links, sol.radiosity, vis, GatherOptions{}).irradiance(&far_leaf, &far, &key, 1, &b);
+    EXPECT_EQ(a.y, b.y);
 }
 
 // The solid angle of a rectangle a x b seen from a point at distance c below one corner.

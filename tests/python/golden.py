@@ -61,6 +61,10 @@ render, probes, interpolated lightmaps and volume probes read it) began to keep 
 values as float instead of double (stop 32, issue 12: 100 MB less on the 1M-triangle kitchen's
 preview): only EXR and volume values read through the field moved, by float rounding (6e-8
 relative) across the 1e-6 quantisation; every USD and report value held bit for bit.
+It was written again for all three configs (EXR sections only; USD, volume and report values
+held) when the final gather gained its second bounce for close sources (a contact's radiosity
+gathered again in cells where the point sees it, stop 32) and a texel's value became the mean
+over its visible part (samples moved out of geometry take their texel's free samples' mean).
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 

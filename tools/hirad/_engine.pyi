@@ -346,7 +346,7 @@ class OutOfCoreOptions:
 class GatherOptions:
     """The final gather at points after a hierarchical solve."""
 
-    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1, directional: bool = False, importance: float = 0.0) -> None: ...
+    def __init__(self, rays: int = 4, cluster_samples: int = 8, seed: int = 1, directional: bool = False, importance: float = 0.0, second_bounce: float = 0.0) -> None: ...
 
     @property
     def rays(self) -> int:
@@ -386,6 +386,15 @@ class GatherOptions:
 
     @importance.setter
     def importance(self, arg: float, /) -> None: ...
+
+    @property
+    def second_bounce(self) -> float:
+        """
+        0: off; else leaf sources nearer than this times their diagonal have their radiosity gathered at kernel-drawn points (gather.h: contacts).
+        """
+
+    @second_bounce.setter
+    def second_bounce(self, arg: float, /) -> None: ...
 
 class ReferenceOptions:
     """The Monte Carlo path-traced reference."""

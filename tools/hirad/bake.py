@@ -367,7 +367,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             display, g_rad, g_irr, gathered = gathered_vertex_values(
                 result, display, patches, rays=rc.gather_rays, importance=rc.gather_importance,
                 sample_offset=cfg.outputs.lightmaps.sample_offset, refine_levels=refine,
-                refine_tolerance=rc.refine_tolerance)
+                refine_tolerance=rc.refine_tolerance, second_bounce=rc.gather_second_bounce)
         n_old = len(vertex_radiance)
         if len(display["points"]) > n_old:  # refinement's new points: their face's patch, by the vertex rule's
             owner = np.zeros(len(display["points"]), np.int64)        # fallback where a gather found nothing

@@ -739,7 +739,7 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
 
     class _GroupResult(Result):
         def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8, seed: int = 1,
-                   directional: bool = False, importance: float = 0.0) -> dict:
+                   directional: bool = False, importance: float = 0.0, second_bounce: float = 1.0) -> dict:
             from . import _engine
 
             if not self.hierarchical:
@@ -748,7 +748,8 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
             nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
             g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
                                                                    seed=seed, directional=bool(directional),
-                                                                   importance=float(importance)), 1e30, k)
+                                                                   importance=float(importance),
+                                                                   second_bounce=float(second_bounce)), 1e30, k)
             keys = ("patch", "irradiance", "radiance") + (("l0", "l1") if directional else ())
             return {key: np.asarray(getattr(g, key)) for key in keys}
 

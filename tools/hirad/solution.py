@@ -170,7 +170,8 @@ class Result(SurfaceSolution):
     hierarchical: bool = False
 
     def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8,
-               seed: int = 1, directional: bool = False, importance: float = 0.0) -> dict:
+               seed: int = 1, directional: bool = False, importance: float = 0.0,
+               second_bounce: float = 1.0) -> dict:
         """Final gather at surface points: hierarchical bakes re-evaluate every link that
         reaches a point's element at the point itself (exact point-to-polygon form factors,
         Embree visibility); flat bakes gather from every patch, O(patches) a point. Returns
@@ -179,7 +180,10 @@ class Result(SurfaceSolution):
         integral of L dw and l1 (n, 3 channels, 3 axes) = the integral of L w dw over the
         point's hemisphere (W/m^2; hirad.outputs.directional). `importance` > 0 (hierarchical):
         per element, its weakest links, together at most that share of its light, are taken at
-        their mean instead of at each point (not emitters, not close sources; GatherOptions)."""
+        their mean instead of at each point (not emitters, not close sources; GatherOptions).
+        `second_bounce` (hierarchical): a source element nearer than this times its diagonal
+        has its radiosity gathered again at points drawn where the point sees it (contact
+        shadows; 0: every source at its element's radiosity; pipeline/hierarchy/gather.h)."""
         if self._model is None:
             raise BakeError("gather needs the bake's engine model (a Result of hirad.bake)")
         if self.hierarchical and not self._model.has_hierarchy:
@@ -190,7 +194,8 @@ class Result(SurfaceSolution):
         if self.hierarchical:
             g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
                                                                    seed=seed, directional=bool(directional),
-                                                                   importance=float(importance)))
+                                                                   importance=float(importance),
+                                                                   second_bounce=float(second_bounce)))
         elif directional:
             raise BakeError("a directional gather needs a hierarchical bake (method: hierarchical)")
         else:

@@ -97,7 +97,8 @@ def baked(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("vertex_gather")
     yield {"final_gather": primvar_triangles(bake(tmp, "final_gather")),
            "patches": primvar_triangles(bake(tmp, "patches")),
-           "unrefined": primvar_triangles(bake(tmp, "final_gather", refine_levels=0))}
+           "unrefined": primvar_triangles(bake(tmp, "final_gather", refine_levels=0)),
+           "one_bounce": primvar_triangles(bake(tmp, "final_gather", gather_second_bounce=0.0))}
     shutil.rmtree(tmp, ignore_errors=True)
 
 
@@ -115,23 +116,28 @@ def test_primvars_agree_with_the_path_tracer(baked):
     rse = (ref["standard_error"] @ LUM)[lit][:200] / y
     errors = {}
     for values, tris in baked.items():
-        if values == "unrefined":
+        if values in ("unrefined", "one_bounce"):
             continue
         # the same points on each bake's own faces: interpolate there (the meshes differ)
         errors[values] = interpolate_at(tris, pts, nrm) @ LUM / y - 1
     e = errors["final_gather"]
     away = foot_distance(pts) >= CONTACT
+    one = interpolate_at(baked["one_bounce"], pts, nrm) @ LUM / y - 1
+    print(f"without the second bounce: mean |e| {np.mean(np.abs(one)):.4f} worst {np.abs(one).max():.4f}, "
+          f"{CONTACT * 1000:.0f} mm or more from a block's foot {np.abs(one[away]).max():.4f}")
     print(f"final_gather: mean |e| {np.mean(np.abs(e)):.4f} worst {np.abs(e).max():.4f}, "
           f"{CONTACT * 1000:.0f} mm or more from a block's foot {np.abs(e[away]).max():.4f} ({(~away).sum()} nearer); "
           f"patches: mean |e| {np.mean(np.abs(errors['patches'])):.4f} worst {np.abs(errors['patches']).max():.4f}; "
           f"reference rse {np.sqrt(np.mean(rse ** 2)):.4f}")
     assert np.mean(np.abs(e)) < 0.02
-    # The issue asks for 10 % at the worst point. Not met: within millimetres of a line where two
-    # surfaces meet the solution itself is too bright (the test below; measured at these points:
-    # +99 % 3.4 mm up a block's wall, +12.6 % on the back wall 1.3 mm below the ceiling), and a
-    # floor point in a block's penumbra read +11.5 %. Bounded here away from the blocks' feet,
-    # at 15 %.
-    assert np.abs(e[away]).max() < 0.15
+    # The issue asks for 10 % at the worst point: met from 10 mm of a block's foot on (3.9 %
+    # measured with the second bounce for close sources, 8.8 % without it; 12.6 % on the back
+    # wall 1.3 mm below the ceiling before either), and missed by a hair nearer (10.3 % at a
+    # point 3.4 mm up a block's wall, one of the 4 of these 200 that near; 14.9 % without the
+    # second bounce, +99 % at such a point before the display was refined): within millimetres
+    # of a line where two surfaces meet the solution's elements themselves are too bright (the
+    # test below).
+    assert np.abs(e[away]).max() < 0.10
     assert np.mean(np.abs(errors["patches"])) > np.mean(np.abs(e))
 
 
@@ -225,16 +231,20 @@ def test_primvars_beside_the_blocks_agree_with_the_path_tracer(baked):
     - From 10 mm out: within 3 % on average and 10 % at the worst point.
     - Nearer, refining must help: the same bake without refinement (its display faces straddle
       the foot and cannot show the light falling towards it) and the seed's vertex rule must
-      both be worse on average.
+      both be worse on average. So must the same bake without the second bounce for close
+      sources (GatherOptions::second_bounce: the wall's radiosity gathered where a floor point
+      sees it, instead of its element's mean), nearer than 10 mm.
 
     Vertices inside the blocks are not gathered but filled from their neighbours; gathered, they
     read about 0, and a point 0.2 mm from the tall block's foot came out -37 %.
 
-    Not met, and not asserted: within 10 mm every read-out of this bake is too bright (measured
-    +11 % on average at 0.5-2 mm, +8 % at 2-5 mm, +5.5 % at 5-10 mm), the final gather at those
-    points too. The floor and the block's wall darken each other near the line where they meet,
-    and the solution's elements there (14 mm at min_area 2e-4) hold one radiosity each, which
-    the gather takes as their light at every point."""
+    Not met, and not asserted: within 10 mm the written values are too bright (measured +4.3 %
+    on average, +9.1 % without the second bounce; bench/contacts.py gives the bands). The floor
+    and the block's wall darken each other near the line where they meet, and the solution's
+    elements there (14 mm at min_area 2e-4) hold one radiosity each: the walls' bottom
+    elements read +4 to +47 % against the path tracer (bench/contacts.py). The second bounce
+    gathers those elements' radiosity again where a point sees them, in cells down to 1/8 of
+    an element's side; what remains is the elements' own error, reflected once more."""
     from hirad.reference import reference_at
 
     pts, nrm, d = block_foot_points(120, seed=31)
@@ -244,7 +254,8 @@ def test_primvars_beside_the_blocks_agree_with_the_path_tracer(baked):
     rse = (ref["standard_error"] @ LUM) / y
     far = d >= CONTACT
     assert far.sum() >= 10
-    e = {k: interpolate_at(baked[k], pts, nrm) @ LUM / y - 1 for k in ("final_gather", "unrefined", "patches")}
+    e = {k: interpolate_at(baked[k], pts, nrm) @ LUM / y - 1 for k in ("final_gather", "unrefined", "one_bounce",
+                                                                         "patches")}
     for k, v in e.items():
         print(f"{k}: mean |e| {np.mean(np.abs(v)):.4f} (from {CONTACT * 1000:.0f} mm: {np.mean(np.abs(v[far])):.4f}, "
               f"worst {np.abs(v[far]).max():.4f}); nearer: mean {np.mean(v[~far]):+.4f}, worst {np.abs(v).max():.4f}; "
@@ -253,6 +264,7 @@ def test_primvars_beside_the_blocks_agree_with_the_path_tracer(baked):
     assert np.abs(e["final_gather"][far]).max() < 0.10
     assert np.mean(np.abs(e["unrefined"])) > np.mean(np.abs(e["final_gather"]))
     assert np.mean(np.abs(e["patches"])) > np.mean(np.abs(e["final_gather"]))
+    assert np.mean(np.abs(e["one_bounce"][~far])) > np.mean(np.abs(e["final_gather"][~far]))
 
 
 def test_refined_display_is_conforming_and_covers_the_same_surface(baked):

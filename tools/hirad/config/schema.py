@@ -529,6 +529,13 @@ def _gather_importance(description: str):
                  description=description)
 
 
+def _gather_second_bounce(description: str):
+    """The final gather's second bounce for close sources (GatherOptions.second_bounce), as both
+    the vertex values and the lightmaps take it."""
+    return Field(json_schema_extra={"unit": "fraction of a source element's diagonal"}, default=1.0, ge=0.0,
+                 le=4.0, description=description)
+
+
 class ReconstructionConfig(BaseModel):
     """How per-patch radiosity is turned into smooth per-vertex values."""
 
@@ -564,6 +571,12 @@ class ReconstructionConfig(BaseModel):
     gather_importance: StrictFloat = _gather_importance(
         "values: final_gather on a hierarchical bake: the weakest links, together at most this"
         " share of an element's light, at their mean (outputs.lightmaps.gather_importance)."
+    )
+    gather_second_bounce: StrictFloat = _gather_second_bounce(
+        "values: final_gather on a hierarchical bake: a source element nearer to the point than"
+        " this times its diagonal (a wall at a floor point beside its foot) has its radiosity"
+        " gathered again at points drawn where the point sees it, instead of taken as its one"
+        " mean: contact shadows (outputs.lightmaps.gather_second_bounce). 0: off."
     )
     refine_levels: StrictInt = Field(
         default=2, ge=0, le=6,
@@ -660,6 +673,11 @@ class LightmapOutputConfig(BaseModel):
         " from emitters and from close sources always at the sample). No bias, a bounded local"
         " error; 0.02 is about twice as fast as 0 on the Cornell box at the same error (0: every"
         " link at every sample). Directional lightmaps evaluate every link."
+    )
+    gather_second_bounce: StrictFloat = _gather_second_bounce(
+        "final_gather: a source element nearer to the sample than this times its diagonal has its"
+        " radiosity gathered again where the sample sees it, instead of taken as its one mean"
+        " (contact shadows at the foot of objects; reconstruction.gather_second_bounce). 0: off."
     )
     sample_offset: StrictFloat = Field(
         json_schema_extra={"unit": "m"},

@@ -63,6 +63,29 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
     return out, moved
 
 
+def _visible_mean(values: np.ndarray, moved: np.ndarray, texel: np.ndarray) -> np.ndarray:
+    """A texel's value is the mean over the part of it that is visible: samples that lay inside
+    geometry (moved out by _lift) take the mean of their texel's free samples where it has
+    any. Moved to a wall's foot they would read the contact itself, the darkest line of the
+    texel (with the gather's second bounce: half the visible strata's mean beside a room's
+    outer wall), and weigh it as half the texel."""
+    moved = np.asarray(moved, dtype=bool)
+    if not moved.any():
+        return values
+    t = np.asarray(texel, dtype=np.int64)
+    nt = int(t.max()) + 1
+    free = ~moved
+    n_free = np.bincount(t[free], minlength=nt).astype(np.float64)
+    take = moved & (n_free[t] > 0)
+    if not take.any():
+        return values
+    out = np.array(values, dtype=np.float64, copy=True)
+    for c in range(out.shape[1]):
+        mean = np.bincount(t[free], out[free, c], minlength=nt) / np.maximum(n_free, 1)
+        out[take, c] = mean[t[take]]
+    return out
+
+
 def _bake_page(atlas, page: int, evaluate, supersample: int):
     """hirad.atlas.bake_page, with each sample's texel passed to `evaluate` (for _lift):
     rasterize -> evaluate -> resolve -> stitch seams -> dilate into the padding."""
@@ -340,7 +363,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         evaluate.moved += int(moved.sum())
         if mode == "final_gather":
             g = result.gather(lifted, normals, rays=lm.gather_rays, directional=lm.directional,
-                              importance=lm.gather_importance)
+                              importance=lm.gather_importance, second_bounce=lm.gather_second_bounce)
             values = g["irradiance"] / np.pi
             miss = g["patch"] < 0
         else:
@@ -352,7 +375,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             values[miss] = q.irradiance / np.pi
         evaluate.samples += len(points)
         if not lm.directional:
-            return values
+            return _visible_mean(values, moved, texel)
         # Per sample E/pi, the hemisphere's moments l0, l1 and the normal, resolved per texel
         # like the colour (18 channels). Where the gather found no element (read from the
         # nearest surface instead) the light is taken as uniform over the hemisphere:
@@ -363,7 +386,8 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             e = np.pi * values[miss]
             l0[miss] = 2.0 * e
             l1[miss] = (e[:, :, None] * np.asarray(normals)[miss][:, None, :]).reshape(-1, 9)
-        return np.concatenate([values, l0, l1, np.asarray(normals, dtype=np.float64)], axis=1)
+        return _visible_mean(np.concatenate([values, l0, l1, np.asarray(normals, dtype=np.float64)], axis=1), moved,
+                             texel)
 
     evaluate.moved = 0
     evaluate.samples = 0

@@ -68,9 +68,10 @@ class _Sampler:
     lightmaps' texel samples; `groups` share the lift's anchor), enclosed ones flagged."""
 
     def __init__(self, result, normal_of_patch: np.ndarray, *, rays: int, importance: float,
-                 sample_offset: float, reach: float):
+                 sample_offset: float, reach: float, second_bounce: float = 1.0):
         self.result, self.normal_of_patch = result, normal_of_patch
         self.rays, self.importance, self.offset, self.reach = rays, importance, sample_offset, reach
+        self.second_bounce = second_bounce
         self.samples = self.unfound = self.enclosed = 0
 
     def __call__(self, points: np.ndarray, patch: np.ndarray, groups: np.ndarray):
@@ -80,7 +81,8 @@ class _Sampler:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
         normals = np.ascontiguousarray(self.normal_of_patch[patch])
         lifted, _ = _lift(self.result, np.ascontiguousarray(points), normals, groups, self.offset, self.reach)
-        g = self.result.gather(lifted, normals, rays=self.rays, importance=self.importance)
+        g = self.result.gather(lifted, normals, rays=self.rays, importance=self.importance,
+                               second_bounce=self.second_bounce)
         found = np.asarray(g["patch"]) >= 0
         inside = _enclosed(self.result.field, lifted, normals)
         ok = found & ~inside
@@ -294,7 +296,8 @@ def _conforming(mesh: _Mesh, sampler) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 def gathered_vertex_values(result, display: dict, patches: dict, *, rays: int, importance: float,
                            sample_offset: float, refine_levels: int = 0,
-                           refine_tolerance: float = 0.02) -> tuple[dict, np.ndarray, np.ndarray, dict]:
+                           refine_tolerance: float = 0.02,
+                           second_bounce: float = 1.0) -> tuple[dict, np.ndarray, np.ndarray, dict]:
     """The display mesh (refined up to `refine_levels` times where its gathered values need it)
     and its vertex radiance W/(m^2 sr) and irradiance W/m^2 from the final gather, with counts:
     `samples` (points gathered), `unfound` (samples that found no surface to gather on),
@@ -311,7 +314,7 @@ def gathered_vertex_values(result, display: dict, patches: dict, *, rays: int, i
     edge = np.linalg.norm(corners - centroid[face_of], axis=1)
     reach = float(max(1e-4, 0.1 * np.median(edge))) if len(edge) else 1e-3  # a floor vertex under a wall
     sampler = _Sampler(result, np.asarray(patches["normal"], dtype=np.float64), rays=rays, importance=importance,
-                       sample_offset=sample_offset, reach=reach)
+                       sample_offset=sample_offset, reach=reach, second_bounce=second_bounce)
     g_rad, g_irr, ok = sampler(corners + INSET * (centroid[face_of] - corners), mesh.patch[face_of], cf)
     mesh.R, mesh.H = _mean_by(cf, g_rad, ok, nvert0), _mean_by(cf, g_irr, ok, nvert0)
     mesh.valid = np.isfinite(mesh.R).all(axis=1)
