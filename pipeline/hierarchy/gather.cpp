@@ -178,11 +178,8 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     // bounce's own gather (depth 1) traces only emitters' links, whose shadows are what changes
     // within a millimetre of a contact; other partly visible links carry their estimate's
     // visible fraction there.
-    // A link to a receiving cluster is traced whatever its estimate saw: its rays went to a few
-    // of the cluster's faces, and say nothing of the face this point is on (the inside of a
-    // cabinet under a lit worktop read 26x the path tracer on the 1M-triangle kitchen).
     const bool emitter = luminance(s.emission - mul(s.reflectance, s.direct)) > 0;  // self-emission
-    const bool trace = (link.visibility < 1.0f || h_.nodes[link.receiver].cluster) && (depth == 0 || emitter);
+    const bool trace = link.visibility < 1.0f && (depth == 0 || emitter);
     const double seen_share = trace ? 1.0 : double(link.visibility);
     SolidAngleMoments geo;
     if (mo) geo = polygon_solid_angle_moments(x, n, s.p.data(), s.nv, s.normal);
@@ -278,7 +275,7 @@ RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell
     const double f = point_polygon_form_factor(x, n, cell.p.data(), cell.nv, cell.normal);
     if (f <= 0) return {};
     const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth), mean_h);
-    if (link.visibility < 1.0f || h_.nodes[link.receiver].cluster) {  // one ray to the cell, above x's horizon
+    if (link.visibility < 1.0f) {  // one ray to the cell, above x's horizon
         Vec3 y = cell.point(rng.uniform(), rng.uniform());
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
         const double lift = 1e-5 * vis_.scene_size();
