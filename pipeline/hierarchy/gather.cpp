@@ -29,6 +29,16 @@ int clip_to_hemisphere(const Vec3& x, const Vec3& n, const Vec3* in, int count, 
     return m;
 }
 
+// The distance from x to the box [lo, hi] (0 inside it).
+double box_gap(const Vec3& lo, const Vec3& hi, const Vec3& x) {
+    double gap2 = 0;
+    for (int k = 0; k < 3; ++k) {
+        const double d = std::max({0.0, lo[k] - x[k], x[k] - hi[k]});
+        gap2 += d * d;
+    }
+    return std::sqrt(gap2);
+}
+
 // b Omega / pi and b W / pi added to the moments: the radiance L = b / pi over the solid angle.
 void add_moments(RadianceMoments& mo, const RGB& b, const SolidAngleMoments& g) {
     const RGB radiance = b / kPi;
@@ -146,12 +156,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         // x close to S compared with its size: the kernel is far from uniform over S, and
         // the radiosity under it may vary (a floor at the foot of a wall). Gather from S's
         // children, each with its own exact form factor and radiosity.
-        double gap2 = 0;
-        for (int k = 0; k < 3; ++k) {
-            const double d = std::max({0.0, node.lo[k] - x[k], x[k] - node.hi[k]});
-            gap2 += d * d;
-        }
-        if (std::sqrt(gap2) < node.diagonal()) {
+        if (box_gap(node.lo, node.hi, x) < node.diagonal()) {
             RGB sum;
             for (uint32_t c = 0; c < node.child_count; ++c) {
                 Link child = link;
@@ -161,15 +166,10 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
             return sum;
         }
     }
-    // A close leaf: its radiosity gathered at kernel-drawn points (GatherOptions::second_bounce).
-    if (depth == 0 && opt_.second_bounce > 0 && node.leaf()) {
-        double gap2 = 0;
-        for (int k = 0; k < 3; ++k) {
-            const double d = std::max({0.0, node.lo[k] - x[k], x[k] - node.hi[k]});
-            gap2 += d * d;
-        }
-        if (std::sqrt(gap2) < opt_.second_bounce * node.diagonal()) return close_transfer(link, link.source, x, n, rng, mo);
-    }
+    // A close leaf: its radiosity gathered again in cells (GatherOptions::second_bounce).
+    if (depth == 0 && opt_.second_bounce > 0 && node.leaf() &&
+        box_gap(node.lo, node.hi, x) < opt_.second_bounce * node.diagonal())
+        return cell_transfer(link, link.source, h_.shape(link.source), 0, 0, x, n, rng, mo);
     const Patch& s = h_.shape(link.source);
     const double f = point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
     if (f <= 0) return {};
@@ -228,7 +228,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     return mean * (f * (used == 0 ? 1.0 : seen_share));  // (with none drawn, mean has the visibility)
 }
 
-RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, const RGB& mean_h) const {
+RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) const {
     const uint64_t key = uint64_t(source) << 16 | code;  // code: the path (2 bits a level), then the depth
     {
         CellCache::const_accessor hit;
@@ -237,6 +237,11 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, 
     // B(y) = B_S + rho_S (H(y) - H_S) at the cell's centre y: H(y) from the leaf's chain at y,
     // its sources at their leaves' radiosity. Seeded by the leaf's key and the cell: whichever
     // point asks first, the same bits.
+    // H_S: the leaf's irradiance in the solution, its chain's links at their mean coupling.
+    RGB mean_h;
+    for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
+        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k)
+            mean_h += radiosity_[links_[k].source] * mean_coupling(links_[k], source);
     const Patch& s = h_.shape(source);
     Vec3 centre;
     for (int k = 0; k < cell.nv; ++k) centre += cell.p[k];
@@ -249,7 +254,7 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, 
 }
 
 RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
-                            const RGB& mean_h, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
+                            const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     // Cells near x compared with their size are cut in four again (split_in_four), down to
     // kCellDepth levels below the leaf: the kernel from x sits on the cells next to it.
     Vec3 lo = cell.p[0], hi = cell.p[0];
@@ -258,23 +263,17 @@ RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell
             lo[a] = std::min(lo[a], cell.p[k][a]);
             hi[a] = std::max(hi[a], cell.p[k][a]);
         }
-    double gap2 = 0;
-    for (int a = 0; a < 3; ++a) {
-        const double d = std::max({0.0, lo[a] - x[a], x[a] - hi[a]});
-        gap2 += d * d;
-    }
-    if (depth < kCellDepth && std::sqrt(gap2) < opt_.second_bounce * length(hi - lo)) {
+    if (depth < kCellDepth && box_gap(lo, hi, x) < opt_.second_bounce * length(hi - lo)) {
         Patch kids[4];
         split_in_four(cell, kids);
         RGB sum;
         for (int c = 0; c < 4; ++c)
-            sum += cell_transfer(link, source, kids[c], code | (uint64_t(c) << (2 * depth)), depth + 1, mean_h, x, n,
-                                 rng, mo);
+            sum += cell_transfer(link, source, kids[c], code | (uint64_t(c) << (2 * depth)), depth + 1, x, n, rng, mo);
         return sum;
     }
     const double f = point_polygon_form_factor(x, n, cell.p.data(), cell.nv, cell.normal);
     if (f <= 0) return {};
-    const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth), mean_h);
+    const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth));
     if (link.visibility < 1.0f) {  // one ray to the cell, above x's horizon
         Vec3 y = cell.point(rng.uniform(), rng.uniform());
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
@@ -286,16 +285,6 @@ RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell
     }
     if (mo) add_moments(*mo, b, polygon_solid_angle_moments(x, n, cell.p.data(), cell.nv, cell.normal));
     return b * f;
-}
-
-RGB Gatherer::close_transfer(const Link& link, uint32_t source, const Vec3& x, const Vec3& n, Rng& rng,
-                             RadianceMoments* mo) const {
-    // H_S: the leaf's irradiance in the solution, its chain's links at their mean coupling.
-    RGB mean_h;
-    for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
-        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k)
-            mean_h += radiosity_[links_[k].source] * mean_coupling(links_[k], source);
-    return cell_transfer(link, source, h_.shape(source), 0, 0, mean_h, x, n, rng, mo);
 }
 
 RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {

@@ -144,11 +144,9 @@ private:
     // close to them, each cell's radiosity gathered at its centre (cached by leaf and cell).
     static constexpr int kCellDepth = 3;  // cells down to 1/8 of the leaf's side
     static_assert(2 * kCellDepth + 3 <= 16, "a cell's path and depth fill 16 bits of its cache key");
-    RGB close_transfer(const Link& link, uint32_t source, const Vec3& x, const Vec3& n, Rng& rng,
-                       RadianceMoments* mo) const;
-    RGB cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
-                      const RGB& mean_h, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
-    RGB cell_radiosity(uint32_t source, const Patch& cell, uint64_t code, const RGB& mean_h) const;
+    RGB cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth, const Vec3& x,
+                      const Vec3& n, Rng& rng, RadianceMoments* mo) const;
+    RGB cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) const;
     RGB cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng,
                          RadianceMoments* mo) const;  // B-weighted
 
