@@ -167,15 +167,17 @@ void bind_fields(nb::module_& m) {
                      nb::gil_scoped_release release;
                      h = s.hemisphere_hits(pts, nrm, rays, seed);
                  }
-                 const size_t m = size_t(h.rays);
-                 return nb::make_tuple(to_numpy(std::move(h.patch), {pts.size(), m}),
-                                       to_numpy(std::move(h.u), {pts.size(), m}),
-                                       to_numpy(std::move(h.v), {pts.size(), m}));
+                 const size_t m = h.sensor.size();
+                 return nb::make_tuple(to_numpy(std::move(h.sensor), {m}), to_numpy(std::move(h.patch), {m}),
+                                       to_numpy(std::move(h.u), {m}), to_numpy(std::move(h.v), {m}),
+                                       to_numpy(std::move(h.weight), {m}), h.rays);
              },
              "points"_a, "normals"_a, "rays"_a, "seed"_a = 1,
-             "The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (patch, u, "
-             "v), each (sensors, k*k); patch -1 where a ray met nothing or the back of a surface. The indirect "
-             "illuminance of corner radiance L is pi / (k*k) x the sum of L interpolated at the hits.")
+             "The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (sensor, "
+             "patch, u, v, weight, rays): per entry a front-facing surface a ray of that sensor reads (through clear "
+             "glass: the panes met from the front and the surface past them; weight the glass passed before it, 1 "
+             "without), sensor by sensor; rays = k*k a sensor. The indirect illuminance of corner radiance L is "
+             "pi / rays x the sum of weight x L interpolated at a sensor's entries.")
         .def("direct_transmittance",
              [](const RayScene& s, In<double> p, In<double> n, In<double> d) { return direct_transmittance_of(s, p, n, d); },
              "points"_a, "normals"_a, "directions"_a,

@@ -79,8 +79,6 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("source_face", arr(&PatchArrays::source_face), kOwned, "(n) authored face within its mesh.")
         .def_prop_ro("transmittance", arr(&PatchArrays::transmittance), kOwned,
                      "(n) glazing: the normal transmittance of direct light (0: opaque).")
-        .def_prop_ro("diffuse_transmittance", arr(&PatchArrays::diffuse_transmittance), kOwned,
-                     "(n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).")
         .def("take", [](PatchArrays& a) {
             const size_t n = a.count;
             nb::dict d;
@@ -90,7 +88,6 @@ void bind_results(nb::module_& m) {
             d["emission"] = moved(a.emission, {n, 3}), d["direct"] = moved(a.direct, {n, 3});
             d["nv"] = moved(a.nv, {n}), d["mesh"] = moved(a.mesh, {n}), d["face"] = moved(a.face, {n});
             d["source_face"] = moved(a.source_face, {n}), d["transmittance"] = moved(a.transmittance, {n});
-            d["diffuse_transmittance"] = moved(a.diffuse_transmittance, {n});
             a.count = 0;
             return d;
         }, "Every field as {name: array}, moved out (the struct is left with none): the patches held once, "
@@ -196,13 +193,10 @@ void bind_results(nb::module_& m) {
         .def_prop_ro("glass_back_entered", rgb1(&H::glass_back_entered), kOwned,
                      "(3,) the backs of glazed faces (unpublished): the direct light they reflect, rho D A, W.")
         .def_prop_ro("glass_back_absorbed", rgb1(&H::glass_back_absorbed), kOwned,
-                     "(3,) the backs of glazed faces: what they absorb of the interreflected light, (1 - rho - t) H A, W.")
+                     "(3,) the backs of glazed faces: what they take of the interreflected light (absorbed or let "
+                     "through), (1 - rho) H A, W.")
         .def_prop_ro("glass_back_escaped", rgb1(&H::glass_back_escaped), kOwned,
                      "(3,) the backs of glazed faces: their light that reaches no surface, W, signed.")
-        .def_prop_ro("transmitted_to_front", rgb1(&H::transmitted_to_front), kOwned,
-                     "(3,) interreflected light glazed faces pass from their backs to their fronts, t H A, W.")
-        .def_prop_ro("transmitted_to_back", rgb1(&H::transmitted_to_back), kOwned,
-                     "(3,) interreflected light glazed faces pass from their fronts to their backs, t H A, W.")
         .def_ro("merge_seconds", &H::merge_seconds,
                 "Distributed: per refinement done by workers, the driver's merge of their spills, s.")
         .def_prop_ro("link_receiver", arr(&H::link_receiver), kOwned)

@@ -18,7 +18,8 @@ struct Link {
     uint32_t source = 0;
     float coupling = 0;       // G: m^2; F_receiver,source = G / A_receiver; finite, >= 0
     float unoccluded = 0;     // G without visibility (the oracle's estimate); finite, >= 0
-    float visibility = 0;     // fraction of the oracle estimate's rays that arrived, in [0, 1]
+    float visibility = 0;     // mean of what the oracle estimate's rays carried, in [0, 1]: the
+                              // fraction that arrived, a ray through glass counting its T
     float error = 0;          // the oracle's bound on the power the link carries when it was
                               // last checked (B_max(source) x G, unoccluded G if partly visible), W
 };

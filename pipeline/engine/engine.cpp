@@ -97,12 +97,6 @@ Engine::Engine(const SceneInput& in, size_t num_indices) {
     glazing_.face_transmittance.resize(scene_.faces.size());
     for (size_t f = 0; f < scene_.faces.size(); ++f) glazing_.face_transmittance[f] = scene_.faces[f].transmittance;
     glazing_.validate();
-    set_diffuse_transmittance();
-}
-
-void Engine::set_diffuse_transmittance() {
-    const double h = glazing_.hemispherical();
-    for (Face& f : scene_.faces) f.diffuse_transmittance = f.transmittance * h;
 }
 
 void Engine::set_glass_angular(std::vector<double> relative) {
@@ -110,7 +104,6 @@ void Engine::set_glass_angular(std::vector<double> relative) {
     g.angular = std::move(relative);
     g.validate();
     glazing_ = std::move(g);
-    set_diffuse_transmittance();
     if (visibility_) visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
 }
 
@@ -409,7 +402,6 @@ PatchArrays Engine::patch_arrays() const {
     a.face.resize(n);
     a.source_face.resize(n);
     a.transmittance.resize(n);
-    a.diffuse_transmittance.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Patch& p = P[i];
         for (int k = 0; k < 4; ++k) {
@@ -430,7 +422,6 @@ PatchArrays Engine::patch_arrays() const {
         a.face[i] = static_cast<int32_t>(p.face);
         a.source_face[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
         a.transmittance[i] = scene_.faces[p.face].transmittance;
-        a.diffuse_transmittance[i] = scene_.faces[p.face].diffuse_transmittance;
     }
     return a;
 }
@@ -774,30 +765,16 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     return r;
 }
 
-// The glazing's terms of the energy balance (HierarchicalResult): the backs' share, and what
-// the two sides of each glazed face pass to each other.
+// The glazing's terms of the energy balance (HierarchicalResult): the backs' share.
 void Engine::glazing_balance(const Hierarchy& h, const HierarchicalSolution& sol, const std::vector<uint32_t>& backs,
                              HierarchicalResult& r) const {
     for (uint32_t i : backs) {
         const Node& node = h.nodes[i];
         const Patch& p = h.shape(i);
-        const double t = scene_.faces[p.face].diffuse_transmittance;
         const double open_area = node.area * h.open_share(i);  // B, H, D are the open part's
         r.glass_back_entered += mul(p.reflectance, p.direct) * open_area;
-        r.glass_back_absorbed += mul(RGB{1 - t, 1 - t, 1 - t} - p.reflectance, sol.irradiance[i]) * open_area;
+        r.glass_back_absorbed += mul(RGB{1, 1, 1} - p.reflectance, sol.irradiance[i]) * open_area;
         r.glass_back_escaped += sol.radiosity[i] * (node.area * (h.open_share(i) - sol.outgoing[i]));
-    }
-    // Each side's mean irradiance from the links (leaves' area-weighted), times t and its area.
-    std::vector<RGB> power(h.nodes.size());
-    for (size_t i = h.nodes.size(); i-- > 0;) {
-        const Node& node = h.nodes[i];
-        if (node.cluster) continue;
-        if (node.leaf()) { power[i] = sol.irradiance[i] * (node.area * h.open_share(i)); continue; }
-        for (uint32_t c = 0; c < node.child_count; ++c) power[i] += power[node.first_child + c];
-    }
-    for (const Hierarchy::GlassPair& g : h.glass) {
-        r.transmitted_to_front += power[g.back] * g.transmittance;
-        r.transmitted_to_back += power[g.front] * g.transmittance;
     }
 }
 
@@ -827,7 +804,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
             g.irradiance.push_back(g.irradiance[parent]);
         }
     // The backs of glazed faces are solved with the rest but not published: their light shows
-    // on the fronts (what they pass through) and in the energy balance's glazing terms.
+    // in the energy balance's glazing terms.
     std::vector<uint32_t> leaves, backs;
     for (uint32_t i : h.leaves()) (h.shape(i).back ? backs : leaves).push_back(i);
     if (!groups.empty()) {

@@ -157,7 +157,6 @@ struct PatchArrays {
     std::vector<int32_t> face;        // (n) engine face (after triangulation)
     std::vector<int32_t> source_face; // (n) the authored face within its mesh
     std::vector<double> transmittance; // (n) glazing's normal transmittance (0: opaque)
-    std::vector<double> diffuse_transmittance; // (n) glazing's transmittance of diffuse light
 };
 
 // A flat solve.
@@ -212,10 +211,9 @@ struct HierarchicalResult {
     int64_t links_on_clusters = -1;   // final links that end on a cluster (-1: out of core, not counted)
     uint64_t balance_splits = 0;      // leaves split for the 2:1 balance of the display
     // Glazing (Hierarchy::glass), W (lm): of the unpublished backs of glazed faces the direct light
-    // they reflect (rho D A), what they absorb ((1 - rho - t) H A) and their light that reaches
-    // no surface; and the interreflected light the sides pass to each other (t H A).
+    // they reflect (rho D A), what they take of the interreflected light ((1 - rho) H A: absorbed
+    // or let through, report.energy_balance) and their light that reaches no surface.
     RGB glass_back_entered, glass_back_absorbed, glass_back_escaped;
-    RGB transmitted_to_front, transmitted_to_back;
     uint64_t limited_leaves = 0;      // leaves whose gather the last solve kept to the gain limit
                                       // (hierarchical_solver.h kGainLimit)
     int rounds = 0;                   // the final round
@@ -397,7 +395,6 @@ private:
         std::vector<double>* seconds = nullptr) const;
     // A group's emission of face f.
     RGB group_emission(const LightGroup& g, uint32_t face) const;
-    void set_diffuse_transmittance();  // the faces' glazing for diffuse light (Face)
     void glazing_balance(const Hierarchy& h, const HierarchicalSolution& sol, const std::vector<uint32_t>& backs,
                          HierarchicalResult& r) const;
     // The direct light of groups [begin, end) over `shapes`, lit together

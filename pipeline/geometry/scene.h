@@ -19,9 +19,7 @@ struct Face {
     uint32_t source_face = 0; // index of the face within that mesh's authored faces
     RGB reflectance;          // diffuse albedo per channel, in [0, 1)
     RGB emission;             // emitted exitance in W/m^2 (pi x emitted radiance)
-    double transmittance = 0; // glazing: normal transmittance of direct light (visibility.h), 0 opaque
-    double diffuse_transmittance = 0;  // glazing: of diffuse light, tau0 2 int_0^1 r(mu) mu dmu
-                                       // (Glazing::hemispherical; the engine sets it)
+    double transmittance = 0; // glazing: normal transmittance tau0 (visibility.h), 0 opaque
     Vec3 normal() const;
     double area() const;
 };

@@ -154,20 +154,6 @@ double Glazing::relative(double cos_theta) const {
     return angular[k] * (1 - f) + angular[k + 1] * f;
 }
 
-double Glazing::hemispherical() const {
-    if (angular.size() < 2) return 1.0;
-    // Segment [a, b] of the table, r linear from r0 to r1:
-    // int r mu dmu = r0 (b^2 - a^2) / 2 + (r1 - r0) / (b - a) ((b^3 - a^3) / 3 - a (b^2 - a^2) / 2).
-    const size_t m = angular.size() - 1;
-    double sum = 0;
-    for (size_t k = 0; k < m; ++k) {
-        const double a = double(k) / double(m), b = double(k + 1) / double(m);
-        const double r0 = angular[k], r1 = angular[k + 1];
-        sum += r0 * (b * b - a * a) / 2 + (r1 - r0) / (b - a) * ((b * b * b - a * a * a) / 3 - a * (b * b - a * a) / 2);
-    }
-    return 2 * sum;
-}
-
 void Glazing::validate() const {
     for (size_t f = 0; f < face_transmittance.size(); ++f)
         if (!(face_transmittance[f] >= 0 && face_transmittance[f] <= 1))
@@ -339,6 +325,33 @@ RayHit Visibility::intersect(const Vec3& origin, const Vec3& direction, double t
     hit.t = rh.ray.tfar;
     hit.u = rh.hit.u;
     hit.v = rh.hit.v;
+    return hit;
+}
+
+RayHit Visibility::intersect_through_glass(const Vec3& origin, const Vec3& direction, double tnear, double tfar,
+                                          std::vector<RayHit>* panes, double* transmittance) const {
+    if (panes) panes->clear();
+    double pass = 1;
+    RayHit hit = intersect(origin, direction, tnear, tfar);
+    double travelled = 0;  // along `direction` from `origin` to the current ray's origin
+    for (int k = 0; has_glass() && hit.patch >= 0 && k < kMaxPanes; ++k) {
+        const Patch& p = patches_[size_t(hit.patch)];
+        const double len = length(direction);
+        const double c = dot(p.normal, direction) / (len > 0 ? len : 1);
+        const double t_glass = glass_transmittance(hit.patch, std::fabs(c));
+        if (!(t_glass > 0)) break;
+        hit.t += travelled;
+        if (panes) panes->push_back(hit);
+        pass *= t_glass;
+        // Onwards from just past the pane, lifted off its plane on the far side.
+        const double lift = 1e-5 * scene_size_;
+        const double step = hit.t + (std::fabs(c) > 1e-6 ? lift / std::fabs(c) / (len > 0 ? len : 1) : lift);
+        travelled = step;
+        if (step >= tfar) { hit = RayHit{}; break; }
+        hit = intersect(origin + direction * step, direction, 0, tfar - step);
+    }
+    if (hit.patch >= 0) hit.t += travelled;
+    if (transmittance) *transmittance = pass;
     return hit;
 }
 

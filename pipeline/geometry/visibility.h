@@ -7,9 +7,11 @@
 // angular transmittance (hirad.daylight.glazing: the Tregenza-Sharples polynomial of clear
 // glass) tabulated at cos theta = k / (n - 1) and linear between. Only the direct rays of
 // luminaires and of distant lights (sun, sky) pass glass (segments_transmittance): the light
-// arrives through the window in its own direction. Links between surfaces do not
-// (segments_visible treats glass as opaque): the interreflected light that reaches a window is
-// received by the glass, which reflects its reflectance and lets the rest leave the room.
+// arrives through the window in its own direction. So does interreflected light in a
+// hierarchical bake: its links and the final gather see through glass with the same factor (a
+// thin sheet: clear glass does not scatter what it lets through), and the rays that read the
+// solved surface (pictures, probes, grids) go on through panes (intersect_through_glass).
+// segments_visible treats glass as opaque (the flat method's form factors).
 // Several panes multiply. An Embree occlusion filter does it: it rejects a hit on glass after
 // multiplying the ray's factor, so the traversal goes on to the next surface.
 #pragma once
@@ -37,9 +39,6 @@ struct Glazing {
     std::vector<double> angular;   // empty: r = 1 at every angle
     bool any() const;
     double relative(double cos_theta) const;  // r, linear in the table
-    // 2 int_0^1 r(mu) mu dmu: the fraction of tau0 that diffuse (uniform radiance) light gets
-    // through, exact for the table's linear segments (1 without a table).
-    double hemispherical() const;
     // Throws std::invalid_argument for values outside [0, 1], a table shorter than 2 or not finite.
     void validate() const;
 };
@@ -76,6 +75,16 @@ public:
     RayHit intersect(const Vec3& origin, const Vec3& direction, double tnear = 0,
                      double tfar = 1e30) const;
 
+    // The first surface along the ray that is not glass; the glass met before it is passed.
+    // `panes` (may be null) receives each pane crossed, nearest first (at most kMaxPanes; a
+    // ray that meets more stops at the last), and `transmittance` the product of their factors
+    // T(theta). Without glass in the scene this is intersect. Each crossing restarts the ray
+    // just past the pane (a shared edge of one pane's patches is met once).
+    static constexpr int kMaxPanes = 8;
+    RayHit intersect_through_glass(const Vec3& origin, const Vec3& direction, double tnear = 0,
+                                   double tfar = 1e30, std::vector<RayHit>* panes = nullptr,
+                                   double* transmittance = nullptr) const;
+
     // Closest point on the surface within max_distance; with a non-zero normal, only patches
     // facing the same way (cosine > 0.5) qualify. Returns the patch and bilinear (u,v).
     RayHit closest_point(const Vec3& point, const Vec3& normal, double max_distance) const;
@@ -97,5 +106,24 @@ private:
                    double end_gap) const;
     mutable std::atomic<uint64_t> rays_{0};
 };
+
+// What a ray that reads a solved surface sees through clear glass, from the result of
+// intersect_through_glass (`panes`, `hit`, `pass`): value(hit) of the surface past the glass,
+// times the glass passed, plus value(pane) of each pane crossed from its front (its own
+// radiosity: what it reflects), times the glass before it. Backs give nothing (one-sided).
+template <typename Value>
+RGB seen_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
+                       const std::vector<RayHit>& panes, const RayHit& hit, double pass, Value&& value) {
+    RGB sum;
+    double before = 1;
+    const double len = length(dir) > 0 ? length(dir) : 1.0;
+    for (const RayHit& g : panes) {
+        const double c = dot(patches[size_t(g.patch)].normal, dir) / len;
+        if (c < 0) sum += value(g) * before;
+        before *= vis.glass_transmittance(g.patch, std::fabs(c));
+    }
+    if (hit.patch >= 0 && dot(patches[size_t(hit.patch)].normal, dir) < 0) sum += value(hit) * pass;
+    return sum;
+}
 
 }  // namespace hirad

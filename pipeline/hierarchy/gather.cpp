@@ -199,7 +199,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     const double lift = 1e-5 * vis_.scene_size();
     Vec3 from[16], to[16];
     RGB b[16];
-    uint8_t seen[16];
+    float seen[16];  // what each ray carries: 1, 0 blocked, T through glass (visibility.h)
     int used = 0;
     for (int k = 0; k < m; ++k) {
         double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
@@ -213,15 +213,15 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         b[used] = radiosity_[leaf_at(link.source, s0, t0)];
         from[used] = x + n * lift;
         to[used] = y + s.normal * lift;
-        seen[used] = 1;
+        seen[used] = 1.0f;
         ++used;
     }
     // Nothing drawn above the horizon: S shows x a sliver (its F is as small); its mean.
     const RGB mean = used == 0 ? radiosity_[link.source] * static_cast<double>(link.visibility) : [&] {
-        if (trace) vis_.segments_visible(from, to, used, seen);
+        if (trace) vis_.segments_transmittance(from, to, used, seen);
         RGB sum;
         for (int k = 0; k < used; ++k)
-            if (seen[k]) sum += b[k];
+            if (seen[k] > 0) sum += b[k] * double(seen[k]);
         return sum / used;
     }();
     if (mo) add_moments(*mo, mean, geo);
@@ -279,9 +279,12 @@ RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
         const double lift = 1e-5 * vis_.scene_size();
         const Vec3 from = x + n * lift, to = y + cell.normal * lift;
-        uint8_t seen = 0;
-        vis_.segments_visible(&from, &to, 1, &seen);
-        if (!seen) return {};
+        float seen = 0;
+        vis_.segments_transmittance(&from, &to, 1, &seen);
+        if (!(seen > 0)) return {};
+        const RGB carried = b * double(seen);
+        if (mo) add_moments(*mo, carried, polygon_solid_angle_moments(x, n, cell.p.data(), cell.nv, cell.normal));
+        return carried * f;
     }
     if (mo) add_moments(*mo, b, polygon_solid_angle_moments(x, n, cell.p.data(), cell.nv, cell.normal));
     return b * f;
@@ -329,13 +332,13 @@ RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         ++used;
     }
     if (used == 0) return sum;
-    uint8_t seen[16];
-    vis_.segments_visible(from, to, used, seen);
+    float seen[16];
+    vis_.segments_transmittance(from, to, used, seen);
     for (int k = 0; k < used; ++k)
-        if (seen[k]) sum += f[k];
+        if (seen[k] > 0) sum += f[k] * double(seen[k]);
     if (mo)
         for (int k = 0; k < used; ++k)
-            if (seen[k]) add_moments(*mo, wb[k], geo[k]);
+            if (seen[k] > 0) add_moments(*mo, wb[k] * double(seen[k]), geo[k]);
     return sum / m;
 }
 

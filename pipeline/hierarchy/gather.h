@@ -9,6 +9,8 @@
 // Only the sources' radiosity is taken from the solution, and the error in it is reflected
 // once more, so the gathered value is far closer to the true radiance than the element's
 // (Lischinski, Tampieri and Greenberg 1993 gather the same way for display).
+// V(x, y) is what a ray from x to y carries: 1, 0 when something opaque is in the way, and
+// through clear glass the product of its panes' factors T(theta) (visibility.h).
 //
 // Directional moments (GatherOptions::directional, off by default; with importance 0 the
 // irradiance does not depend on it, bit for bit: the moments evaluate every link). With it the gather also returns, per point, the zeroth and first

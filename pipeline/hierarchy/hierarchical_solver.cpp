@@ -72,7 +72,8 @@ bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links) {
 }
 
 void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
-                  std::vector<Reception>& fc) {
+                  std::vector<Reception>& fc, const std::vector<float>& source_weight) {
+    if (!source_weight.empty()) coupling *= double(source_weight[source]);
     const uint32_t slot = h.slot_of(receiver);
     if (slot == kNoNode) {
         f[receiver] += coupling / h.nodes[receiver].area;
@@ -82,10 +83,23 @@ void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double
     fc[slot] += h.reception(receiver, source) * coupling;
 }
 
+std::vector<float> glass_weights(const Hierarchy& h) {
+    if (h.glass.empty()) return {};
+    std::vector<float> w(h.nodes.size(), 1.0f);
+    for (const Hierarchy::GlassPair& g : h.glass)
+        w[g.front] = w[g.back] = static_cast<float>(1 - g.transmittance);
+    for (size_t i = 0; i < h.nodes.size(); ++i) {  // parents first: an element tree takes its root's
+        const Node& node = h.nodes[i];
+        if (!node.cluster && node.parent != kNoNode && !h.nodes[node.parent].cluster) w[i] = w[node.parent];
+    }
+    return w;
+}
+
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
     std::vector<double> f(h.nodes.size(), 0.0);
     std::vector<Reception> fc;
-    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
+    const std::vector<float> weight = glass_weights(h);
+    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc, weight);
     return gather_scale(h, std::move(f), std::move(fc));
 }
 
@@ -95,18 +109,8 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
     if (!fc.empty() && fc.size() != h.cluster_shapes.size())
         throw std::invalid_argument("gather_scale: one vector per cluster");
     std::vector<double> scale;
-    // A glazed side passes t of its mean irradiance to the other side (LeafTerms), on top of
-    // what it reflects: its leaves count rho_max + t (per node, the element trees' t).
-    std::vector<float> through;
-    if (!h.glass.empty()) {
-        through.assign(n, 0.0f);
-        for (const Hierarchy::GlassPair& g : h.glass)
-            through[g.front] = through[g.back] = static_cast<float>(g.transmittance);
-    }
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
-        if (!through.empty() && node.parent != kNoNode && !node.cluster && !h.nodes[node.parent].cluster)
-            through[i] = through[node.parent];
         if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
             const Reception& above = fc[h.cluster_slot[node.parent]];
             if (node.cluster) fc[h.cluster_slot[i]] += above;
@@ -115,7 +119,7 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
         if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
         if (!node.leaf() || node.cluster) continue;
         const RGB& rho = h.shape(uint32_t(i)).reflectance;
-        const double gain = (std::max({rho.x, rho.y, rho.z}) + (through.empty() ? 0.0 : through[i])) * f[i];
+        const double gain = std::max({rho.x, rho.y, rho.z}) * f[i];
         if (!(gain > kGainLimit)) continue;
         if (scale.empty()) scale.assign(n, 1.0);
         scale[i] = kGainLimit / gain;
@@ -123,39 +127,9 @@ std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std:
     return scale;
 }
 
-namespace {
-
-// The element root above element i.
-uint32_t side_root(const Hierarchy& h, uint32_t i) {
-    while (h.nodes[i].parent != kNoNode && !h.nodes[h.nodes[i].parent].cluster) i = h.nodes[i].parent;
-    return i;
-}
-
-}  // namespace
-
-LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale) {
+LeafTerms leaf_terms(const Hierarchy&, std::vector<double> scale) {
     LeafTerms t;
     t.scale = std::move(scale);
-    if (h.glass.empty()) return t;
-    const size_t n = h.nodes.size();
-    t.side_of.assign(n, -1);
-    t.sides.resize(2 * h.glass.size());
-    for (size_t k = 0; k < h.glass.size(); ++k) {
-        t.side_of[h.glass[k].front] = int32_t(2 * k);
-        t.side_of[h.glass[k].back] = int32_t(2 * k + 1);
-        t.sides[2 * k].transmittance = t.sides[2 * k + 1].transmittance = h.glass[k].transmittance;
-    }
-    for (size_t i = 0; i < n; ++i) {  // parents first: an element tree takes its root's side
-        const Node& node = h.nodes[i];
-        if (node.cluster) continue;
-        if (t.side_of[i] < 0 && node.parent != kNoNode && !h.nodes[node.parent].cluster)
-            t.side_of[i] = t.side_of[node.parent];
-        if (t.side_of[i] >= 0 && node.leaf()) {
-            LeafTerms::Side& side = t.sides[size_t(t.side_of[i])];
-            side.leaves.push_back(uint32_t(i));
-            side.weight.push_back(node.area / h.nodes[side_root(h, uint32_t(i))].area);
-        }
-    }
     return t;
 }
 
@@ -163,13 +137,6 @@ uint64_t LeafTerms::limited() const {
     uint64_t count = 0;
     for (double s : scale) count += s < 1.0;
     return count;
-}
-
-RGB LeafTerms::mean(size_t side, const std::vector<RGB>& irradiance) const {
-    const Side& s = sides[side];
-    RGB sum;
-    for (size_t k = 0; k < s.leaves.size(); ++k) sum += irradiance[s.leaves[k]] * s.weight[k];
-    return sum;
 }
 
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
@@ -195,16 +162,12 @@ void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector
     if (!terms.scale.empty())
         for (size_t i = 0; i < n; ++i)
             if (h.nodes[i].leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
-    std::vector<RGB> through(terms.sides.size());  // per side: t times the other side's mean
-    for (size_t s = 0; s < terms.sides.size(); ++s)
-        through[s] = terms.mean(s ^ 1, irradiance) * terms.sides[s].transmittance;
     for (size_t i = n; i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.leaf()) {
             if (node.cluster) { radiosity[i] = RGB{}; continue; }
             const Patch& shape = h.shape(uint32_t(i));
             radiosity[i] = shape.emission + mul(shape.reflectance, irradiance[i]);
-            if (!terms.side_of.empty() && terms.side_of[i] >= 0) radiosity[i] += through[size_t(terms.side_of[i])];
             continue;
         }
         RGB acc;
@@ -355,15 +318,11 @@ void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const
         irradiance[i] = gathered[i] + (root ? RGB{} : irradiance[node.parent]);
         if (!terms.scale.empty() && node.leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
     }
-    // A glazed face's side: the other side's light as it now is (its last push).
-    const int32_t side = terms.side_of.empty() ? -1 : terms.side_of[tree.front()];
-    const RGB through = side < 0 ? RGB{}
-                                 : terms.mean(size_t(side) ^ 1, irradiance) * terms.sides[size_t(side)].transmittance;
     for (size_t k = tree.size(); k-- > 0;) {
         const uint32_t i = tree[k];
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            radiosity[i] = h.shape(uint32_t(i)).emission + mul(h.shape(uint32_t(i)).reflectance, irradiance[i]) + through;
+            radiosity[i] = h.shape(uint32_t(i)).emission + mul(h.shape(uint32_t(i)).reflectance, irradiance[i]);
             continue;
         }
         RGB acc;
@@ -533,8 +492,6 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         // Receivers: push down their trees, add rho * H to the unshot radiosity of the leaves.
         std::sort(touched.begin(), touched.end());
         for (uint32_t g : touched) {
-            const int32_t side = terms.side_of.empty() ? -1 : terms.side_of[trees.roots[g]];
-            RGB through;  // a glazed side: t times the mean of what it received now
             for (uint32_t i : trees.nodes[g]) {
                 const Node& node = h.nodes[i];
                 const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
@@ -545,21 +502,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
                     r2 -= node.area * dot(r[i], r[i]);
                     r[i] += mul(h.shape(uint32_t(i)).reflectance, got);
                     r2 += node.area * dot(r[i], r[i]);
-                    if (side >= 0) through += got * (node.area / h.nodes[trees.roots[g]].area);
                 }
-            }
-            if (side >= 0) {
-                // ... leaves the other side's leaves diffusely: unshot there
-                const LeafTerms::Side& other = terms.sides[size_t(side) ^ 1];
-                through = through * terms.sides[size_t(side)].transmittance;
-                for (uint32_t i : other.leaves) {
-                    r2 -= h.nodes[i].area * dot(r[i], r[i]);
-                    r[i] += through;
-                    r2 += h.nodes[i].area * dot(r[i], r[i]);
-                }
-                const uint32_t og = trees.slot[other.leaves.front()];
-                power[og] = face_power(og);
-                queue.push({power[og], -int64_t(og)});
             }
             power[g] = face_power(g);
             queue.push({power[g], -int64_t(g)});

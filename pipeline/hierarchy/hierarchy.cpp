@@ -51,7 +51,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
         p.mesh = face.mesh;
         p.face = f;
         finish_shape(p);
-        if (face.diffuse_transmittance > 0) glazed.push_back(f);
+        if (face.transmittance > 0) glazed.push_back(f);
     }
     // The backs of glazed faces: the same polygon turned over (corners reversed), reflecting as
     // the front, emitting nothing, after all the scene's faces.
@@ -176,7 +176,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
         c.layered = hi - lo > c.radius * (sin_spread + 1e-6);
     });
     for (size_t k = 0; k < glazed.size(); ++k)
-        glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].diffuse_transmittance});
+        glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].transmittance});
 }
 
 Vec3 Hierarchy::centre(uint32_t i) const {
@@ -411,7 +411,8 @@ void Hierarchy::measure_open(const Visibility& vis) {
                 const Vec3 x = s.point(s0, t0) + n * lift;
                 bool enclosed = true;
                 for (const Vec3& d : dirs) {
-                    const RayHit hit = vis.intersect(x, d);
+                    // (glass encloses nothing: seen through, the backs behind it count)
+                    const RayHit hit = vis.intersect_through_glass(x, d);
                     if (hit.patch < 0 || dot(faces[static_cast<size_t>(hit.patch)].normal, d) < 0) {
                         enclosed = false;
                         break;

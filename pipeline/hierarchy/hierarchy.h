@@ -141,15 +141,15 @@ public:
     }
     static inline const Patch kNoShape{};
 
-    // Glazing's two sides. A glazed face (Face::diffuse_transmittance t > 0) is two elements
-    // trees back to back: the face, and its back (the polygon turned over), each receiving the
-    // light in front of it. Each side lets t of the interreflected light it receives through
-    // to the other side, where it leaves diffusely: B = E + rho H + t H_other, H_other the mean
-    // irradiance over the other side from the links (its direct light, which the glazing
-    // transmits in direction, excluded: visibility.h). Only the fronts are traced.
+    // Glazing's two sides. A glazed face (Face::transmittance tau0 > 0) is two element trees
+    // back to back: the face, and its back (the polygon turned over), each receiving the light
+    // in front of it and reflecting its reflectance of it: B = E + rho H. What the glass lets
+    // through it does not scatter: links and the final gather see through it, each ray with
+    // the factor tau0 r(cos theta) (visibility.h), so that light arrives on the other side in
+    // its own direction. Only the fronts are traced.
     struct GlassPair {
         uint32_t front, back;    // element roots
-        double transmittance;    // t
+        double transmittance;    // tau0 (the gain limit discounts links from glass by it)
     };
     std::vector<GlassPair> glass;
 

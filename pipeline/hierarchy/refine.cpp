@@ -162,12 +162,14 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
             weight.push_back(w);
         }
     }
-    std::vector<uint8_t> visible(from.size());
-    vis_.segments_visible(from.data(), to.data(), from.size(), visible.data());
+    // What arrives along each ray: 1, 0 where something opaque is in the way, the product of
+    // the panes' T(theta) through glass (visibility.h: glass is a thin sheet to links too).
+    std::vector<float> pass(from.size());
+    vis_.segments_transmittance(from.data(), to.data(), from.size(), pass.data());
     double g_sum = 0;
-    size_t arrived = 0;
+    double arrived = 0;
     for (size_t k = 0; k < from.size(); ++k)
-        if (visible[k]) { g_sum += weight[k]; ++arrived; }
+        if (pass[k] > 0) { g_sum += weight[k] * double(pass[k]); arrived += double(pass[k]); }
     if (!polygon_source && !polygon_receiver) {
         // The point-to-point kernel is unbounded where the two clusters touch (1 / r^2 at
         // points r apart), so a few pairs drawn near a shared edge can make the sum as large as
@@ -180,7 +182,7 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     }
     link.coupling = static_cast<float>(g_sum);
     link.unoccluded = static_cast<float>(unoccluded);
-    link.visibility = from.empty() ? 0.0f : static_cast<float>(double(arrived) / from.size());
+    link.visibility = from.empty() ? 0.0f : static_cast<float>(arrived / double(from.size()));
     return link;
 }
 

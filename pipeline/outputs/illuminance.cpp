@@ -29,23 +29,24 @@ Patch piece(const Patch& parent, std::array<Vec3, 4> p, int nv) {
 }
 
 // The indirect part's rays at sensor q: k x k cosine-distributed stratified directions (Malley:
-// uniform on the disk, lifted), seeded by q; `hit(patch, u, v)` for each ray that meets the
-// front of a surface (misses and backs of one-sided surfaces give nothing).
+// uniform on the disk, lifted), seeded by q, through clear glass; `hit(d, h, pass, panes)` for
+// each ray (h the surface past the glass, patch -1 for none; pass the glass's factor; panes the
+// glass crossed, visibility.h).
 template <typename Hit>
-void hemisphere_rays(const std::vector<Patch>& patches, const Visibility& visibility, const Vec3& x, const Vec3& nx,
-                     size_t q, int k, uint64_t seed, double lift, Hit&& hit) {
+void hemisphere_rays(const Visibility& visibility, const Vec3& x, const Vec3& nx, size_t q, int k, uint64_t seed,
+                     double lift, Hit&& hit) {
     Vec3 t1, t2;
     tangent_frame(nx, t1, t2);
     Rng rng(hash_pair(q, 0x11C0ull, seed));
+    std::vector<RayHit> panes;
     for (int i = 0; i < k; ++i)
         for (int j = 0; j < k; ++j) {
             const double r = std::sqrt((i + rng.uniform()) / k), phi = 2 * kPi * (j + rng.uniform()) / k;
             const double a = r * std::cos(phi), b = r * std::sin(phi), c = std::sqrt(std::max(0.0, 1 - r * r));
             const Vec3 d = normalize(t1 * a + t2 * b + nx * c);
-            const RayHit h = visibility.intersect(x, d, lift);
-            if (h.patch < 0) continue;
-            if (dot(patches[h.patch].normal, d) >= 0) continue;  // the back of a one-sided surface
-            hit(h);
+            double pass = 1;
+            const RayHit h = visibility.intersect_through_glass(x, d, lift, 1e30, &panes, &pass);
+            hit(d, h, pass, panes);
         }
 }
 
@@ -62,19 +63,36 @@ HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibili
     const size_t m = size_t(k) * k, n = points.size();
     HemisphereHits out;
     out.rays = int(m);
-    out.patch.assign(n * m, -1);
-    out.u.assign(n * m, 0.0);
-    out.v.assign(n * m, 0.0);
+    struct Entry { RayHit hit; double weight; };
+    std::vector<std::vector<Entry>> per(n);  // per sensor, in ray order (then joined in sensor order)
     const double lift = 1e-7 * visibility.scene_size();
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
-        size_t slot = q * m;
-        hemisphere_rays(patches, visibility, points[q], normalize(normals[q]), q, k, seed, lift, [&](const RayHit& h) {
-            out.patch[slot] = h.patch;
-            out.u[slot] = h.u;
-            out.v[slot] = h.v;
-            ++slot;
-        });
+        hemisphere_rays(visibility, points[q], normalize(normals[q]), q, k, seed, lift,
+                        [&](const Vec3& d, const RayHit& h, double pass, const std::vector<RayHit>& panes) {
+                            // what seen_through_glass reads: the panes met from the front, then
+                            // the hit past them; misses and backs of one-sided surfaces nothing
+                            double before = 1;
+                            for (const RayHit& g : panes) {
+                                const double c = dot(patches[size_t(g.patch)].normal, d);
+                                if (c < 0) per[q].push_back({g, before});
+                                before *= visibility.glass_transmittance(g.patch, std::fabs(c));
+                            }
+                            if (h.patch >= 0 && dot(patches[size_t(h.patch)].normal, d) < 0)
+                                per[q].push_back({h, pass});
+                        });
     });
+    size_t total = 0;
+    for (const auto& e : per) total += e.size();
+    out.sensor.reserve(total), out.patch.reserve(total), out.u.reserve(total), out.v.reserve(total);
+    out.weight.reserve(total);
+    for (size_t q = 0; q < n; ++q)
+        for (const Entry& e : per[q]) {
+            out.sensor.push_back(int32_t(q));
+            out.patch.push_back(e.hit.patch);
+            out.u.push_back(e.hit.u);
+            out.v.push_back(e.hit.v);
+            out.weight.push_back(e.weight);
+        }
     return out;
 }
 
@@ -169,22 +187,25 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
             }
         }
         if (!from.empty()) {
-            std::vector<uint8_t> seen(from.size());
-            visibility.segments_visible(from.data(), to.data(), from.size(), seen.data());
+            std::vector<float> seen(from.size());  // through clear glass with its factor
+            visibility.segments_transmittance(from.data(), to.data(), from.size(), seen.data());
             RGB e{};
             for (size_t a = 0; a < from.size(); ++a)
-                if (seen[a]) e += le[a] * (kPi * f[a]);
+                if (seen[a] > 0) e += le[a] * (kPi * f[a] * double(seen[a]));
             out.direct[q] = e;
         }
         if (k == 0) return;
         // indirect: cosine-distributed stratified rays
         RGB sum{};
-        hemisphere_rays(patches, visibility, x, nx, q, k, o.seed, lift, [&](const RayHit& hit) {
-            const Patch& p = patches[hit.patch];
-            RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) - emitted[hit.patch];
-            l = {std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
-            sum += l;
-        });
+        hemisphere_rays(visibility, x, nx, q, k, o.seed, lift,
+                        [&](const Vec3& d, const RayHit& h, double pass, const std::vector<RayHit>& panes) {
+                            sum += seen_through_glass(visibility, patches, d, panes, h, pass, [&](const RayHit& at) {
+                                const Patch& p = patches[at.patch];
+                                RGB l = interpolate_corners(p.nv, corner_radiance[at.patch], at.u, at.v) -
+                                        emitted[at.patch];
+                                return RGB{std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
+                            });
+                        });
         out.indirect[q] = sum * (kPi / (double(k) * k));
     });
     return out;

@@ -38,15 +38,18 @@ struct IlluminanceOptions {
     uint64_t seed = 1;
 };
 
-// The indirect part's rays without their values: per sensor, `rays` slots (k x k, k = ceil of
-// sqrt of the rays asked), each the front-facing hit (patch, Embree's u, v) of one ray or -1;
-// the hits come first. The indirect illuminance of any corner radiance L (zero emission) is
-// pi / rays x the sum of L interpolated at the hits: linear in L, so the rays of a grid are
-// traced once for many solutions (daylight coefficients, hirad.daylight.coefficients).
+// The indirect part's rays without their values: `rays` rays a sensor (k x k, k = ceil of sqrt
+// of the rays asked), each giving the front-facing surfaces it reads: the hit past any clear
+// glass, and each pane it crossed from its front (seen_through_glass), as entries (sensor,
+// patch, Embree's u, v, weight: the glass passed before that surface, 1 without), sensor by
+// sensor, ray by ray. The indirect illuminance of any corner radiance L (zero emission) is
+// pi / rays x the sum of weight x L interpolated at a sensor's entries: linear in L, so the
+// rays of a grid are traced once for many solutions (daylight coefficients,
+// hirad.daylight.coefficients).
 struct HemisphereHits {
     int rays = 0;
-    std::vector<int32_t> patch;   // (sensors, rays)
-    std::vector<double> u, v;     // (sensors, rays)
+    std::vector<int32_t> sensor, patch;
+    std::vector<double> u, v, weight;
 };
 
 struct Illuminance {

@@ -33,16 +33,19 @@ std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visi
     std::vector<float> image(size_t(w) * h * 3, 0.0f);
     const int g = std::max(1, static_cast<int>(std::sqrt(double(std::max(samples, 1)))));
     tbb::parallel_for(0, h, [&](int y) {
+        std::vector<RayHit> panes;
         for (int x = 0; x < w; ++x) {
             RGB sum;
             for (int sy = 0; sy < g; ++sy)
                 for (int sx = 0; sx < g; ++sx) {
                     const Vec3 dir = camera_direction(cam, x + (sx + 0.5) / g, y + (sy + 0.5) / g);
-                    RayHit hit = visibility.intersect(cam.position, normalize(dir));
-                    if (hit.patch < 0) continue;
-                    const Patch& p = patches[hit.patch];
-                    if (dot(p.normal, dir) >= 0) continue;  // back faces emit nothing
-                    sum += interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v);
+                    // through clear glass; back faces emit nothing
+                    double pass = 1;
+                    const RayHit hit = visibility.intersect_through_glass(cam.position, normalize(dir), 0, 1e30,
+                                                                          &panes, &pass);
+                    sum += seen_through_glass(visibility, patches, dir, panes, hit, pass, [&](const RayHit& at) {
+                        return interpolate_corners(patches[at.patch].nv, corner_radiance[at.patch], at.u, at.v);
+                    });
                 }
             sum = sum / double(g * g);
             float* px = &image[(size_t(y) * w + x) * 3];

@@ -46,6 +46,7 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
         Rng rng(hash_pair(q, 0x5eed, seed));
         ProbeMoments m;
         int back = 0, hits = 0;
+        std::vector<RayHit> panes;
         for (int i = 0; i < k; ++i)
             for (int j = 0; j < k; ++j) {
                 // z uniform in [-1, 1] and phi uniform: equal area on the sphere (Archimedes).
@@ -53,16 +54,20 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
                 const double phi = 2 * kPi * (j + rng.uniform()) / k;
                 const double r = std::sqrt(std::max(0.0, 1 - z * z));
                 const Vec3 d{r * std::cos(phi), r * std::sin(phi), z};
-                const RayHit hit = visibility.intersect(points[q], d);
-                if (hit.patch < 0) continue;
+                // through clear glass (the panes' own light and what lies past them)
+                double pass = 1;
+                const RayHit hit = visibility.intersect_through_glass(points[q], d, 0, 1e30, &panes, &pass);
+                const double first = panes.empty() ? hit.t : panes.front().t;
+                if (hit.patch < 0 && panes.empty()) continue;
                 ++hits;
-                if (m.nearest < 0 || hit.t < m.nearest) m.nearest = hit.t;
-                const Patch& p = patches[hit.patch];
-                if (dot(p.normal, d) >= 0) {  // the back of a one-sided surface
-                    ++back;
+                if (m.nearest < 0 || first < m.nearest) m.nearest = first;
+                if (hit.patch >= 0 && panes.empty() && dot(patches[hit.patch].normal, d) >= 0) {
+                    ++back;  // the back of a one-sided surface
                     continue;
                 }
-                const RGB l = interpolate_corners(p.nv, corner_radiance[hit.patch], hit.u, hit.v) * weight;
+                const RGB l = seen_through_glass(visibility, patches, d, panes, hit, pass, [&](const RayHit& at) {
+                                  return interpolate_corners(patches[at.patch].nv, corner_radiance[at.patch], at.u, at.v);
+                              }) * weight;
                 m.s0 += l;
                 m.s1[0] += l * d.x;
                 m.s1[1] += l * d.y;

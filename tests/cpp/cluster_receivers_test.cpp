@@ -276,44 +276,52 @@ TEST(ClusterReceivers, LinksThatCarryLittleStayCoarse) {
     EXPECT_LT(fine, 2 * coarse) << coarse << " links for " << faces2 << " faces, " << fine << " for " << faces8;
 }
 
-TEST(ClusterReceivers, TheGainLimitCountsWhatGlazingPasses) {
-    // A wall (rho 0.999, E 1) and a pane (t 1, rho 0) whose estimates are 20 % over the
-    // hemisphere both ways: the wall gathers from the pane's front (F 1.2) and the pane's back
-    // from the wall (F 1.2), which passes it on to its front. Reflection alone is limited
-    // (rho F <= kGainLimit); the pass-through must be too, or the loop gains 0.999 x 1.2 and
-    // the solve diverges. Limited, the wall's gather is scaled by 1 / 1.2 and the back's by
-    // kGainLimit / 1.2, so B_wall = E + rho kGainLimit B_wall: E / (1 - 0.999 kGainLimit).
-    Scene scene;
-    Face wall;
-    wall.nv = 4;
-    wall.p = {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{1, 1, 0}, Vec3{0, 1, 0}};
-    wall.reflectance = test::grey(0.999);
-    wall.emission = test::grey(1.0);
-    Face pane = wall;
-    pane.p = {Vec3{0, 0, 1}, Vec3{0, 1, 1}, Vec3{1, 1, 1}, Vec3{1, 0, 1}};
-    pane.reflectance = test::grey(0.0);
-    pane.emission = test::grey(0.0);
-    pane.diffuse_transmittance = 1.0;
-    scene.faces = {wall, pane};
-    const Hierarchy h(scene);
-    ASSERT_EQ(h.glass.size(), 1u);
-    const uint32_t w = h.face_node[0], front = h.glass[0].front, back = h.glass[0].back;
-    std::vector<Link> links(2);
-    links[0].receiver = w;
-    links[0].source = front;
-    links[0].coupling = links[0].unoccluded = static_cast<float>(1.2 * h.nodes[w].area);
-    links[1].receiver = back;
-    links[1].source = w;
-    links[1].coupling = links[1].unoccluded = static_cast<float>(1.2 * h.nodes[back].area);
-    for (Link& l : links) l.visibility = 1;
-    sort_links(links);
-    SolverOptions o = tight();
-    o.max_iterations = 1000000;
-    const HierarchicalSolution sol = solve_push_pull(h, links, {}, o);
-    ASSERT_TRUE(sol.converged) << "residual " << sol.residual;
-    const double expected = 1.0 / (1 - 0.999 * kGainLimit);
-    EXPECT_NEAR(sol.radiosity[w].x, expected, 1e-5 * expected);
-    EXPECT_NEAR(sol.radiosity[front].x, kGainLimit * sol.radiosity[w].x, 1e-5 * expected);
+TEST(ClusterReceivers, TheGainLimitDiscountsLinksFromGlass) {
+    // A wall (rho 0.9, E 1) facing a clear pane (tau0 1, rho 0) with a lamp (E 2) behind it.
+    // The wall gathers from the pane's front (F 1: the pane fills its view) and, through the
+    // pane, from the lamp (F 0.5): its estimates sum to 1.5 with no error in them. Links from
+    // glass count (1 - tau0) of their F in the gain limit, so nothing is limited and
+    // B_wall = E + rho F_lamp E_lamp = 1 + 0.9 x 0.5 x 2 = 1.9 exactly. The same links with an
+    // opaque pane (tau0 0) sum to 1.5 and are limited: rho F = 1.35 > kGainLimit.
+    for (const double tau0 : {1.0, 0.0}) {
+        Scene scene;
+        Face wall;
+        wall.nv = 4;
+        wall.p = {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{1, 1, 0}, Vec3{0, 1, 0}};
+        wall.reflectance = test::grey(0.9);
+        wall.emission = test::grey(1.0);
+        Face pane = wall;
+        pane.p = {Vec3{0, 0, 1}, Vec3{0, 1, 1}, Vec3{1, 1, 1}, Vec3{1, 0, 1}};
+        pane.reflectance = test::grey(0.0);
+        pane.emission = test::grey(0.0);
+        pane.transmittance = tau0;
+        Face lamp = pane;
+        for (Vec3& c : lamp.p) c.z = 2;
+        lamp.emission = test::grey(2.0);
+        lamp.transmittance = 0;
+        scene.faces = {wall, pane, lamp};
+        const Hierarchy h(scene);
+        ASSERT_EQ(h.glass.size(), tau0 > 0 ? 1u : 0u);
+        const uint32_t w = h.face_node[0], front = h.face_node[1], l = h.face_node[2];
+        std::vector<Link> links(2);
+        links[0].receiver = w;
+        links[0].source = front;
+        links[0].coupling = links[0].unoccluded = static_cast<float>(1.0 * h.nodes[w].area);
+        links[1].receiver = w;
+        links[1].source = l;
+        links[1].coupling = links[1].unoccluded = static_cast<float>(0.5 * h.nodes[w].area);
+        for (Link& k : links) k.visibility = 1;
+        sort_links(links);
+        const HierarchicalSolution sol = solve_push_pull(h, links, {}, tight());
+        ASSERT_TRUE(sol.converged) << "residual " << sol.residual;
+        if (tau0 > 0) {
+            EXPECT_EQ(sol.limited_leaves, 0u);
+            EXPECT_NEAR(sol.radiosity[w].x, 1.9, 1e-9);
+        } else {
+            EXPECT_EQ(sol.limited_leaves, 1u);
+            EXPECT_NEAR(sol.radiosity[w].x, 1 + 0.9 * (kGainLimit / 1.35) * 0.5 * 2, 1e-6);
+        }
+    }
 }
 
 }  // namespace

@@ -531,12 +531,6 @@ class PatchArrays:
     def transmittance(self) -> NDArray[numpy.float64]:
         """(n) glazing: the normal transmittance of direct light (0: opaque)."""
 
-    @property
-    def diffuse_transmittance(self) -> NDArray[numpy.float64]:
-        """
-        (n) glazing: the transmittance of diffuse light, tau0 2 int r(mu) mu dmu (0: opaque).
-        """
-
     def take(self) -> dict:
         """
         Every field as {name: array}, moved out (the struct is left with none): the patches held once, not twice (hirad.engine.patch_dict).
@@ -842,25 +836,13 @@ class HierarchicalResult:
     @property
     def glass_back_absorbed(self) -> NDArray[numpy.float64]:
         """
-        (3,) the backs of glazed faces: what they absorb of the interreflected light, (1 - rho - t) H A, W.
+        (3,) the backs of glazed faces: what they take of the interreflected light (absorbed or let through), (1 - rho) H A, W.
         """
 
     @property
     def glass_back_escaped(self) -> NDArray[numpy.float64]:
         """
         (3,) the backs of glazed faces: their light that reaches no surface, W, signed.
-        """
-
-    @property
-    def transmitted_to_front(self) -> NDArray[numpy.float64]:
-        """
-        (3,) interreflected light glazed faces pass from their backs to their fronts, t H A, W.
-        """
-
-    @property
-    def transmitted_to_back(self) -> NDArray[numpy.float64]:
-        """
-        (3,) interreflected light glazed faces pass from their fronts to their backs, t H A, W.
         """
 
     @property
@@ -1231,7 +1213,7 @@ class SurfaceField:
 
     def hemisphere_hits(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], rays: int, seed: int = 1) -> tuple:
         """
-        The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (patch, u, v), each (sensors, k*k); patch -1 where a ray met nothing or the back of a surface. The indirect illuminance of corner radiance L is pi / (k*k) x the sum of L interpolated at the hits.
+        The rays of illuminance's indirect part (the same for the same rays and seed), traced once: (sensor, patch, u, v, weight, rays): per entry a front-facing surface a ray of that sensor reads (through clear glass: the panes met from the front and the surface past them; weight the glass passed before it, 1 without), sensor by sensor; rays = k*k a sensor. The indirect illuminance of corner radiance L is pi / rays x the sum of weight x L interpolated at a sensor's entries.
         """
 
     def direct_transmittance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float32]:

@@ -297,7 +297,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         glazing = None
         if np.any(patches["transmittance"] > 0):
             rep.warn(f"{cfg.scene}: method: flat treats glass as opaque to interreflected light (the sun's and "
-                     f"sky's direct light still passes it); method: hierarchical passes the transmitted part diffusely")
+                     f"sky's direct light still passes it); method: hierarchical passes it in direction")
     # The irradiance from the surfaces plus the luminaires' direct light (their first bounce).
     h = np.asarray(h) + patches["direct"]
     grouped = None

@@ -16,7 +16,7 @@ import numpy as np
 from . import _engine
 
 PATCH_FIELDS = ("corners", "uv", "area", "normal", "centroid", "reflectance", "emission", "direct", "nv", "mesh", "face",
-                "source_face", "transmittance", "diffuse_transmittance")
+                "source_face", "transmittance")
 DISPLAY_FIELDS = ("points", "point_mesh", "corners", "boundary", "faces", "face_nv", "face_patch", "face_code",
                   "anchored")
 STREAMING_FIELDS = ("rounds", "groups_shot", "links_shot", "chunk_reads", "chunk_hits", "resident_bytes_peak",

@@ -226,12 +226,16 @@ def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndar
     room that part is the discretisation's error of the direct light alone.
     `received_as_emitted` (daylight: sun and sky have no flux of their own): the direct light the
     patches receive (sum of direct x area) counts as what entered.
-    Glazed faces (patches' `diffuse_transmittance` t > 0) take in only the direct light they
-    reflect, rho D (what they let through is counted where it lands, as D there), and absorb
-    (1 - rho - t) of the interreflected light H - D they receive: t of it leaves on their other
-    side (with `glazing`; without, glass passes none). `glazing` (a hierarchical result): the unpublished backs of glazed faces (their rho D
-    in, their absorption, their light that reaches no surface), and what passes through glass
-    each way, reported as entered/left through windows."""
+    Glazed faces (patches' `transmittance` > 0) take in only the direct light they reflect,
+    rho D (what they let through is counted where it lands, as D there), and take (1 - rho) of
+    the interreflected light H - D they receive: what they absorb and what they let through
+    together, reported apart as `glazing.glass_took_W`. Clear glass lets interreflected light
+    through in direction (hierarchical bakes, visibility.h), so what reaches other surfaces is
+    counted again where it lands, and the light of the surfaces that sent it through the glass
+    is missing from their escaped part by as much (per link the power sent is the power
+    received): the sum closes, while `escaped_W` is net of what glass passed on to surfaces
+    and `glass_took_W` includes it. `glazing` (a hierarchical result): the unpublished backs of
+    glazed faces (their rho D in, what they take, their light that reaches no surface)."""
     # hierarchical bakes: a leaf's B, H and direct light are those of its part outside other
     # geometry (patches["open"], the engine's Hierarchy::open), which alone sends and absorbs
     area = (patches["area"] * patches["open"] if "open" in patches else patches["area"])[:, None]
@@ -239,11 +243,9 @@ def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndar
     direct = patches["direct"]
     tau = patches.get("transmittance")
     glass = (np.asarray(tau) > 0) if tau is not None else np.zeros(len(area), dtype=bool)
-    # without the glazing's two sides (the flat method) glass passes no interreflected light
-    t = np.asarray(patches["diffuse_transmittance"])[:, None] if glazing is not None else 0.0
     emitted = (patches["emission"] * area).sum(axis=0)
-    absorbed = np.where(glass[:, None], (1 - rho - t) * (h - direct), (1 - rho) * h)
-    absorbed = (absorbed * area).sum(axis=0)
+    absorbed = ((np.where(glass[:, None], 0.0, (1 - rho) * h)) * area).sum(axis=0)
+    glass_took = ((np.where(glass[:, None], (1 - rho) * (h - direct), 0.0)) * area).sum(axis=0)
     lost = np.asarray(escaped).sum(axis=0)
     out = {}
     # the direct light that enters the surfaces' exchange (glass: only what it reflects)
@@ -263,15 +265,15 @@ def energy_balance(patches: dict, b: np.ndarray, h: np.ndarray, escaped: np.ndar
             emitted = emitted + back_in
         else:
             lost = lost - back_in  # the luminaires' light the backs reflect was not lost
-        absorbed = absorbed + np.asarray(glazing.glass_back_absorbed)
+        glass_took = glass_took + np.asarray(glazing.glass_back_absorbed)
         lost = lost + np.asarray(glazing.glass_back_escaped)
-        out["glazing"] = {"transmitted_to_front_W": np.asarray(glazing.transmitted_to_front).tolist(),
-                          "transmitted_to_back_W": np.asarray(glazing.transmitted_to_back).tolist(),
-                          "back_direct_reflected_W": back_in.tolist(),
-                          "back_absorbed_W": np.asarray(glazing.glass_back_absorbed).tolist(),
+        out["glazing"] = {"back_direct_reflected_W": back_in.tolist(),
+                          "back_took_W": np.asarray(glazing.glass_back_absorbed).tolist(),
                           "back_escaped_W": np.asarray(glazing.glass_back_escaped).tolist()}
+    if np.any(glass):
+        out.setdefault("glazing", {})["glass_took_W"] = glass_took.tolist()
     scale = np.where(emitted > 0, emitted, 1.0)
-    error = np.abs(emitted - absorbed - lost) / scale
+    error = np.abs(emitted - absorbed - glass_took - lost) / scale
     return {"emitted_W": emitted.tolist(), "absorbed_W": absorbed.tolist(), "escaped_W": lost.tolist(),
             "relative_error": error.tolist(), "max_relative_error": float(error.max()), **out}
 

@@ -48,14 +48,16 @@ class HitStencil:
     sum_j weight[s, j] x value[vertex[s, j]] (weights include pi / m)."""
 
     def __init__(self, field, faces: np.ndarray, nv: np.ndarray, points, normals, rays: int, seed: int):
-        patch, u, v = field.hemisphere_hits(np.ascontiguousarray(points, dtype=np.float64),
-                                            np.ascontiguousarray(normals, dtype=np.float64), int(rays), int(seed))
-        m = patch.shape[1]
-        hit = patch >= 0
-        safe = np.where(hit, patch, 0)
-        w = _corner_weights(np.asarray(nv)[safe], u, v) * hit[..., None] * (np.pi / m)
-        self.vertex = np.asarray(faces)[safe].reshape(len(patch), -1)   # (S, m * 4)
-        self.weight = w.reshape(len(patch), -1)
+        sensor, patch, u, v, through, m = field.hemisphere_hits(np.ascontiguousarray(points, dtype=np.float64),
+                                                               np.ascontiguousarray(normals, dtype=np.float64),
+                                                               int(rays), int(seed))
+        # one entry per surface a ray reads (through clear glass: the panes met from the front
+        # and the surface past them), `through` the glass passed before it (1 without)
+        w = _corner_weights(np.asarray(nv)[patch], u, v) * (through * (np.pi / m))[:, None]
+        self.sensors = len(points)
+        self.row = np.repeat(sensor, 4)
+        self.vertex = np.asarray(faces)[patch].reshape(-1)   # (entries * 4)
+        self.weight = w.reshape(-1)
         self.rays = m
         self._matrix = None
 
@@ -64,9 +66,7 @@ class HitStencil:
         from scipy import sparse
 
         if self._matrix is None or self._matrix.shape[1] != vertices:
-            rows = np.repeat(np.arange(len(self.vertex)), self.vertex.shape[1])
-            self._matrix = sparse.csr_matrix((self.weight.ravel(), (rows, self.vertex.ravel())),
-                                             shape=(len(self.vertex), vertices))
+            self._matrix = sparse.csr_matrix((self.weight, (self.row, self.vertex)), shape=(self.sensors, vertices))
         return self._matrix
 
     def apply(self, vertex_values: np.ndarray) -> np.ndarray:
