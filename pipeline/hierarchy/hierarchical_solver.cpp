@@ -72,8 +72,7 @@ bool any_cluster_receiver(const Hierarchy& h, const std::vector<Link>& links) {
 }
 
 void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
-                  std::vector<Reception>& fc, const std::vector<float>& source_weight) {
-    if (!source_weight.empty()) coupling *= double(source_weight[source]);
+                  std::vector<Reception>& fc) {
     const uint32_t slot = h.slot_of(receiver);
     if (slot == kNoNode) {
         f[receiver] += coupling / h.nodes[receiver].area;
@@ -83,23 +82,10 @@ void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double
     fc[slot] += h.reception(receiver, source) * coupling;
 }
 
-std::vector<float> glass_weights(const Hierarchy& h) {
-    if (h.glass.empty()) return {};
-    std::vector<float> w(h.nodes.size(), 1.0f);
-    for (const Hierarchy::GlassPair& g : h.glass)
-        w[g.front] = w[g.back] = static_cast<float>(1 - g.transmittance);
-    for (size_t i = 0; i < h.nodes.size(); ++i) {  // parents first: an element tree takes its root's
-        const Node& node = h.nodes[i];
-        if (!node.cluster && node.parent != kNoNode && !h.nodes[node.parent].cluster) w[i] = w[node.parent];
-    }
-    return w;
-}
-
 std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
     std::vector<double> f(h.nodes.size(), 0.0);
     std::vector<Reception> fc;
-    const std::vector<float> weight = glass_weights(h);
-    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc, weight);
+    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
     return gather_scale(h, std::move(f), std::move(fc));
 }
 

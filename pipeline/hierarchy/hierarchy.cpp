@@ -176,7 +176,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
         c.layered = hi - lo > c.radius * (sin_spread + 1e-6);
     });
     for (size_t k = 0; k < glazed.size(); ++k)
-        glass.push_back({face_node[glazed[k]], face_node[ns + k], scene.faces[glazed[k]].transmittance});
+        glass.push_back({face_node[glazed[k]], face_node[ns + k]});
 }
 
 Vec3 Hierarchy::centre(uint32_t i) const {

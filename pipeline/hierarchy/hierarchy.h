@@ -149,7 +149,6 @@ public:
     // its own direction. Only the fronts are traced.
     struct GlassPair {
         uint32_t front, back;    // element roots
-        double transmittance;    // tau0 (the gain limit discounts links from glass by it)
     };
     std::vector<GlassPair> glass;
 

@@ -204,7 +204,6 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     {
         std::vector<double> in(n, 0.0);
         std::vector<Reception> in_clusters;
-        const std::vector<float> weight = glass_weights(h);  // links from glass count 1 - tau0
         TransportLinks t;
         for (size_t g = 0; g < ng; ++g)
             for (size_t p = 0; p < chunks.parts(g); ++p) {
@@ -214,7 +213,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     for (; k < t.run_end[r]; ++k) {
                         if (receivers[k] >= n)
                             throw std::runtime_error("streaming solve: a link's receiver is not a node");
-                        add_coupling(h, receivers[k], t.sources[r], double(t.coupling[k]), in, in_clusters, weight);
+                        add_coupling(h, receivers[k], t.sources[r], double(t.coupling[k]), in, in_clusters);
                     }
             }
         clusters_receive = !in_clusters.empty();
