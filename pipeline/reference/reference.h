@@ -11,9 +11,9 @@
 // its reflectance diffusely on the side it is met from: a path that meets glass passes it with
 // probability T / (T + max rho) (the weight T over that probability) or is reflected there
 // (the weight rho over the rest); next-event rays to the emitters pass glass with T, as the
-// luminaires' rays do. This is the physics hirad's solution approximates (Hierarchy::glass:
-// interreflected light through glass leaves its other side diffusely, spread over the pane),
-// not a copy of that approximation. Several panes on one path multiply.
+// luminaires' rays do. hirad's solution treats glass the same way (Hierarchy::glass: links and
+// the final gather pass panes with T); the reference does it by paths, independently of the
+// links. Several panes on one path multiply.
 #pragma once
 #include <cstdint>
 #include <vector>
