@@ -107,22 +107,30 @@ private:
     mutable std::atomic<uint64_t> rays_{0};
 };
 
-// What a ray that reads a solved surface sees through clear glass, from the result of
-// intersect_through_glass (`panes`, `hit`, `pass`): value(hit) of the surface past the glass,
-// times the glass passed, plus value(pane) of each pane crossed from its front (its own
-// radiosity: what it reflects), times the glass before it. Backs give nothing (one-sided).
-template <typename Value>
-RGB seen_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
-                       const std::vector<RayHit>& panes, const RayHit& hit, double pass, Value&& value) {
-    RGB sum;
+// The surfaces a ray that reads a solved surface sees through clear glass, from the result of
+// intersect_through_glass (`panes`, `hit`, `pass`): visit(pane, weight) for each pane crossed
+// from its front (its own radiosity: what it reflects), weight the glass before it, then
+// visit(hit, pass) for the surface past the glass. Backs give nothing (one-sided).
+template <typename Visit>
+void visit_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
+                         const std::vector<RayHit>& panes, const RayHit& hit, double pass, Visit&& visit) {
     double before = 1;
     const double len = length(dir) > 0 ? length(dir) : 1.0;
     for (const RayHit& g : panes) {
         const double c = dot(patches[size_t(g.patch)].normal, dir) / len;
-        if (c < 0) sum += value(g) * before;
+        if (c < 0) visit(g, before);
         before *= vis.glass_transmittance(g.patch, std::fabs(c));
     }
-    if (hit.patch >= 0 && dot(patches[size_t(hit.patch)].normal, dir) < 0) sum += value(hit) * pass;
+    if (hit.patch >= 0 && dot(patches[size_t(hit.patch)].normal, dir) < 0) visit(hit, pass);
+}
+
+// The sum of value(surface) x weight over what visit_through_glass visits.
+template <typename Value>
+RGB seen_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
+                       const std::vector<RayHit>& panes, const RayHit& hit, double pass, Value&& value) {
+    RGB sum;
+    visit_through_glass(vis, patches, dir, panes, hit, pass,
+                        [&](const RayHit& at, double weight) { sum += value(at) * weight; });
     return sum;
 }
 

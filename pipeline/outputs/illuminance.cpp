@@ -69,16 +69,9 @@ HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibili
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
         hemisphere_rays(visibility, points[q], normalize(normals[q]), q, k, seed, lift,
                         [&](const Vec3& d, const RayHit& h, double pass, const std::vector<RayHit>& panes) {
-                            // what seen_through_glass reads: the panes met from the front, then
-                            // the hit past them; misses and backs of one-sided surfaces nothing
-                            double before = 1;
-                            for (const RayHit& g : panes) {
-                                const double c = dot(patches[size_t(g.patch)].normal, d);
-                                if (c < 0) per[q].push_back({g, before});
-                                before *= visibility.glass_transmittance(g.patch, std::fabs(c));
-                            }
-                            if (h.patch >= 0 && dot(patches[size_t(h.patch)].normal, d) < 0)
-                                per[q].push_back({h, pass});
+                            // what seen_through_glass reads (misses and backs give nothing)
+                            visit_through_glass(visibility, patches, d, panes, h, pass,
+                                                [&](const RayHit& at, double w) { per[q].push_back({at, w}); });
                         });
     });
     size_t total = 0;
