@@ -171,6 +171,9 @@ void bind_results(nb::module_& m) {
         .def_ro("limited_leaves", &H::limited_leaves,
                 "Leaves whose gathered light the last solve scaled to rho F = 0.999 (their link estimates summed "
                 "above the hemisphere with a reflectance near 1; hierarchical_solver.h gain limit).")
+        .def_ro("normalised_leaves", &H::normalised_leaves,
+                "Leaves of a reflectance near 1 whose inherited light the last solve scaled so that their form factors "
+                "sum to their measured closure (hierarchy.h Hierarchy::closure).")
         .def_ro("rounds", &H::rounds, "The final round.")
         .def_ro("settled", &H::settled, "Refinement stopped splitting (else max_rounds ended it).")
         .def_ro("links_per_round", &H::links_per_round)

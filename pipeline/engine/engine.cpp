@@ -852,6 +852,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.residual = sol.residual;
     r.converged = sol.converged;
     r.limited_leaves = sol.limited_leaves;
+    r.normalised_leaves = sol.normalised_leaves;
     r.iterations = run.iterations;
     r.residual_history = run.residual_history;
     r.links = run.link_count;

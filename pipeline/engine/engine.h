@@ -216,6 +216,8 @@ struct HierarchicalResult {
     RGB glass_back_entered, glass_back_absorbed, glass_back_escaped;
     uint64_t limited_leaves = 0;      // leaves whose gather the last solve kept to the gain limit
                                       // (hierarchical_solver.h kGainLimit)
+    uint64_t normalised_leaves = 0;   // leaves whose inherited light the last solve scaled to their
+                                      // closure (Hierarchy::closure)
     int rounds = 0;                   // the final round
     bool settled = false;             // refinement stopped splitting (else max_rounds ended it)
     std::vector<uint64_t> links_per_round;

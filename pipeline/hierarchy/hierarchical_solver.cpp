@@ -82,40 +82,67 @@ void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double
     fc[slot] += h.reception(receiver, source) * coupling;
 }
 
-std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links) {
+LeafTerms gather_terms(const Hierarchy& h, const std::vector<Link>& links) {
     std::vector<double> f(h.nodes.size(), 0.0);
     std::vector<Reception> fc;
     for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
-    return gather_scale(h, std::move(f), std::move(fc));
+    return gather_terms(h, std::move(f), std::move(fc));
 }
 
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> f, std::vector<Reception> fc) {
+namespace {
+// Pushes the sums of G / A_R (and the clusters' receptions) down to node i, its parent's
+// already pushed: returns what i inherits from above (f[i] keeps what is received at i).
+double inherited_sum(const Hierarchy& h, const std::vector<double>& f, std::vector<Reception>& fc, size_t i) {
+    const Node& node = h.nodes[i];
+    double above = node.parent == kNoNode ? 0.0 : f[node.parent];
+    if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
+        const Reception& r = fc[h.cluster_slot[node.parent]];
+        if (node.cluster) fc[h.cluster_slot[i]] += r;
+        else above += std::max(0.0, r.along(h.shape(uint32_t(i)).normal));
+    }
+    return above;
+}
+}  // namespace
+
+std::vector<double> form_factor_sums(const Hierarchy& h, const std::vector<Link>& links) {
+    std::vector<double> f(h.nodes.size(), 0.0);
+    std::vector<Reception> fc;
+    for (const Link& l : links) add_coupling(h, l.receiver, l.source, double(l.coupling), f, fc);
+    for (size_t i = 0; i < h.nodes.size(); ++i) f[i] += inherited_sum(h, f, fc, i);  // parents come first
+    return f;
+}
+
+LeafTerms gather_terms(const Hierarchy& h, std::vector<double> f, std::vector<Reception> fc) {
     const size_t n = h.nodes.size();
-    if (f.size() != n) throw std::invalid_argument("gather_scale: one sum per node");
+    if (f.size() != n) throw std::invalid_argument("gather_terms: one sum per node");
     if (!fc.empty() && fc.size() != h.cluster_shapes.size())
-        throw std::invalid_argument("gather_scale: one vector per cluster");
-    std::vector<double> scale;
+        throw std::invalid_argument("gather_terms: one vector per cluster");
+    LeafTerms t;
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
-        if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
-            const Reception& above = fc[h.cluster_slot[node.parent]];
-            if (node.cluster) fc[h.cluster_slot[i]] += above;
-            else f[i] += std::max(0.0, above.along(h.shape(uint32_t(i)).normal));
-        }
-        if (node.parent != kNoNode) f[i] += f[node.parent];  // parents come first
+        const double own = f[i], above = inherited_sum(h, f, fc, i);
+        f[i] = own + above;
         if (!node.leaf() || node.cluster) continue;
         const RGB& rho = h.shape(uint32_t(i)).reflectance;
-        const double gain = std::max({rho.x, rho.y, rho.z}) * f[i];
-        if (!(gain > kGainLimit)) continue;
-        if (scale.empty()) scale.assign(n, 1.0);
-        scale[i] = kGainLimit / gain;
+        const double rho_max = std::max({rho.x, rho.y, rho.z});
+        // What the leaf inherits is scaled so that its sum comes to the leaf's closure where
+        // that was measured (Hierarchy::closure), by at most kClosureMost either way: its own
+        // links hold their light, and the ancestors' means it takes in their stead are what
+        // differ from its own values. Then the gain limit scales the whole.
+        double inherit = 1, whole = 1;
+        const double closure = h.closure_of(uint32_t(i));
+        if (closure >= 0 && above > 0) inherit = std::clamp((closure - own) / above, 1 / kClosureMost, kClosureMost);
+        const double sum = own + inherit * above;
+        if (rho_max * sum > kGainLimit) whole = kGainLimit / (rho_max * sum);
+        if (inherit != 1) {
+            if (t.inherited.empty()) t.inherited.assign(n, 1.0);
+            t.inherited[i] = inherit;
+        }
+        if (whole != 1) {
+            if (t.scale.empty()) t.scale.assign(n, 1.0);
+            t.scale[i] = whole;
+        }
     }
-    return scale;
-}
-
-LeafTerms leaf_terms(const Hierarchy&, std::vector<double> scale) {
-    LeafTerms t;
-    t.scale = std::move(scale);
     return t;
 }
 
@@ -125,29 +152,27 @@ uint64_t LeafTerms::limited() const {
     return count;
 }
 
+uint64_t LeafTerms::normalised() const {
+    uint64_t count = 0;
+    for (double c : inherited) count += c != 1.0;
+    return count;
+}
+
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters) {
     const size_t n = h.nodes.size();
-    if (clusters.empty()) {
-        for (size_t i = 0; i < n; ++i) {
-            const Node& node = h.nodes[i];
-            irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
+    // Vectors down the clusters (parents first), n_f . E into each face root.
+    std::vector<VectorIrradiance> pushed(clusters);
+    for (size_t i = 0; i < n; ++i) {
+        const Node& node = h.nodes[i];
+        RGB above = node.parent == kNoNode ? RGB{} : irradiance[node.parent];
+        if (!clusters.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
+            const VectorIrradiance& v = pushed[h.cluster_slot[node.parent]];
+            if (node.cluster) pushed[h.cluster_slot[i]].add(v);
+            else above += v.along(h.shape(uint32_t(i)).normal);
         }
-    } else {
-        // Vectors down the clusters (parents first), n_f . E into each face root.
-        std::vector<VectorIrradiance> pushed(clusters);
-        for (size_t i = 0; i < n; ++i) {
-            const Node& node = h.nodes[i];
-            irradiance[i] = gathered[i] + (node.parent == kNoNode ? RGB{} : irradiance[node.parent]);
-            if (node.parent == kNoNode || !h.nodes[node.parent].cluster) continue;
-            const VectorIrradiance& above = pushed[h.cluster_slot[node.parent]];
-            if (node.cluster) pushed[h.cluster_slot[i]].add(above);
-            else irradiance[i] += above.along(h.shape(uint32_t(i)).normal);
-        }
+        irradiance[i] = terms.leaf_irradiance(uint32_t(i), node.leaf(), gathered[i], above);
     }
-    if (!terms.scale.empty())
-        for (size_t i = 0; i < n; ++i)
-            if (h.nodes[i].leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
     for (size_t i = n; i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.leaf()) {
@@ -175,6 +200,7 @@ void finish(const Hierarchy& h, const std::vector<Link>& links, std::vector<RGB>
     for (const Link& l : links) add_link(h, l, b[l.source], gathered, clusters);
     push_pull(h, gathered, irradiance, unused, terms, clusters);
     sol.limited_leaves = terms.limited();
+    sol.normalised_leaves = terms.normalised();
     std::vector<double> own(n, 0.0);
     for (const Link& l : links) own[l.source] += h.sent(l) / h.nodes[l.source].area;
     sol.outgoing.assign(n, 0.0);
@@ -224,7 +250,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     const std::vector<size_t> groups = receiver_groups(links);
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
-    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
+    const LeafTerms terms = gather_terms(h, links);
     // Receiving clusters: each link's reception, computed once.
     std::vector<Reception> reception(links.size());
     const bool clusters_receive = any_cluster_receiver(h, links);
@@ -301,8 +327,7 @@ void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const
     for (uint32_t i : tree) {
         const Node& node = h.nodes[i];
         const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
-        irradiance[i] = gathered[i] + (root ? RGB{} : irradiance[node.parent]);
-        if (!terms.scale.empty() && node.leaf()) irradiance[i] = irradiance[i] * terms.scale[i];
+        irradiance[i] = terms.leaf_irradiance(i, node.leaf(), gathered[i], root ? RGB{} : irradiance[node.parent]);
     }
     for (size_t k = tree.size(); k-- > 0;) {
         const uint32_t i = tree[k];
@@ -364,7 +389,7 @@ HierarchicalSolution solve_gauss_seidel_push_pull(const Hierarchy& h, const std:
     }
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
-    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
+    const LeafTerms terms = gather_terms(h, links);
 
     HierarchicalSolution sol;
     std::vector<RGB> b = start.size() == n ? start : node_emission(h);
@@ -406,7 +431,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
         for (uint32_t k = 0; k < links.size(); ++k) by_source[cursor[links[k].source]++] = k;
     }
     const double enorm = leaf_emission_norm(h, leaves);
-    const LeafTerms terms = leaf_terms(h, gather_scale(h, links));
+    const LeafTerms terms = gather_terms(h, links);
 
     // b: radiosity already shot; r = T(b) - b: unshot, kept at the leaves.
     std::vector<RGB> b = start.size() == n ? start : std::vector<RGB>(n);
@@ -481,10 +506,10 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
             for (uint32_t i : trees.nodes[g]) {
                 const Node& node = h.nodes[i];
                 const bool root = node.parent == kNoNode || h.nodes[node.parent].cluster;
-                pushed[i] = gathered[i] + (root ? RGB{} : pushed[node.parent]);
+                pushed[i] = terms.leaf_irradiance(i, node.leaf(), gathered[i], root ? RGB{} : pushed[node.parent]);
                 gathered[i] = RGB{};
                 if (node.leaf()) {
-                    const RGB got = terms.scale.empty() ? pushed[i] : pushed[i] * terms.scale[i];
+                    const RGB got = pushed[i];
                     r2 -= node.area * dot(r[i], r[i]);
                     r[i] += mul(h.shape(uint32_t(i)).reflectance, got);
                     r2 += node.area * dot(r[i], r[i]);

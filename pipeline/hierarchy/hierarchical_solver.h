@@ -26,7 +26,8 @@ struct HierarchicalSolution {
     bool converged = false;
     std::vector<double> residual_history;
     double least_residual = 1e300;  // the smallest residual so far (divergence check)
-    uint64_t limited_leaves = 0;    // leaves whose gather was scaled (gather_scale)
+    uint64_t limited_leaves = 0;    // leaves whose gather the gain limit scaled (gather_terms)
+    uint64_t normalised_leaves = 0; // leaves whose inherited light was scaled to their closure
 };
 
 // The gain limit. A leaf's estimated form factors F (the sum of G / A_R over the links received
@@ -37,6 +38,9 @@ struct HierarchicalSolution {
 // then a contraction in the max norm (each leaf's row of rho K sums to at most kGainLimit < 1;
 // pulling up averages) and converges. Leaves with rho_max F <= kGainLimit, which is every leaf of
 // a material below 0.8 unless its estimates exceed the hemisphere by 25 %, are untouched.
+// Leaves of a reflectance near 1 are first normalised to their closure (Hierarchy::closure):
+// without that, the limit cut the spread of their sums on one side only and darkened rooms of
+// white walls (the closure's comment has the figures).
 // Glass (Hierarchy::glass): links see through a pane with its factor T <= tau0, so a leaf
 // behind glass gathers both from the pane's side facing it (F_g) and, through it, from what
 // lies beyond (at most tau0 F_g more): its estimates may sum to 1 + tau0 F_g with no error in
@@ -48,17 +52,14 @@ struct HierarchicalSolution {
 // (The cut of cluster-pair estimates to min(A_R, A_S) in refine.cpp is what stopped the country
 // kitchen, with panes of tau0 = 1, from diverging in its second round.)
 constexpr double kGainLimit = 0.999;
+// The most a leaf's gathered light is scaled by its closure (Hierarchy::closure), up or down.
+constexpr double kClosureMost = 2.0;
 
-// Per node, the factor its pushed irradiance is multiplied by before B = E + rho H at a leaf
-// (1 at inner nodes and within the limit); empty when no leaf needs one.
-// A receiving cluster's links count at each face below it by the face's orientation
-// (Hierarchy::reception): G reception(R, S).along(n_f).
-std::vector<double> gather_scale(const Hierarchy& h, const std::vector<Link>& links);
-// The same from the sums of G / A_R over the links received at each element, and per cluster
-// slot the sums of G reception(R, S) over the links received at it (streamed links; empty:
-// no cluster receives).
-std::vector<double> gather_scale(const Hierarchy& h, std::vector<double> received,
-                                 std::vector<Reception> cluster_received = {});
+// Per node, the form factors summed at it: the sum of G / A_R over the links received at it
+// and at its ancestors, a receiving cluster's links counted at each face below it by the face's
+// orientation. At a leaf this is its estimated F to everything it sees, which cannot exceed 1
+// (tau0 F_g more behind glass) and is 1 in a closed room.
+std::vector<double> form_factor_sums(const Hierarchy& h, const std::vector<Link>& links);
 // Adds one link's coupling to those sums: G / A_R to f[R] for an element, G reception(R, S)
 // to fc[slot of R] for a cluster (fc sized on first use).
 void add_coupling(const Hierarchy& h, uint32_t receiver, uint32_t source, double coupling, std::vector<double>& f,
@@ -78,13 +79,28 @@ void sort_links(std::vector<Link>& links);
 // Push-pull: irradiance gathered at every node pushed down to the leaves (a child receives its
 // parent's irradiance unchanged: it is per unit area, so power is conserved), B = E + rho H
 // at the leaves, B pulled up as area-weighted means. `irradiance` receives the pushed values.
-// What a leaf's B takes besides E + rho H: the gain limit's scale of H, B = E + rho s H.
+// What a leaf's B takes besides E + rho H: H = s (H_own + c H_above), H_own gathered by the
+// leaf's own links, H_above what it inherits from its ancestors; c normalises the sum of its
+// form factors to its closure (Hierarchy::closure), s is the gain limit.
 struct LeafTerms {
-    std::vector<double> scale;     // per node (gather_scale), or empty
-    uint64_t limited() const;      // leaves the gain limit scales
+    std::vector<double> scale;      // per node: s (empty: 1 everywhere)
+    std::vector<double> inherited;  // per node: c (empty: 1 everywhere)
+    uint64_t limited() const;       // leaves the gain limit scales
+    uint64_t normalised() const;    // leaves whose inherited light is scaled
+    // The irradiance of node i from what it gathered itself and what is pushed to it from
+    // above (its ancestors' irradiance and, below a receiving cluster, n . E).
+    RGB leaf_irradiance(uint32_t i, bool leaf, const RGB& own, const RGB& above) const {
+        if (!leaf) return own + above;
+        const RGB h = inherited.empty() ? own + above : own + above * inherited[i];
+        return scale.empty() ? h : h * scale[i];
+    }
 };
-// The terms of a hierarchy whose leaves do not change until the solve ends.
-LeafTerms leaf_terms(const Hierarchy& h, std::vector<double> scale);
+// The terms of a hierarchy whose leaves do not change until the solve ends, from its links
+// (or from the sums of G / A_R over the links received at each element, and per cluster slot
+// the sums of G reception(R, S) over the links received at it: streamed links; empty: no
+// cluster receives): the closure's normalisation, then the gain limit.
+LeafTerms gather_terms(const Hierarchy& h, const std::vector<Link>& links);
+LeafTerms gather_terms(const Hierarchy& h, std::vector<double> received, std::vector<Reception> cluster_received = {});
 
 // push_pull with the leaves' terms (empty: B = E + rho H). `clusters`: the vector irradiance
 // gathered at receiving clusters (per cluster slot; empty: none), pushed down the clusters and

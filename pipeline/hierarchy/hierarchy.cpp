@@ -387,10 +387,47 @@ uint64_t Hierarchy::balance() {
     }
 }
 
+namespace {
+// The share of the cosine-weighted hemisphere above 8 x 8 stratified points of `s` that meets
+// the front of a surface (Hierarchy::closure); over the whole element, points inside geometry
+// (whose rays meet backs) included.
+double measure_closure(const Visibility& vis, const std::vector<Patch>& faces, const Patch& s, Rng& rng,
+                       double lift) {
+    const Vec3 n = s.normal;
+    const Vec3 a = std::fabs(n.x) < 0.6 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+    const Vec3 t = normalize(cross(n, a)), b = cross(n, t);
+    constexpr int g = 8;
+    // The directions' strata are the points' strata shuffled, so that neither follows the other.
+    int order[g * g];
+    for (int k = 0; k < g * g; ++k) order[k] = k;
+    for (int k = g * g - 1; k > 0; --k) std::swap(order[k], order[std::min(k, int(rng.uniform() * (k + 1)))]);
+    std::vector<RayHit> panes;
+    double sum = 0;
+    for (int k = 0; k < g * g; ++k) {
+        const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
+        const Vec3 x = s.point(s0, t0) + n * lift;
+        // Malley: uniform on the disk, lifted to the hemisphere.
+        const int m = order[k];
+        const double r = std::sqrt((m % g + rng.uniform()) / g), phi = 2 * kPi * (m / g + rng.uniform()) / g;
+        const Vec3 d = normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r * r)));
+        double pass = 1;
+        const RayHit hit = vis.intersect_through_glass(x, d, 0, 1e30, &panes, &pass);
+        double before = 1;
+        for (const RayHit& p : panes) {  // a pane is an element on either side
+            sum += before;
+            before *= vis.glass_transmittance(p.patch, std::fabs(dot(faces[size_t(p.patch)].normal, d)));
+        }
+        if (hit.patch >= 0 && dot(faces[size_t(hit.patch)].normal, d) < 0) sum += pass;
+    }
+    return sum / (g * g);
+}
+}  // namespace
+
 void Hierarchy::measure_open(const Visibility& vis) {
     const size_t first = open.size();
     if (first >= nodes.size()) return;
     open.resize(nodes.size(), 1.0f);
+    closure.resize(nodes.size(), -1.0f);
     const double lift = 1e-5 * vis.scene_size();
     tbb::parallel_for(first, nodes.size(), [&](size_t i) {
         const Node& node = nodes[i];
@@ -428,6 +465,9 @@ void Hierarchy::measure_open(const Visibility& vis) {
         double hidden = inside_share(8);
         if (hidden > 0 && hidden < 1) hidden = inside_share(24);
         open[i] = static_cast<float>(1.0 - hidden);
+        const RGB& rho = s.reflectance;
+        if (std::max({rho.x, rho.y, rho.z}) >= kClosureReflectance && hidden < 1)
+            closure[i] = static_cast<float>(measure_closure(vis, faces, s, rng, lift) / (1.0 - hidden));
     });
 }
 

@@ -217,7 +217,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
                     }
             }
         clusters_receive = !in_clusters.empty();
-        terms = leaf_terms(h, gather_scale(h, std::move(in), std::move(in_clusters)));
+        terms = gather_terms(h, std::move(in), std::move(in_clusters));
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
@@ -435,6 +435,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     stats.rounds = round;
     sol.iterations = round;
     sol.limited_leaves = terms.limited();
+    sol.normalised_leaves = terms.normalised();
     // Fraction of each node's power carried by its own and its ancestors' links.
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)

@@ -231,34 +231,13 @@ TEST(ClusterReceivers, EverySharingGivesTheFacesExactlyTheLinksPower) {
     EXPECT_GT(checked[2], 0u) << "no even sharing";
 }
 
-// A 6 m room (4 x 4 tiles a side, inwards) lit by one ceiling tile, holding 4 x 4 dark boxes
-// of 0.4 m, each side cut t x t (outwards).
-Scene cluttered_room(int t) {
-    Scene scene = test::tiled_cube(4, test::grey(0.5));
-    for (Face& f : scene.faces)
-        for (Vec3& p : f.p) p = p * 6.0;
-    for (Face& f : scene.faces)
-        if (f.normal().z < -0.5 && std::abs(f.p[0].x + f.p[2].x - 6) < 1.6 && std::abs(f.p[0].y + f.p[2].y - 6) < 1.6) {
-            f.emission = test::grey(10.0);
-            break;
-        }
-    const Scene box = test::tiled_cube(t, test::grey(0.5));
-    for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j)
-            for (Face f : box.faces) {
-                std::swap(f.p[1], f.p[3]);
-                for (Vec3& p : f.p) p = p * 0.4 + Vec3{0.9 + 1.3 * i, 0.9 + 1.3 * j, 0.5};
-                scene.faces.push_back(f);
-            }
-    return scene;
-}
-
+// test::cluttered_room: a 6 m room lit by one ceiling tile, holding 16 boxes cut t x t a side.
 TEST(ClusterReceivers, LinksThatCarryLittleStayCoarse) {
     // Round 1 judges every source by its emission: all but the lamp's links carry nothing
     // yet. With the geometric rules giving way for them (kSlight), round 1's links follow
     // the lamp, not the boxes' faces: 16 times the faces (t = 2 -> 8) may not double them.
     auto round_one = [](int t, size_t& faces) {
-        const Scene scene = cluttered_room(t);
+        const Scene scene = test::cluttered_room(t);
         faces = scene.faces.size();
         Hierarchy h(scene);
         Visibility vis(h.faces);

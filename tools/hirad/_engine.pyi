@@ -766,6 +766,12 @@ class HierarchicalResult:
         """
 
     @property
+    def normalised_leaves(self) -> int:
+        """
+        Leaves of a reflectance near 1 whose inherited light the last solve scaled so that their form factors sum to their measured closure (hierarchy.h Hierarchy::closure).
+        """
+
+    @property
     def rounds(self) -> int:
         """The final round."""
 

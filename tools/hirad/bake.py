@@ -531,7 +531,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "hierarchy": None if cfg.method != "hierarchical" else {
             **{k: getattr(solved, k) for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                      "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
-                                     "epsilon_watts", "balance_splits", "limited_leaves")},
+                                     "epsilon_watts", "balance_splits", "limited_leaves",
+                                     "normalised_leaves")},
             # Links that end on clusters (hierarchy.cluster_receivers); None out of core (not counted).
             "links_on_clusters": solved.links_on_clusters if solved.links_on_clusters >= 0 else None},
         "links": None if not (hierarchical and solved.out_of_core) else {
