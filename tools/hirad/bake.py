@@ -904,7 +904,9 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
 
         def on_progress(round_: int, links: int, iteration: int, residual: float, linked: int = 0,
                         groups: int = 0) -> None:
-            if groups and linked < groups:
+            if round_ == 0 and links == 0:  # before round 1 (or before a reused store's solve)
+                update(None, "preparing the hierarchy" + (" and reading the link store" if resume or reuse_links else ""))
+            elif groups and linked < groups:
                 update(None, f"round {round_}: linking, {linked}/{groups} source groups, {links:,} links so far")
             elif groups:
                 update(None, f"round {round_}: {links:,} links made, solving")
