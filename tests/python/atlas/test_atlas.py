@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 
 import numpy as np
@@ -329,6 +330,51 @@ def test_smooth_dense_sphere_has_no_folded_charts():
     # no overlap: UV area cannot exceed the texels covered
     samples = A.rasterize(atlas, 0, 1)
     assert areas2(uvt).sum() <= len(samples.x)
+
+
+def test_charting_shared_among_children_gives_the_same_bits(monkeypatch, tmp_path):
+    # Large atlases chart one child per core (charts._mesh_blocks). Each mesh's block depends on
+    # that mesh alone, so sharing the meshes out must change nothing: blocks, warnings and order.
+    from hirad.atlas import charts
+
+    rng = np.random.default_rng(3)
+    meshes = [unit_cube(), quad(3.0, 1.0), (unit_cube()[0] * 2.5, unit_cube()[1]), quad(0.5, 40.0)]
+    for k in range(4):  # jittered grids: xatlas cuts them differently
+        g = np.stack(np.meshgrid(np.arange(6.0), np.arange(5.0)), -1).reshape(-1, 2)
+        pts = np.c_[g, rng.random(len(g)) * 0.3 * (k + 1)]
+        i = (np.arange(4)[:, None] * 6 + np.arange(5)[None, :]).ravel()
+        meshes.append((pts, np.concatenate([np.stack([i, i + 1, i + 7], 1), np.stack([i, i + 7, i + 6], 1)])))
+    names = [f"m{k}" for k in range(len(meshes))]
+    args = ([(np.asarray(p, float), np.asarray(f, np.int64)) for p, f in meshes], None, names, T, 2, 250,
+            "keep", 256)
+    one, w1 = charts._mesh_blocks(*args, workers=1)
+    two, w2 = charts._mesh_blocks(*args, workers=2)
+    three, w3 = charts._mesh_blocks(*args, workers=3)
+    assert w1 == w2 == w3 and any("scaled down" in w for w in w1)  # the 40 m strip does not fit
+    for a, b, c in zip(one, two, three):
+        assert (a.width, a.height, a.density, a.source) == (b.width, b.height, b.density, b.source) \
+            == (c.width, c.height, c.density, c.source)
+        assert np.array_equal(a.uv, b.uv) and np.array_equal(a.uv, c.uv)
+        assert np.array_equal(a.charts, b.charts) and np.array_equal(a.charts, c.charts)
+    # build_atlas takes the shared path above the threshold (it runs in a forked child: the
+    # workers are noted in a file): the same atlas either way
+    log = tmp_path / "workers"
+    real = charts._mesh_blocks
+
+    def noted(*a, **k):
+        with open(log, "a") as out:
+            out.write(f"{k.get('workers')}\n")
+        return real(*a, **k)
+
+    monkeypatch.setattr(charts, "_mesh_blocks", noted)
+    monkeypatch.setattr(charts, "_PARALLEL_TRIANGLES", 10)
+    shared = A.build_atlas(meshes, T, 2, 256)
+    monkeypatch.setattr(charts, "_PARALLEL_TRIANGLES", 10**9)
+    alone = A.build_atlas(meshes, T, 2, 256)
+    assert log.read_text().split() == [str(len(os.sched_getaffinity(0))), "1"]
+    assert shared.page_sizes == alone.page_sizes and shared.warnings == alone.warnings
+    for a, b in zip(shared.meshes, alone.meshes):
+        assert np.array_equal(a.uvs, b.uvs) and a.page == b.page
 
 
 # ---------------------------------------------------------------------------------------

@@ -157,8 +157,11 @@ def _layout_all(geometry, existing_uvs, names, texels_per_metre, padding, page_m
     margin = (padding + 1) // 2
     limit = page_max - 2 * margin
     member_of = {i: (g, k) for g, (members, _) in enumerate(groups) for k, i in enumerate(members)}
+    triangles = sum(len(t) for _, t in geometry)
+    workers = len(os.sched_getaffinity(0)) if triangles >= _PARALLEL_TRIANGLES else 1
     blocks, warnings = _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit,
-                                    existing_layout, page_max, member_of, groups, chart_cost, polygons)
+                                    existing_layout, page_max, member_of, groups, chart_cost, polygons,
+                                    workers=workers)
     units, owners, fallback = [], [], []  # owners: (mesh, kind, data)
     for i, b in enumerate(blocks):
         if b is None or b.width == 0:
@@ -314,39 +317,125 @@ def chart_area_bound(area: np.ndarray, texels_per_metre: float) -> float:
 
 
 def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
-                 member_of=None, groups=(), chart_cost=None, polygons=None):
+                 member_of=None, groups=(), chart_cost=None, polygons=None, workers: int = 1):
     """Each mesh's block of charts, and the warnings; None for a prototype's members after
-    the first (they share its layout). Run through _isolated: xatlas is called here."""
-    member_of = member_of or {}
-    blocks: list[_Block | None] = []
-    warnings: list[str] = []
-    for i, (p, t) in enumerate(geometry):
-        uv = None if existing_uvs is None else existing_uvs[i]
-        density, pad = texels_per_metre, padding
-        if i in member_of:
-            g, k = member_of[i]
-            if k > 0:
-                blocks.append(None)
-                continue
-            scales = groups[g][1]
-            density = texels_per_metre * min(scales)  # the first member's size is 1
-            if max(scales) > min(scales) * (1 + 1e-9):
-                pad = padding + 2  # one texel more each side, see build_atlas
-        if len(t) == 0:
-            blocks.append(_Block(0, 0, np.zeros((0, 3, 2)), np.zeros(0, np.int32), 0.0, "empty"))
-            continue
-        block = None
-        if uv is not None:
-            block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), density, pad,
-                                    limit, existing_layout, names[i], warnings)
-        if block is None:
-            block = _generated_block(p, t, density, pad, limit, names[i], warnings, chart_cost,
-                                     None if polygons is None else polygons[i])
-        if block.scaled:
-            warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
-                            f"(asked {density:g}) to fit one {max_size} page")
-        blocks.append(block)
+    the first (they share its layout). Run through _isolated: xatlas is called here. With
+    `workers` > 1 the meshes are shared out, balanced by triangles, among that many forked
+    children: each mesh's block depends on the mesh alone, so the result is the same bits."""
+    args = (geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
+            member_of, groups, chart_cost, polygons)
+    n = len(geometry)
+    if workers <= 1 or n < 2:
+        tagged = _tagged_blocks(*args, range(n))
+    else:
+        parts: list[list[int]] = [[] for _ in range(min(workers, n))]
+        loads = [0] * len(parts)
+        for i in sorted(range(n), key=lambda i: (-len(geometry[i][1]), i)):
+            k = loads.index(min(loads))
+            parts[k].append(i)
+            loads[k] += len(geometry[i][1])
+        tagged = {}
+        for part in _forked_each([(_tagged_blocks, (*args, sorted(part))) for part in parts]):
+            tagged.update(part)
+    blocks = [tagged[i][0] for i in range(n)]
+    warnings = [w for i in range(n) for w in tagged[i][1]]
     return blocks, warnings
+
+
+def _forked_each(calls):
+    """fn(*args) of each call in a forked child of its own, all running at once; their results
+    in call order. A child that outlives this process (its parent killed by _isolated's time
+    limit) is killed with it."""
+    import ctypes
+    import select
+
+    children = []
+    for fn, args in calls:
+        read_fd, write_fd = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(read_fd)
+            code = 0
+            try:
+                try:
+                    ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+                except (OSError, AttributeError):
+                    pass
+                try:
+                    payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
+                except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
+                    payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
+                with os.fdopen(write_fd, "wb") as out:
+                    out.write(payload)
+            except BaseException:  # noqa: BLE001 - the parent sees the missing result
+                code = 1
+            os._exit(code)
+        os.close(write_fd)
+        children.append((pid, os.fdopen(read_fd, "rb", buffering=0)))
+    chunks: list[list[bytes]] = [[] for _ in children]
+    open_ = {k for k in range(len(children))}
+    while open_:  # read all pipes as they fill, so that no child blocks on a full one
+        ready, _, _ = select.select([children[k][1] for k in open_], [], [])
+        for k in list(open_):
+            if children[k][1] in ready:
+                chunk = children[k][1].read(1 << 20)
+                if chunk:
+                    chunks[k].append(chunk)
+                else:
+                    open_.discard(k)
+    results = []
+    for k, (pid, pipe) in enumerate(children):
+        pipe.close()
+        _, status = os.waitpid(pid, 0)
+        data = b"".join(chunks[k])
+        if not data:
+            raise RuntimeError(f"a charting child process ended without a result (wait status {status})")
+        ok, value = pickle.loads(data)
+        if not ok:
+            raise value
+        results.append(value)
+    return results
+
+
+def _tagged_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
+                   member_of, groups, chart_cost, polygons, indices) -> dict:
+    """{mesh index: (block, its warnings)} for the meshes `indices` (see _mesh_blocks)."""
+    member_of = member_of or {}
+    out: dict = {}
+    for i in indices:
+        p, t = geometry[i]
+        warnings: list[str] = []
+        out[i] = (_one_block(i, p, t, existing_uvs, names, texels_per_metre, padding, limit, existing_layout,
+                             max_size, member_of, groups, chart_cost, polygons, warnings), warnings)
+    return out
+
+
+def _one_block(i, p, t, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
+               member_of, groups, chart_cost, polygons, warnings):
+    """Mesh i's block (see _mesh_blocks), its warnings appended to `warnings`."""
+    uv = None if existing_uvs is None else existing_uvs[i]
+    density, pad = texels_per_metre, padding
+    if i in member_of:
+        g, k = member_of[i]
+        if k > 0:
+            return None
+        scales = groups[g][1]
+        density = texels_per_metre * min(scales)  # the first member's size is 1
+        if max(scales) > min(scales) * (1 + 1e-9):
+            pad = padding + 2  # one texel more each side, see build_atlas
+    if len(t) == 0:
+        return _Block(0, 0, np.zeros((0, 3, 2)), np.zeros(0, np.int32), 0.0, "empty")
+    block = None
+    if uv is not None:
+        block = _existing_block(p, t, np.asarray(uv, dtype=np.float64), density, pad,
+                                limit, existing_layout, names[i], warnings)
+    if block is None:
+        block = _generated_block(p, t, density, pad, limit, names[i], warnings, chart_cost,
+                                 None if polygons is None else polygons[i])
+    if block.scaled:
+        warnings.append(f"{names[i]}: scaled down to {block.density:.4g} texels/m "
+                        f"(asked {density:g}) to fit one {max_size} page")
+    return block
 
 
 # Seconds each forked attempt may take before it is killed and started again (the last has no
@@ -357,6 +446,8 @@ def _mesh_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit
 # attempts (after 30 and 120 s) before the third could finish; limits scaled per 100k
 # triangles still killed the first after 315 s.
 _ATTEMPT_SECONDS = (30.0, 120.0, 600.0, None)
+# Atlases of at least this many triangles are charted by one child per core (_mesh_blocks).
+_PARALLEL_TRIANGLES = 50_000
 _ATTEMPT_TRIANGLES = 20_000
 
 
