@@ -355,21 +355,11 @@ def _forked_each(calls):
         pid = os.fork()
         if pid == 0:
             os.close(read_fd)
-            code = 0
             try:
-                try:
-                    ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-                except (OSError, AttributeError):
-                    pass
-                try:
-                    payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
-                except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
-                    payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
-                with os.fdopen(write_fd, "wb") as out:
-                    out.write(payload)
-            except BaseException:  # noqa: BLE001 - the parent sees the missing result
-                code = 1
-            os._exit(code)
+                ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+            except (OSError, AttributeError):
+                pass
+            _child_send(fn, args, write_fd)
         os.close(write_fd)
         children.append((pid, os.fdopen(read_fd, "rb", buffering=0)))
     chunks: list[list[bytes]] = [[] for _ in children]
@@ -387,14 +377,37 @@ def _forked_each(calls):
     for k, (pid, pipe) in enumerate(children):
         pipe.close()
         _, status = os.waitpid(pid, 0)
-        data = b"".join(chunks[k])
-        if not data:
-            raise RuntimeError(f"a charting child process ended without a result (wait status {status})")
-        ok, value = pickle.loads(data)
-        if not ok:
-            raise value
-        results.append(value)
+        results.append(_child_result(b"".join(chunks[k]), status))
     return results
+
+
+def _child_send(fn, args, write_fd: int) -> None:
+    """In a forked child: fn(*args) (or the exception it raised) pickled to `write_fd`, then
+    leave without any teardown (os._exit: no destructor runs, see _isolated)."""
+    code = 0
+    try:
+        try:
+            payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
+        except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
+            try:  # the exception itself when it pickles, so the caller sees what it would
+                payload = pickle.dumps((False, error))
+            except Exception:  # noqa: BLE001
+                payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
+        with os.fdopen(write_fd, "wb") as out:
+            out.write(payload)
+    except BaseException:  # noqa: BLE001 - the parent sees the missing result
+        code = 1
+    os._exit(code)
+
+
+def _child_result(data: bytes, status: int):
+    """What _child_send sent: its value, or its exception raised here."""
+    if not data:
+        raise RuntimeError(f"the xatlas child process ended without a result (wait status {status})")
+    ok, value = pickle.loads(data)
+    if not ok:
+        raise value
+    return value
 
 
 def _tagged_blocks(geometry, existing_uvs, names, texels_per_metre, padding, limit, existing_layout, max_size,
@@ -476,20 +489,7 @@ def _attempt(fn, args, limit):
     pid = os.fork()
     if pid == 0:  # child: compute, send, leave without any teardown
         os.close(read_fd)
-        code = 0
-        try:
-            try:
-                payload = pickle.dumps((True, fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
-            except BaseException as error:  # noqa: BLE001 - every failure goes to the parent
-                try:  # the exception itself when it pickles, so the caller sees what it would
-                    payload = pickle.dumps((False, error))
-                except Exception:  # noqa: BLE001
-                    payload = pickle.dumps((False, RuntimeError(f"{type(error).__name__}: {error}")))
-            with os.fdopen(write_fd, "wb") as out:
-                out.write(payload)
-        except BaseException:  # noqa: BLE001 - the parent sees the missing result
-            code = 1
-        os._exit(code)
+        _child_send(fn, args, write_fd)
     os.close(write_fd)
     chunks = []
     try:
@@ -511,13 +511,7 @@ def _attempt(fn, args, limit):
         os.waitpid(pid, 0)
         raise
     _, status = os.waitpid(pid, 0)
-    data = b"".join(chunks)
-    if not data:
-        raise RuntimeError(f"the xatlas child process ended without a result (wait status {status})")
-    ok, value = pickle.loads(data)
-    if not ok:
-        raise value
-    return True, value
+    return True, _child_result(b"".join(chunks), status)
 
 
 def _xatlas_chart(positions, faces, max_chart_area, max_boundary_length, density, padding, max_cost=None):
