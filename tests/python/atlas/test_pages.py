@@ -189,6 +189,50 @@ def test_meshes_without_area_get_no_page():
     assert A.build_atlas([none], T, 2, 256).page_sizes == []
 
 
+def fine_square(side, n, origin=(0.0, 0.0, 0.0)):
+    """A side x side square in z = 0 cut into n x n cells of two triangles each."""
+    g = np.linspace(0.0, side, n + 1)
+    x, y = np.meshgrid(g, g)
+    p = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1) + np.asarray(origin)
+    k = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    f = np.concatenate([np.stack([k, k + 1, k + n + 2], 1), np.stack([k, k + n + 2, k + n + 1], 1)])
+    return p, f
+
+
+def test_triangles_far_below_a_texel_are_charted():
+    # 20,000 triangles of 4.5e-8 m^2 each: xatlas ignores faces under FLT_EPSILON (1.19e-7)
+    # in its own units, so in metres it left every one of them out of its charts (the
+    # country kitchen lost 141,284 triangles so); in texel units they are 4.6e-5 texel^2
+    mesh = fine_square(0.03, 100)
+    atlas = A.build_atlas([mesh, quad()], T, 2, 256)
+    assert not any("out of its charts" in w for w in atlas.warnings), atlas.warnings
+    layout = atlas.meshes[0]
+    assert (layout.charts >= 0).all()
+    w, h = atlas.page_sizes[layout.page]
+    uv_area = float(np.abs(areas2(layout.uvs * [w, h])).sum())
+    # the square's 0.96 x 0.96 texels, stretched by xatlas to whole texels (at most 2 x 2)
+    assert (0.03 * T) ** 2 * 0.999 <= uv_area <= 4.0
+
+
+def test_islands_without_uv_area_stay_on_their_mesh_page():
+    # A triangle that xatlas leaves out of its charts is parked at a point: an island of no
+    # UV area, which xatlas's page packer places on no page. It must stay on its mesh's
+    # page as a point, not count as a chart that fits no page (41 of the country kitchen's
+    # meshes had such islands, and they went onto one 4096 page, 1.2 % full)
+    from hirad.atlas.pack import _pack_units
+
+    square = np.array([[[0, 0], [20, 0], [20, 20]], [[0, 0], [20, 20], [0, 20]]], float)
+    point = np.full((1, 3, 2), 7.25)
+    other = square[:, :, :] * 0.5
+    sizes, unit_page, unit_uv, fell_back = _pack_units([([square, point], False), ([other], False)], 1024, 2, 1)
+    # the square's page is what the square alone asks for: 21 texels + padding + margins -> 32
+    assert sizes[0] == 32 and unit_page[0] == 0 and not fell_back
+    placed_square, placed_point = unit_uv[0]
+    assert np.ptp(placed_point.reshape(-1, 2), axis=0).max() == 0.0  # still a point
+    lo, hi = placed_square.reshape(-1, 2).min(axis=0), placed_square.reshape(-1, 2).max(axis=0)
+    assert (lo <= placed_point[0, 0]).all() and (placed_point[0, 0] <= hi).all()  # inside its mesh's chart
+
+
 def test_same_inputs_same_bits():
     cube = unit_cube()
     meshes = [cube, moved(cube, 90, 1.5, (5, 0, 0)), quad(1.03, 0.51), moved(cube, 20, 0.3, (0, 2, 0))]

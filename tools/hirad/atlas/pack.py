@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .base import _Block, _density
+from .base import _Block, _areas2, _density
 from .texels import _covered_texels
 
 
@@ -368,6 +368,39 @@ def _footprint(uv: np.ndarray, pp: int) -> int:
     return int(mask.sum())
 
 
+def _place_degenerate(units, islands, bounds, page, uvt) -> None:
+    """Islands xatlas's packer leaves off every page, put on one. In place.
+
+    The packer skips a chart of no UV area (a triangle of no area in space charts to a
+    point; the kitchen has hundreds): it gets no page (-1) and a uv at the origin. Such an
+    island covers no texel, so it may sit anywhere on its mesh's page; it is put, as a
+    point, at the centroid of the mesh's largest placed triangle, so a renderer that still
+    interpolates across it reads a texel of the mesh's own light. An island of a texel or
+    more left off is the packer failing, not a degenerate chart, and is an error."""
+    k = 0
+    for unit in units:
+        span = slice(bounds[k], bounds[k + len(unit)])
+        lost = page[span] < 0
+        if lost.any():
+            area = np.zeros(len(unit))
+            for j in range(len(unit)):
+                lo, hi = bounds[k + j], bounds[k + j + 1]
+                if (page[lo:hi] < 0).any():
+                    area[j] = float(np.abs(_areas2(islands[k + j])).sum())
+            if area.max() >= 1.0:
+                raise RuntimeError(f"xatlas's packer left an island of {area.max():.1f} texels off every page")
+            tri = np.flatnonzero(~lost)
+            if len(tri):
+                best = tri[int(np.argmax(np.abs(_areas2(uvt[span][tri]))))]
+                at, on = uvt[span][best].mean(axis=0), int(page[span][best])
+            else:  # every island of the mesh is degenerate: its page is the first
+                at, on = np.array([0.5, 0.5]), 0
+            where = np.flatnonzero(lost) + bounds[k]
+            uvt[where] = at
+            page[where] = on
+        k += len(unit)
+
+
 def _xatlas_pack_pages(units: list[list[np.ndarray]], rigid: list[bool], resolution: int, padding: int):
     """One xatlas pack of every island of the units (texel units, each at the origin) onto
     pages of resolution^2 texels: (per unit its islands' pages, per unit its islands' uv in
@@ -404,7 +437,9 @@ def _xatlas_pack_pages(units: list[list[np.ndarray]], rigid: list[bool], resolut
         raise RuntimeError(f"xatlas made {w}x{h} pages for {resolution}")
     uvt = uv.astype(np.float64)[idx] * float(resolution)
     page = page_of_vertex.astype(np.int64)[idx[:, 0]]
+    page[page == 0xFFFFFFFF] = -1
     bounds = np.cumsum([0] + [len(u) for u in islands])
+    _place_degenerate(units, islands, bounds, page, uvt)
     out_pages, out_uv, k = [], [], 0
     for unit in units:
         out_pages.append([int(page[bounds[k + j]]) for j in range(len(unit))])
