@@ -731,7 +731,8 @@ def cmd_kitchen(args) -> None:
                              "max_rounds": args.max_rounds, "cluster_receivers": not args.element_receivers},
                "solver": {"method": "block_southwell", "tolerance": 1e-4},
                "links": {"memory_budget": budget, "store": str(Path(tmp) / "out.links")},
-               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": not args.no_lightmaps},
+               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": not args.no_lightmaps,
+                                                                   **json.loads(args.lightmaps)},
                            "preview": {"enabled": True}}}
         ld = load()
         out = str(Path(tmp) / "child")
@@ -755,6 +756,8 @@ def cmd_kitchen(args) -> None:
           f"{got_gather['solve_s']:.1f} s) with the hierarchy kept for the gather at the points "
           f"({got_gather['gather_s']:.1f} s)")
     print(f"stages (s): {json.dumps(t)}")
+    if (r.get("outputs") or {}).get("lightmap_atlas"):
+        print(f"lightmap atlas: {json.dumps(r['outputs']['lightmap_atlas'])[:1500]}")
     print(f"peak RSS at each stage's end (MiB): {json.dumps(r.get('peak_rss_mib'))}")
     print(f"resident after each stage (MiB): {json.dumps(r.get('held_rss_mib'))}")
     print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
@@ -877,6 +880,8 @@ def main() -> None:
     ap.add_argument("--budget", default="2GB", help="kitchen: links.memory_budget")
     ap.add_argument("--element-receivers", action="store_true", help="kitchen: hierarchy.cluster_receivers: false")
     ap.add_argument("--no-lightmaps", action="store_true", help="kitchen: outputs.lightmaps.enabled: false")
+    ap.add_argument("--lightmaps", default="{}", help="kitchen: outputs.lightmaps settings as JSON, e.g. "
+                    "'{\"mode\": \"final_gather\", \"texels_per_metre\": 16}'")
     ap.add_argument("--settings", default=None,
                     help="cornell: epsilon:min_area:samples triples, comma-separated (default: a ladder)")
     ap.add_argument("--values", default="patches,final_gather",
