@@ -643,3 +643,28 @@ def test_unity_encodings_decode_to_the_page_by_unitys_formulas(baked):
             bound = v * ((1 + dg_of(a) / g) ** 2.2 - 1) + v * 2.0 ** -11 + 1e-6
             bad = (np.abs(dec - v) > bound) & inside
             assert not bad.any(), (enc, v[bad][:5], dec[bad][:5], bound[bad][:5])
+
+
+def _quads(origins):
+    """Unit UV squares (two triangles each) at the given lower-left corners: (M, 3, 2)."""
+    tri = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
+    return np.concatenate([tri + np.asarray(o, float) for o in origins])
+
+
+def test_uv_overlap_of_stacked_and_laid_out_sets():
+    # The share of the covered UV area covered twice, from the layouts' geometry: squares
+    # side by side overlap nowhere; a tiled texture set (every quad on the same square) is
+    # covered twice everywhere; that stack beside one square of its own is doubled on half
+    # the covered area. The stacked sets are large enough that their grid is coarsened
+    # (4,000 triangles each spanning the layout), which must not change those answers
+    # beyond a grid cell's share (1/16 of the side at the coarsest).
+    from hirad.outputs.lightmaps import _uv_overlap
+
+    grid = _quads([(i, j) for i in range(40) for j in range(50)])
+    assert _uv_overlap(grid) == 0.0
+    stacked = _quads([(0, 0)] * 2000)
+    assert _uv_overlap(stacked) == 1.0
+    beside = np.concatenate([stacked, _quads([(1, 0)])])
+    assert abs(_uv_overlap(beside) - 0.5) <= 1 / 16
+    mirrored = np.concatenate([grid, grid[:, ::-1, :]])  # the same islands again, wound the other way
+    assert _uv_overlap(mirrored) == 1.0

@@ -148,19 +148,31 @@ def _uv_overlap(uv: np.ndarray, cells: int = 0) -> float:
     sampled at the centres of a grid over their bounding box (about 16 samples per triangle,
     64 to 2048 a side); a centre strictly inside two triangles is overlapped. Islands that
     merely touch along an edge do not count (centres on an edge are inside neither). Used to
-    refuse an author's set that stacks islands (texture UVs, mirrored halves)."""
+    refuse an author's set that stacks islands (texture UVs, mirrored halves).
+
+    The work is the grid cells under the triangles' bounding boxes. A set whose triangles
+    each span the whole layout (a tiled texture set: every quad on [0, 1]^2) would make that
+    M x 16 M; the grid is halved (down to 16 a side) until the cells are at most 64 per
+    triangle plus 4 million. Only such stacked sets are coarsened, and there the overlap is
+    everywhere (the country kitchen's 289 `st` sets, 1.05 M triangles: 77.8 s before, 2.9 s
+    now, the same 18 found overlapping)."""
     t = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
     if not len(t):
         return 0.0
     lo, hi = t.reshape(-1, 2).min(axis=0), t.reshape(-1, 2).max(axis=0)
     n = cells or int(np.clip(math.sqrt(16 * len(t)), 64, 2048))
     span = np.maximum(hi - lo, 1e-12)
-    g = (t - lo) / span * n  # grid units
-    x0 = np.clip(np.floor(g[..., 0].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
-    x1 = np.clip(np.ceil(g[..., 0].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
-    y0 = np.clip(np.floor(g[..., 1].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
-    y1 = np.clip(np.ceil(g[..., 1].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
-    nx, ny = x1 - x0 + 1, y1 - y0 + 1
+    unit = (t - lo) / span
+    while True:
+        g = unit * n  # grid units
+        x0 = np.clip(np.floor(g[..., 0].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+        x1 = np.clip(np.ceil(g[..., 0].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+        y0 = np.clip(np.floor(g[..., 1].min(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+        y1 = np.clip(np.ceil(g[..., 1].max(axis=1) - 0.5).astype(np.int64), 0, n - 1)
+        nx, ny = x1 - x0 + 1, y1 - y0 + 1
+        if cells or n <= 16 or int((nx * ny).sum()) <= 64 * len(t) + 4_000_000:
+            break
+        n //= 2
     count = np.zeros(n * n, dtype=np.int32)
     inside_total = 0
     for chunk in np.array_split(np.arange(len(t)), max(1, int((nx * ny).sum()) // 4_000_000 + 1)):
