@@ -105,6 +105,18 @@ double Gatherer::mean_coupling(const Link& l, uint32_t leaf) const {
     return double(l.coupling) * std::max(0.0, h_.reception(l.receiver, l.source).along(h_.shape(leaf).normal));
 }
 
+bool Gatherer::varies(const Link& l, uint32_t leaf) const {
+    const Node& me = h_.nodes[leaf];
+    const Node& s = h_.nodes[l.source];
+    if (!s.cluster && luminance(h_.shape(l.source).emission) > 0) return true;
+    double gap2 = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double d = std::max({0.0, s.lo[a] - me.hi[a], me.lo[a] - s.hi[a]});
+        gap2 += d * d;
+    }
+    return std::sqrt(gap2) < std::max(me.diagonal(), s.diagonal());
+}
+
 Gatherer::Split Gatherer::split(uint32_t leaf) const {
     struct Candidate {
         double share;
@@ -113,21 +125,12 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     std::vector<Candidate> weak;
     Split out;
     double total = 0;
-    const Node& me = h_.nodes[leaf];
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const Link& l = links_[k];
-            const Node& s = h_.nodes[l.source];
             const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, leaf);
             total += share;
-            double gap2 = 0;
-            for (int a = 0; a < 3; ++a) {
-                const double d = std::max({0.0, s.lo[a] - me.hi[a], me.lo[a] - s.hi[a]});
-                gap2 += d * d;
-            }
-            const bool close = std::sqrt(gap2) < std::max(me.diagonal(), s.diagonal());
-            const bool emitter = !s.cluster && luminance(h_.shape(l.source).emission) > 0;
-            if (close || emitter) out.links.push_back(k);
+            if (varies(l, leaf)) out.links.push_back(k);
             else weak.push_back({share, k});
         }
     // The weakest first into the rest while it stays within the allowance; ties by link order.
@@ -228,6 +231,20 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
     return mean * (f * (used == 0 ? 1.0 : seen_share));  // (with none drawn, mean has the visibility)
 }
 
+RGB Gatherer::cell_difference(uint32_t source, const Vec3& y, bool near, uint64_t code) const {
+    RGB h_y, mean_h;
+    Rng rng(hash_pair(h_.nodes[source].key, code, opt_.seed ^ 0x5EC0Dull));
+    const Vec3 n = h_.shape(source).normal;
+    for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
+        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
+            const Link& l = links_[k];
+            if (h_.nodes[l.source].cluster || varies(l, source) != near) continue;
+            mean_h += radiosity_[l.source] * mean_coupling(l, source);
+            h_y += element_transfer(l, y, n, rng, nullptr, 1);
+        }
+    return h_y - mean_h;
+}
+
 RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) const {
     const uint64_t key = uint64_t(source) << 16 | code;  // code: the path (2 bits a level), then the depth
     {
@@ -235,19 +252,36 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
         if (cells_.find(hit, key)) return hit->second;
     }
     // B(y) = B_S + rho_S (H(y) - H_S) at the cell's centre y: H(y) from the leaf's chain at y,
-    // its sources at their leaves' radiosity. Seeded by the leaf's key and the cell: whichever
+    // its sources at their leaves' radiosity; H_S the leaf's irradiance in the solution, the
+    // same links at their mean coupling. Seeded by the leaf's key and the cell: whichever
     // point asks first, the same bits.
-    // H_S: the leaf's irradiance in the solution, its chain's links at their mean coupling.
-    RGB mean_h;
-    for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
-        for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k)
-            mean_h += radiosity_[links_[k].source] * mean_coupling(links_[k], source);
+    // A cluster source is taken at its mean at y as well: it adds nothing to the difference.
+    // The element sources whose light varies across the leaf (varies(): emitters, sources
+    // close to it) are gathered at y. The others are far from the leaf compared with its size
+    // and theirs does not vary across it; what they bring the leaf can still differ from the
+    // mean over the ancestor whose link carries it (a leaf under a cabinet whose ancestor
+    // spans the open floor), so they are gathered once, at the leaf's centre, and that
+    // difference is shared by all its cells. Gathering every link at every cell was most of
+    // the country kitchen's lightmap time.
     const Patch& s = h_.shape(source);
+    RGB far;
+    {
+        const uint64_t leaf_key = uint64_t(source) << 16 | kLeafCode;
+        CellCache::const_accessor hit;
+        if (cells_.find(hit, leaf_key)) {
+            far = hit->second;
+        } else {
+            hit.release();
+            far = cell_difference(source, s.centroid, false, kLeafCode);
+            CellCache::accessor slot;
+            if (cells_.insert(slot, leaf_key)) slot->second = far;
+            far = slot->second;
+        }
+    }
     Vec3 centre;
     for (int k = 0; k < cell.nv; ++k) centre += cell.p[k];
     centre = centre / double(cell.nv);
-    Rng rng(hash_pair(h_.nodes[source].key, code, opt_.seed ^ 0x5EC0Dull));
-    const RGB b = radiosity_[source] + mul(s.reflectance, chain(source, centre, s.normal, rng, nullptr, 1) - mean_h);
+    const RGB b = radiosity_[source] + mul(s.reflectance, far + cell_difference(source, centre, true, code));
     CellCache::accessor slot;
     if (cells_.insert(slot, key)) slot->second = b;  // (another thread's, if first: the same bits)
     return slot->second;
@@ -348,7 +382,7 @@ RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments*
     // On the leaf's plane, whatever small offset the query point had.
     const Vec3 x = x_in - n * dot(x_in - shape.p[0], n);
     Rng rng(hash_pair(leaf, key, opt_.seed ^ 0x6A7Eull));
-    if (!sp) return chain(leaf, x, n, rng, mo, 0);
+    if (!sp) return chain(leaf, x, n, rng, mo);
     RGB h = sp->rest;
     for (uint64_t k : sp->links) {
         const Link& l = links_[k];
@@ -357,16 +391,12 @@ RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments*
     return h;
 }
 
-RGB Gatherer::chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo, int depth) const {
+RGB Gatherer::chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     RGB h;
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const Link& l = links_[k];
-            if (!h_.nodes[l.source].cluster) h += element_transfer(l, x, n, rng, mo, depth);
-            // The second bounce's own gather takes cluster sources (far, by construction) at
-            // their mean over the receiver: the light they bring varies slowly across it.
-            else if (depth > 0) h += radiosity_[l.source] * mean_coupling(l, leaf);
-            else h += cluster_transfer(l, x, n, rng, mo);
+            h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
         }
     return h;
 }

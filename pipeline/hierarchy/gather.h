@@ -86,7 +86,8 @@ struct GatherOptions {
     // gathered at its centre y, B(y) = E_S + rho_S H(y) = B_S + rho_S (H(y) - H_S),
     // H(y) from S's own chain of links at y (those taken at their leaves' radiosity: one bounce
     // more, not two) and H_S the leaf's mean irradiance from the same links at their mean
-    // coupling, so that
+    // coupling (the links whose light does not vary across S, far sources, taken at S's
+    // centre once for all its cells), so that
     //   E(x) from S = sum over cells c of F(x -> c) V_c B(y_c),
     // F exact per cell. The cells are gathered once per leaf (cached; every point near the same
     // contact shares them). Along a contact (a block's wall at the
@@ -133,13 +134,15 @@ private:
     };
     Split split(uint32_t leaf) const;
     double mean_coupling(const Link& l, uint32_t leaf) const;  // the link's mean irradiance at leaf per unit B_S
+    // Whether a link's light varies much across `leaf`: its source emits, or is closer to the
+    // leaf than the larger of the two's diagonals.
+    bool varies(const Link& l, uint32_t leaf) const;
     uint32_t leaf_at(uint32_t node, double s, double t) const {
         return descend_to_leaf([this](uint32_t k) { return steps_[k]; }, node, s, t);
     }
     RGB at(uint32_t leaf, const Vec3& x, uint64_t key, RadianceMoments* mo, const Split* sp) const;
-    // The irradiance at x on `leaf` from its whole chain; `depth` 1: the second bounce's own
-    // gather (its sources at their leaves' radiosity).
-    RGB chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo, int depth) const;
+    // The irradiance at x on `leaf` from its whole chain.
+    RGB chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
     RGB element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
                          int depth = 0) const;
     // The second bounce (GatherOptions::second_bounce): a close leaf cut into cells where x is
@@ -149,6 +152,10 @@ private:
     RGB cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth, const Vec3& x,
                       const Vec3& n, Rng& rng, RadianceMoments* mo) const;
     RGB cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) const;
+    // H(y) - H_S over the element links of leaf `source`'s chain that vary across it (near) or
+    // not, at its point y (seeded by the leaf and `code`).
+    RGB cell_difference(uint32_t source, const Vec3& y, bool near, uint64_t code) const;
+    static constexpr uint64_t kLeafCode = 0xFFFF;  // the cache key of a leaf's far part, no cell's
     RGB cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng,
                          RadianceMoments* mo) const;  // B-weighted
 
