@@ -10,6 +10,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <exception>
 #include <string>
@@ -74,8 +75,6 @@ inline std::vector<Vec3> vec3_rows(const In<double>& a, const char* what, long n
     return v;
 }
 
-// Runs `work` on a worker thread; meanwhile calls `tick()` (with the GIL) every 100 ms and
-// checks for Ctrl-C. Exceptions from the work are rethrown here.
 // (points, directions) float32 of `source.direct_transmittance` (Engine, RayScene): the
 // arrays checked, the work done without the GIL.
 template <typename Source>
@@ -92,6 +91,20 @@ Array<float> direct_transmittance_of(const Source& source, const In<double>& p, 
     return to_numpy(std::move(out), {pts.size(), dirs.size()});
 }
 
+// `source.lift_samples` (Engine, RayScene): the arrays checked, the work done without the GIL.
+template <typename Source>
+auto lift_samples_of(const Source& source, const In<double>& p, const In<double>& n, double epsilon, double reach,
+                     const std::optional<In<double>>& a) {
+    auto pts = vec3_rows(p, "points");
+    auto nrm = vec3_rows(n, "normals", long(pts.size()));
+    std::vector<Vec3> anc;
+    if (a) anc = vec3_rows(*a, "anchors", long(pts.size()));
+    nb::gil_scoped_release release;
+    return source.lift_samples(std::move(pts), nrm, epsilon, reach, a ? &anc : nullptr);
+}
+
+// Runs `work` on a worker thread; meanwhile calls `tick()` (with the GIL) every 100 ms and
+// checks for Ctrl-C. Exceptions from the work are rethrown here.
 template <typename Work, typename Tick>
 void run_reporting(Work&& work, Tick&& tick) {
     std::exception_ptr error;

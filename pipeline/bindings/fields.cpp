@@ -210,12 +210,7 @@ void bind_fields(nb::module_& m) {
              "Closest surface point within max_distance, facing along the normal when it is non-zero (ProbeResult).")
         .def("lift_samples",
              [](const RayScene& s, In<double> p, In<double> n, double eps, double reach, std::optional<In<double>> a) {
-                 auto pts = vec3_rows(p, "points");
-                 auto nrm = vec3_rows(n, "normals", long(pts.size()));
-                 std::vector<Vec3> anc;
-                 if (a) anc = vec3_rows(*a, "anchors", long(pts.size()));
-                 nb::gil_scoped_release release;
-                 return s.lift_samples(std::move(pts), nrm, eps, reach, a ? &anc : nullptr);
+                 return lift_samples_of(s, p, n, eps, reach, a);
              },
              "points"_a, "normals"_a, "epsilon"_a, "reach"_a, "anchors"_a.none() = nb::none(),
              "Lightmap sample points lifted epsilon (m) along their normals and moved out of geometry within "

@@ -16,6 +16,8 @@
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/outofcore/outofcore.h"
 #include "pipeline/outofcore/run_store.h"
+#include "pipeline/engine/ray_scene.h"
+#include "pipeline/outputs/volume.h"
 
 namespace hirad {
 
@@ -1048,6 +1050,17 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
                                           : (group_emission(groups_[group], s.face) + mul(s.reflectance, e[k])) / kPi;
     }
     return out;
+}
+
+LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
+                                double reach, const std::vector<Vec3>* anchors) const {
+    if (!visibility_) throw std::invalid_argument("lift_samples needs meshed patches");
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    if (anchors && anchors->size() != points.size()) throw std::invalid_argument("points and anchors differ in length");
+    LiftResult r;
+    hirad::lift_samples(patches_.patches, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
+    r.points = std::move(points);
+    return r;
 }
 
 PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,

@@ -63,6 +63,8 @@
 
 namespace hirad {
 
+struct LiftResult;  // pipeline/engine/ray_scene.h
+
 // Caps the engine's TBB threads (0: all cores). Results do not depend on it.
 void set_threads(int threads);
 
@@ -361,6 +363,11 @@ public:
     // links, its luminaires, its emission).
     PointValues gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                        const GatherOptions& options, double max_distance = 1e30, int group = -1);
+    // Lightmap sample points lifted off their surface and out of geometry (volume.h's
+    // lift_samples) against the current patches and their BVH, the gather's own: a final
+    // gather's lightmaps then build no second ray-tracing scene (SurfaceField) for it.
+    LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
+                            double reach, const std::vector<Vec3>* anchors) const;
     // Direct light from far directions at points (daylight: annual sun hours, sky patches):
     // out[p * D + d] = max(0, n_p . d_d) T(x_p, d_d), T the transmittance of the ray from x_p
     // (lifted off its surface) towards unit direction d_d out of the scene (visibility.h: 0

@@ -65,11 +65,15 @@ It was written again for all three configs (EXR sections only; USD, volume and r
 held) when the final gather gained its second bounce for close sources (a contact's radiosity
 gathered again in cells where the point sees it, stop 32) and a texel's value became the mean
 over its visible part (samples moved out of geometry take their texel's free samples' mean).
-Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 It was written again for cornell_hierarchical.yaml's EXR section alone (stop 35) when the final
 gather's second bounce began to gather a close leaf's far links once at its centre instead of at
 every cell (f636959): the lightmap texels moved within the gather's sampling; the same values
 came out with the atlas changes of d3ed07c undone, and the USD, volume and report were unchanged.
+It was written again for cornell_hierarchical.yaml's report section alone (stop 36) when the
+final gather's lightmaps began to lift their texel samples with the engine's own patches and BVH
+instead of building the SurfaceField (650 MB on the kitchen): the report's counts.rays now counts
+those lift rays, which the field's scene did not; every USD, EXR and volume value held bit for bit.
+Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 
 from __future__ import annotations

@@ -1039,6 +1039,11 @@ class Engine:
         Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: that light group's solution alone.
         """
 
+    def lift_samples(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], epsilon: float, reach: float, anchors: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> LiftResult:
+        """
+        SurfaceField.lift_samples against the current patches and their BVH (LiftResult).
+        """
+
     def direct_transmittance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float32]:
         """
         (P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit direction out of the scene (0 blocked; glass factors), over the current patches.

@@ -524,6 +524,40 @@ def test_no_light_under_the_walls_of_a_room(room):
 
 
 
+def test_final_gather_lightmaps_lift_against_the_engines_own_scene(room):
+    """A final gather's lightmaps lift their samples with the engine's patches and BVH
+    (lightmaps._tracer), not with a SurfaceField built for it: the same faces, so the same
+    samples found inside geometry and the same lifted points, while the field (650 MB on the
+    1M-triangle kitchen) is never built by the lightmap stage."""
+    from hirad.outputs.lightmaps import _tracer
+
+    result, _ = room
+    assert _tracer(result) is result._model
+    rng = np.random.default_rng(5)
+    x0, x1, z0, z1 = ROOM
+    # ground samples inside, outside and under the walls, facing up; wall samples both ways
+    n = 4000
+    ground = np.column_stack([rng.uniform(x0 - 0.5, x1 + 0.5, n), np.zeros(n), rng.uniform(z0 - 0.5, z1 + 0.5, n)])
+    wall = np.column_stack([np.full(n, x0 + ROOM_T), rng.uniform(0, ROOM_TOP, n), rng.uniform(z0, z1, n)])
+    points = np.concatenate([ground, wall])
+    normals = np.concatenate([np.tile([0.0, 1.0, 0.0], (n, 1)), np.tile([1.0, 0.0, 0.0], (n, 1))])
+    reach = 1.0 / ROOM_TPM
+    anchors = points + rng.normal(0, 0.05, points.shape)
+    for extra in ({}, {"anchors": anchors}):
+        mine = result._model.lift_samples(points, normals, 1e-4, reach, **extra)
+        field = result.field.lift_samples(points, normals, 1e-4, reach, **extra)
+        assert np.asarray(mine.moved).sum() > 100  # samples under the walls were found
+        np.testing.assert_array_equal(np.asarray(mine.moved), np.asarray(field.moved))
+        # (the two BVHs hold the same faces, one from the leaves and one from the display mesh's
+        # welded corners: a hit distance may differ in its last float bits, nanometres)
+        np.testing.assert_allclose(np.asarray(mine.points), np.asarray(field.points), rtol=0, atol=1e-7)
+    # without the hierarchy kept, it is the field's
+    from hirad.solution import Result
+
+    plain = Result(result.corners, result.nv, result.corner_radiance, result.corner_irradiance)
+    assert isinstance(_tracer(plain), _engine.SurfaceField)
+
+
 def test_a_mesh_too_big_for_a_page_is_scaled_down_and_reported(scene):
     root, path = scene
     cfg = write_config(root / "small.yaml", path, root / "small", meshing=MESHING,

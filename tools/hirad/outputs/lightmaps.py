@@ -37,10 +37,10 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
     sending half of them through to the far side), else the nearest. Returns (points, moved)."""
     if len(points) == 0:
         return points, np.zeros(0, bool)
-    field = result.field  # the solution's one ray-tracing scene
+    tracer = _tracer(result)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    first = field.lift_samples(pts, nrm, float(epsilon), float(reach))
+    first = tracer.lift_samples(pts, nrm, float(epsilon), float(reach))
     moved = first.moved.astype(bool)
     first_points = first.points
     if not moved.any():
@@ -56,11 +56,22 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
         a_all = np.bincount(t, pts[:, c], minlength=nt) / np.maximum(np.bincount(t, minlength=nt), 1)
         anchor[:, c] = np.where(w_free > 0, a_free / np.maximum(w_free, 1e-300), a_all)
     sel = np.nonzero(moved)[0]
-    again = field.lift_samples(np.ascontiguousarray(pts[sel]), np.ascontiguousarray(nrm[sel]),
+    again = tracer.lift_samples(np.ascontiguousarray(pts[sel]), np.ascontiguousarray(nrm[sel]),
                                float(epsilon), float(reach), np.ascontiguousarray(anchor[t[sel]]))
     out = first_points.copy()
     out[sel] = again.points
     return out, moved
+
+
+def _tracer(result):
+    """What _lift traces against: the engine's own patches and BVH while it holds the solved
+    hierarchy for a final gather (the same faces as the display mesh: a second ray-tracing
+    scene of them, the SurfaceField, cost the country kitchen's lightmaps some 650 MB), else
+    the solution's SurfaceField."""
+    model = getattr(result, "_model", None)
+    if model is not None and result.hierarchical and model.has_hierarchy and model.leaves_are_patches:
+        return model
+    return result.field
 
 
 def _visible_mean(values: np.ndarray, moved: np.ndarray, texel: np.ndarray) -> np.ndarray:
@@ -367,24 +378,28 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         pm.lightmap_uv = _locate_in_faces(pts, src_face, fan, tri_xyz, tri_uv)
 
     mode = lm.mode
-    field = result.field if result is not None else None
+    field = result.field if result is not None and mode != "final_gather" else None
 
     def evaluate(points, normals, texel):
         reach = 1.0 / density
         lifted, moved = _lift(result, points, normals, texel, lm.sample_offset, reach)
         evaluate.moved += int(moved.sum())
         if mode == "final_gather":
-            g = result.gather(lifted, normals, rays=lm.gather_rays, directional=lm.directional,
-                              importance=lm.gather_importance, second_bounce=lm.gather_second_bounce)
+            options = dict(rays=lm.gather_rays, directional=lm.directional, importance=lm.gather_importance,
+                           second_bounce=lm.gather_second_bounce)
+            g = result.gather(lifted, normals, **options)
             values = g["irradiance"] / np.pi
             miss = g["patch"] < 0
+            if miss.any():  # no surface facing along the normal: gathered at the nearest one
+                again = result.gather(lifted[miss], np.zeros((int(miss.sum()), 3)), **options)
+                values[miss] = again["irradiance"] / np.pi
         else:
             q = field.probe(np.ascontiguousarray(lifted), np.ascontiguousarray(normals, dtype=np.float64), 1e30)
             values = q.irradiance / np.pi
             miss = q.patch < 0
-        if miss.any():  # no surface facing along the normal: take the nearest one
-            q = field.probe(np.ascontiguousarray(lifted[miss]), np.zeros((int(miss.sum()), 3)), 1e30)
-            values[miss] = q.irradiance / np.pi
+            if miss.any():  # no surface facing along the normal: take the nearest one
+                q = field.probe(np.ascontiguousarray(lifted[miss]), np.zeros((int(miss.sum()), 3)), 1e30)
+                values[miss] = q.irradiance / np.pi
         evaluate.samples += len(points)
         if not lm.directional:
             return _visible_mean(values, moved, texel)
