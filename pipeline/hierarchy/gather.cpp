@@ -407,18 +407,12 @@ void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* k
         if (leaf[k] >= h_.nodes.size() || h_.nodes[leaf[k]].cluster)
             throw std::invalid_argument("gather: a query point's element is not an element of the hierarchy");
     const bool split_links = opt_.importance > 0 && !moments;
-    if (!split_links) {
-        tbb::parallel_for(size_t(0), count, [&](size_t k) {
-            if (moments) moments[k] = RadianceMoments{};
-            out[k] = at(leaf[k], x[k], key[k], moments ? moments + k : nullptr, nullptr);
-        });
-        return;
-    }
-    // Per leaf queried, its split (GatherOptions::importance), made once: the points in leaf
-    // order, kSplitBlock leaves at a time, each block's splits made and let go before the next
-    // (a split holds the indices of most of its chain's links: all of a lightmap page's leaves
-    // at once held 0.5 GB on the 1M-triangle kitchen). A point's value depends on its leaf, its
-    // key and the cell cache's bits, not on the blocks or the threads.
+    // The points in leaf order, kSplitBlock leaves at a time. Per leaf queried its split
+    // (GatherOptions::importance), made once, the block's splits let go before the next (a
+    // split holds the indices of most of its chain's links); and the cell cache emptied between
+    // blocks once it holds kCellCacheMost cells (a lightmap page of the 1M-triangle kitchen
+    // filled it with millions). A point's value depends on its leaf, its key and the cells'
+    // values, which depend on their keys alone: not on the blocks, the cache or the threads.
     std::vector<uint32_t> order(count);
     for (size_t k = 0; k < count; ++k) order[k] = uint32_t(k);
     std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return leaf[a] < leaf[b]; });
@@ -430,13 +424,21 @@ void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* k
     std::vector<Split> splits;
     for (size_t u0 = 0; u0 < unique; u0 += kSplitBlock) {
         const size_t u1 = std::min(unique, u0 + kSplitBlock);
-        splits.assign(u1 - u0, Split{});
-        tbb::parallel_for(u0, u1, [&](size_t u) { splits[u - u0] = split(leaf[order[first_of[u]]]); });
+        if (split_links) {
+            splits.assign(u1 - u0, Split{});
+            tbb::parallel_for(u0, u1, [&](size_t u) { splits[u - u0] = split(leaf[order[first_of[u]]]); });
+        }
         tbb::parallel_for(first_of[u0], first_of[u1], [&](size_t j) {
             const uint32_t k = order[j];
-            const size_t u = size_t(std::upper_bound(first_of.begin() + u0, first_of.begin() + u1, j) - first_of.begin()) - 1;
-            out[k] = at(leaf[k], x[k], key[k], nullptr, &splits[u - u0]);
+            if (moments) moments[k] = RadianceMoments{};
+            const Split* sp = nullptr;
+            if (split_links) {
+                const auto at_u = std::upper_bound(first_of.begin() + u0, first_of.begin() + u1, j);
+                sp = &splits[size_t(at_u - first_of.begin()) - 1 - u0];
+            }
+            out[k] = at(leaf[k], x[k], key[k], moments ? moments + k : nullptr, sp);
         });
+        if (cells_.size() > kCellCacheMost) cells_.clear();
     }
 }
 

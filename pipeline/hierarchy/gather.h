@@ -133,7 +133,8 @@ private:
         RGB rest;
     };
     Split split(uint32_t leaf) const;
-    static constexpr size_t kSplitBlock = 8192;  // leaves whose splits irradiance() holds at once
+    static constexpr size_t kSplitBlock = 8192;         // leaves whose splits irradiance() holds at once
+    static constexpr size_t kCellCacheMost = 1u << 20;  // cells kept between blocks (about 80 MB)
     double mean_coupling(const Link& l, uint32_t leaf) const;  // the link's mean irradiance at leaf per unit B_S
     // Whether a link's light varies much across `leaf`: its source emits, or is closer to the
     // leaf than the larger of the two's diagonals.

@@ -181,6 +181,46 @@ TEST(Gather, SecondBounceTakesACloseSourcesRadiosityWhereTheKernelIs) {
     EXPECT_EQ(a.y, b.y);
 }
 
+TEST(Gather, AValueDoesNotDependOnTheOtherPointsOfItsCall) {
+    // Gatherer::irradiance takes its points in leaf order, a block of leaves at a time, and
+    // empties its cell cache between blocks once it is large: a point's value must depend only
+    // on its leaf, its key and the solution. Points gathered together in one call, and each
+    // alone in a fresh Gatherer (an empty cache) in the reverse order, give the same bits, with
+    // the importance split and without, the second bounce's cells in use (points by a wall).
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 0.3, 2.0));
+    scene.faces.push_back(quad({{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, 0.5, 0.0));
+    const Linked linked(scene, {1e-4, 0.01, 16, 1});
+    const Hierarchy& h = linked.h;
+    Rng rng(11);
+    const int n = 300;
+    std::vector<uint32_t> leaves(n);
+    std::vector<Vec3> xs(n);
+    std::vector<uint64_t> keys(n);
+    for (int k = 0; k < n; ++k) {
+        const double u = 0.3 * rng.uniform(), v = rng.uniform();
+        xs[k] = {u, v, 0};
+        leaves[k] = h.leaf_at(h.face_node[0], u, v);
+        keys[k] = uint64_t(k) * 7 + 1;
+    }
+    for (double importance : {0.0, 0.02}) {
+        GatherOptions o;
+        o.importance = importance;
+        o.second_bounce = 1.0;
+        std::vector<RGB> together(n);
+        Gatherer(h, linked.links, linked.sol.radiosity, linked.vis, o)
+            .irradiance(leaves.data(), xs.data(), keys.data(), n, together.data());
+        for (int k = n; k-- > 0;) {
+            RGB alone;
+            Gatherer(h, linked.links, linked.sol.radiosity, linked.vis, o)
+                .irradiance(&leaves[k], &xs[k], &keys[k], 1, &alone);
+            ASSERT_EQ(alone.x, together[k].x) << "point " << k << ", importance " << importance;
+            ASSERT_EQ(alone.y, together[k].y);
+            ASSERT_EQ(alone.z, together[k].z);
+        }
+    }
+}
+
 // The solid angle of a rectangle a x b seen from a point at distance c below one corner.
 double corner_solid_angle(double a, double b, double c) {
     return std::atan(a * b / (c * std::sqrt(a * a + b * b + c * c)));
