@@ -270,8 +270,7 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
         CellCache::const_accessor hit;
         if (cells_.find(hit, leaf_key)) {
             far = hit->second;
-        } else {
-            hit.release();
+        } else {  // (a failed find holds no lock)
             far = cell_difference(source, s.centroid, false, kLeafCode);
             CellCache::accessor slot;
             if (cells_.insert(slot, leaf_key)) slot->second = far;
