@@ -58,12 +58,14 @@ void bind_options(nb::module_& m) {
     nb::class_<HierarchyOptions>(m, "HierarchyOptions", "Hierarchical radiosity with clustering.")
         .def("__init__",
              [](HierarchyOptions* o, double eps, double min_area, int samples, uint64_t seed, int rounds,
-                double relative, double spread, bool cluster_receivers) {
-                 new (o) HierarchyOptions{eps, min_area, samples, seed, rounds, relative, spread, cluster_receivers};
+                double relative, double spread, bool cluster_receivers, double closure_reflectance) {
+                 new (o) HierarchyOptions{eps,      min_area, samples,           seed,
+                                          rounds,   relative, spread,            cluster_receivers,
+                                          closure_reflectance};
              },
              "epsilon"_a = ho.epsilon, "min_area"_a = ho.min_area, "samples"_a = ho.samples, "seed"_a = ho.seed,
              "max_rounds"_a = ho.max_rounds, "relative"_a = ho.relative, "spread"_a = ho.spread,
-             "cluster_receivers"_a = ho.cluster_receivers)
+             "cluster_receivers"_a = ho.cluster_receivers, "closure_reflectance"_a = ho.closure_reflectance)
         .def_rw("epsilon", &HierarchyOptions::epsilon,
                 "A link may carry at most epsilon x the scene's emitted power (W) before it is split.")
         .def_rw("min_area", &HierarchyOptions::min_area, "Elements are not split below this area, m^2.")
@@ -75,6 +77,10 @@ void bind_options(nb::module_& m) {
         .def_rw("spread", &HierarchyOptions::spread,
                 "Close or partly visible links whose source's radiosity range could bias them by more than "
                 "spread x epsilon's power are split at the source (0: off).")
+        .def_rw("closure_reflectance", &HierarchyOptions::closure_reflectance,
+                "Leaves of at least this reflectance have their form factors (what they inherit from their "
+                "ancestors' links) normalised to their closure, the share of their hemisphere that meets a "
+                "surface (Hierarchy::closure); 1: none.")
         .def_rw("cluster_receivers", &HierarchyOptions::cluster_receivers,
                 "Clusters receive as well as send: faces of one orientation share a link's light as an "
                 "element's children do; clusters of several orientations where every face sees the source "

@@ -617,10 +617,13 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     if (!(o.relative >= 0 && o.relative < 1)) throw std::invalid_argument("relative must be in [0, 1)");
     if (!(o.spread >= 0 && o.spread <= 1)) throw std::invalid_argument("spread must be in [0, 1]");
     if (o.max_rounds < 1) throw std::invalid_argument("max_rounds must be at least 1");
+    if (!(o.closure_reflectance >= 0 && o.closure_reflectance <= 1))
+        throw std::invalid_argument("closure_reflectance must be in [0, 1]");
     links_.reset();
     solved_.reset();
     hierarchy_released_ = false;
     auto state = std::make_unique<Solved>(scene_);
+    state->hierarchy.closure_reflectance = o.closure_reflectance;
     state->visibility =
         std::make_unique<Visibility>(state->hierarchy.faces, &glazing_, state->hierarchy.scene_faces);
     emitted = 0;

@@ -113,6 +113,9 @@ struct HierarchyOptions {
                                     // at the source above spread x epsilon (refine.h; 0: off)
     bool cluster_receivers = false; // clusters whose faces all face a source receive as a whole
                                     // (refine.h, Hierarchy::reception)
+    double closure_reflectance = Hierarchy::kClosureReflectance;  // leaves of at least this
+                                    // reflectance have their form factors normalised to their
+                                    // closure (Hierarchy::closure)
 };
 
 // The hierarchical method out of core: links streamed through a link store.

@@ -466,7 +466,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
         if (hidden > 0 && hidden < 1) hidden = inside_share(24);
         open[i] = static_cast<float>(1.0 - hidden);
         const RGB& rho = s.reflectance;
-        if (std::max({rho.x, rho.y, rho.z}) >= kClosureReflectance && hidden < 1)
+        if (std::max({rho.x, rho.y, rho.z}) >= closure_reflectance && hidden < 1)
             closure[i] = static_cast<float>(measure_closure(vis, faces, s, rng, lift) / (1.0 - hidden));
     });
 }

@@ -226,7 +226,7 @@ class SolveOptions:
 class HierarchyOptions:
     """Hierarchical radiosity with clustering."""
 
-    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0, spread: float = 0.001, cluster_receivers: bool = False) -> None: ...
+    def __init__(self, epsilon: float = 1e-05, min_area: float = 0.001, samples: int = 16, seed: int = 1, max_rounds: int = 6, relative: float = 0.0, spread: float = 0.001, cluster_receivers: bool = False, closure_reflectance: float = 0.95) -> None: ...
 
     @property
     def epsilon(self) -> float:
@@ -282,6 +282,15 @@ class HierarchyOptions:
 
     @spread.setter
     def spread(self, arg: float, /) -> None: ...
+
+    @property
+    def closure_reflectance(self) -> float:
+        """
+        Leaves of at least this reflectance have their form factors (what they inherit from their ancestors' links) normalised to their closure, the share of their hemisphere that meets a surface (Hierarchy::closure); 1: none.
+        """
+
+    @closure_reflectance.setter
+    def closure_reflectance(self, arg: float, /) -> None: ...
 
     @property
     def cluster_receivers(self) -> bool:

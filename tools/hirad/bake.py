@@ -211,7 +211,8 @@ def hierarchy_options(cfg: Config) -> "_engine.HierarchyOptions":
     hc = cfg.hierarchy
     return _engine.HierarchyOptions(epsilon=hc.epsilon, min_area=hc.min_area, samples=hc.samples, seed=cfg.seed,
                                     max_rounds=hc.max_rounds, relative=hc.relative_epsilon,
-                                    spread=hc.spread_epsilon, cluster_receivers=hc.cluster_receivers)
+                                    spread=hc.spread_epsilon, cluster_receivers=hc.cluster_receivers,
+                                    closure_reflectance=hc.closure_reflectance)
 
 
 def out_of_core_options(cfg: Config, resume: bool = False, reuse_links: bool = False) -> "_engine.OutOfCoreOptions":

@@ -419,3 +419,15 @@ def test_top_level_not_a_mapping(tmp_path: Path) -> None:
     assert "mapping" in err.problem
     err = load_error(write(tmp_path, "# nothing here\n"))
     assert "mapping" in err.problem
+
+
+def test_closure_reflectance_is_a_reflectance_and_reaches_the_engine(tmp_path: Path) -> None:
+    # hierarchy.closure_reflectance: leaves of at least this reflectance are normalised to their
+    # closure (Hierarchy::closure); a reflectance, so in [0, 1], named with its line when not.
+    from hirad.bake import hierarchy_options
+
+    err = load_error(write(tmp_path, "scene: scene.usda\nhierarchy:\n  closure_reflectance: 1.5\n"))
+    assert err.key == "hierarchy.closure_reflectance" and err.line == 3
+    cfg = load_config(write(tmp_path, "scene: scene.usda\nhierarchy:\n  closure_reflectance: 0.0\n"))
+    assert hierarchy_options(cfg).closure_reflectance == 0.0
+    assert hierarchy_options(load_config(write(tmp_path, "scene: scene.usda\n"))).closure_reflectance == 0.95

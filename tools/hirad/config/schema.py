@@ -382,6 +382,22 @@ class HierarchyConfig(BaseModel):
         ),
     )
 
+    closure_reflectance: StrictFloat = Field(
+        json_schema_extra={"unit": "reflectance"},
+        default=0.95,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "A leaf whose link is kept at an ancestor takes that ancestor's mean form factor, so"
+            " leaf by leaf the form factors do not sum to what each leaf's hemisphere sees (in a"
+            " closed room 0.95 to 1.3 around a mean of 1), and every bounce loses or adds light."
+            " Leaves of at least this reflectance have what they inherit scaled so that their sum"
+            " comes to their closure, measured by rays. 0.95 (the default) keeps rooms of white"
+            " walls in power balance; 0 normalises every leaf, which took the country kitchen's"
+            " final gather from a mean error of -3.9 % to +0.4 % (bench/README.md); 1: none."
+        ),
+    )
+
     cluster_receivers: StrictBool = Field(
         default=False,
         description=(
