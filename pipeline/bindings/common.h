@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "pipeline/core/vecmath.h"
+#include "pipeline/engine/ray_scene.h"  // LiftResult (lift_samples_of)
 
 namespace hirad::py {
 

@@ -12,7 +12,6 @@
 
 #include "pipeline/bindings/common.h"
 #include "pipeline/engine/engine.h"
-#include "pipeline/engine/ray_scene.h"
 
 namespace hirad::py {
 
@@ -250,15 +249,10 @@ void bind_engine(nb::module_& m) {
              "points"_a, "normals"_a, "options"_a = GatherOptions{}, "max_distance"_a = 1e30, "group"_a = -1,
              "Final gather after a hierarchical solve (PointValues); needs use_leaves_as_patches(). group >= 0: "
              "that light group's solution alone.")
-        .def("lift_samples",
-             [](const Engine& s, In<double> p, In<double> n, double eps, double reach, std::optional<In<double>> a) {
-                 return lift_samples_of(s, p, n, eps, reach, a);
-             },
-             "points"_a, "normals"_a, "epsilon"_a, "reach"_a, "anchors"_a.none() = nb::none(),
+        .def("lift_samples", &lift_samples_of<Engine>, "points"_a, "normals"_a, "epsilon"_a, "reach"_a,
+             "anchors"_a.none() = nb::none(),
              "SurfaceField.lift_samples against the current patches and their BVH (LiftResult).")
-        .def("direct_transmittance",
-             [](const Engine& e, In<double> p, In<double> n, In<double> d) { return direct_transmittance_of(e, p, n, d); },
-             "points"_a, "normals"_a, "directions"_a,
+        .def("direct_transmittance", &direct_transmittance_of<Engine>, "points"_a, "normals"_a, "directions"_a,
              "(P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit "
              "direction out of the scene (0 blocked; glass factors), over the current patches.")
         .def("gather_flat",

@@ -178,8 +178,7 @@ void bind_fields(nb::module_& m) {
              "glass: the panes met from the front and the surface past them; weight the glass passed before it, 1 "
              "without), sensor by sensor; rays = k*k a sensor. The indirect illuminance of corner radiance L is "
              "pi / rays x the sum of weight x L interpolated at a sensor's entries.")
-        .def("direct_transmittance",
-             [](const RayScene& s, In<double> p, In<double> n, In<double> d) { return direct_transmittance_of(s, p, n, d); },
+        .def("direct_transmittance", &direct_transmittance_of<RayScene>,
              "points"_a, "normals"_a, "directions"_a,
              "(sensors, D) float32: max(0, n . d) x the transmittance of the ray from each sensor towards each "
              "direction out of the scene (0 blocked; glass factors), as illuminance's luminaires see it.")
@@ -208,10 +207,7 @@ void bind_fields(nb::module_& m) {
              },
              "points"_a, "normals"_a, "max_distance"_a = 1e30,
              "Closest surface point within max_distance, facing along the normal when it is non-zero (ProbeResult).")
-        .def("lift_samples",
-             [](const RayScene& s, In<double> p, In<double> n, double eps, double reach, std::optional<In<double>> a) {
-                 return lift_samples_of(s, p, n, eps, reach, a);
-             },
+        .def("lift_samples", &lift_samples_of<RayScene>,
              "points"_a, "normals"_a, "epsilon"_a, "reach"_a, "anchors"_a.none() = nb::none(),
              "Lightmap sample points lifted epsilon (m) along their normals and moved out of geometry within "
              "reach (m) (LiftResult).")
