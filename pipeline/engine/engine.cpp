@@ -79,7 +79,8 @@ struct Engine::Solved {
     explicit Solved(const Scene& scene) : hierarchy(scene) {}
     Hierarchy hierarchy;
     std::unique_ptr<Visibility> visibility;  // over hierarchy.faces
-    std::vector<Link> links;                 // sorted by receiver
+    std::vector<Link> links;                 // sorted by receiver (in memory; let go for gather_table)
+    std::unique_ptr<GatherLinks> gather_table;  // what the gathers read, made by the first
     std::vector<RGB> radiosity;              // per node
     std::vector<uint32_t> leaves;            // node of each leaf (of each published patch)
     std::vector<Patch> leaf_patches;         // the leaves' shapes, until published (then freed)
@@ -1002,9 +1003,18 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     const std::vector<Luminaire>& lums = group < 0 ? luminaires_ : groups_[group].luminaires;
     if (!leaves_published_) throw std::invalid_argument("gather needs the leaves as patches: call use_leaves_as_patches()");
     require_points(points, normals);
-    // Links of an out-of-core solve are read from its store on the first gather.
-    if (solved_->links.empty() && !solved_->store_round.empty())
-        solved_->links = load_links(solved_->store_round, solved_->groups);
+    // The first gather makes the links' table (12 bytes a link): an out-of-core solve's read
+    // from its store, an in-memory solve's from its links, which it replaces.
+    if (!solved_->gather_table) {
+        const size_t nodes = solved_->hierarchy.nodes.size();
+        if (solved_->links.empty() && !solved_->store_round.empty()) {
+            solved_->gather_table =
+                std::make_unique<GatherLinks>(gather_links(solved_->store_round, solved_->groups, nodes));
+        } else {
+            solved_->gather_table = std::make_unique<GatherLinks>(solved_->links, nodes);
+            std::vector<Link>().swap(solved_->links);
+        }
+    }
     const size_t n = points.size();
     PointValues out;
     out.patch.assign(n, -1);
@@ -1024,7 +1034,7 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
         key.push_back(q);
         slot.push_back(q);
     }
-    Gatherer g(solved_->hierarchy, solved_->links, radiosity, *solved_->visibility, options);
+    Gatherer g(solved_->hierarchy, *solved_->gather_table, radiosity, *solved_->visibility, options);
     std::vector<RGB> e(leaf.size());
     std::vector<RadianceMoments> mo(options.directional ? leaf.size() : 0);
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data(), options.directional ? mo.data() : nullptr);
@@ -1058,8 +1068,6 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
 LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
                                 double reach, const std::vector<Vec3>* anchors) const {
     if (!visibility_) throw std::invalid_argument("lift_samples needs meshed patches");
-    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
-    if (anchors && anchors->size() != points.size()) throw std::invalid_argument("points and anchors differ in length");
     LiftResult r;
     hirad::lift_samples(patches_.patches, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
     r.points = std::move(points);

@@ -71,8 +71,6 @@ ProbeResult RayScene::probe(const std::vector<Vec3>& points, const std::vector<V
 
 LiftResult RayScene::lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
                                   double reach, const std::vector<Vec3>* anchors) const {
-    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
-    if (anchors && anchors->size() != points.size()) throw std::invalid_argument("points and anchors differ in length");
     LiftResult r;
     hirad::lift_samples(patches_, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
     r.points = std::move(points);

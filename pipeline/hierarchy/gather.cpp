@@ -82,15 +82,38 @@ SolidAngleMoments polygon_solid_angle_moments(const Vec3& x, const Vec3& n, cons
     return out;
 }
 
+GatherLinks::GatherLinks(const std::vector<Link>& sorted, size_t nodes) {
+    first.assign(nodes + 1, 0);
+    links.resize(sorted.size());
+    for (size_t k = 0; k < sorted.size(); ++k) {
+        const Link& l = sorted[k];
+        if (l.receiver >= nodes || l.source >= nodes) throw std::invalid_argument("gather: a link's node is out of range");
+        if (k > 0 && l.receiver < sorted[k - 1].receiver)
+            throw std::invalid_argument("gather: links must be sorted by receiver");
+        ++first[l.receiver + 1];
+        links[k] = GatherLink{l.source, l.coupling, l.visibility};
+    }
+    for (size_t i = 0; i < nodes; ++i) first[i + 1] += first[i];
+}
+
 Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, const std::vector<RGB>& radiosity,
                    const Visibility& visibility, const GatherOptions& options)
-    : h_(hierarchy), links_(links), radiosity_(radiosity), vis_(visibility), opt_(options) {
+    : h_(hierarchy), own_(std::make_unique<GatherLinks>(links, hierarchy.nodes.size())), table_(*own_),
+      links_(table_.links), first_link_(table_.first), radiosity_(radiosity), vis_(visibility), opt_(options) {
+    build_steps();
+}
+
+Gatherer::Gatherer(const Hierarchy& hierarchy, const GatherLinks& links, const std::vector<RGB>& radiosity,
+                   const Visibility& visibility, const GatherOptions& options)
+    : h_(hierarchy), table_(links), links_(table_.links), first_link_(table_.first), radiosity_(radiosity),
+      vis_(visibility), opt_(options) {
+    if (table_.first.size() != h_.nodes.size() + 1)
+        throw std::invalid_argument("gather: the links' table is not this hierarchy's");
+    build_steps();
+}
+
+void Gatherer::build_steps() {
     const size_t n = h_.nodes.size();
-    first_link_.assign(n + 1, 0);
-    for (const Link& l : links_) ++first_link_[l.receiver + 1];
-    for (size_t i = 0; i < n; ++i) first_link_[i + 1] += first_link_[i];
-    for (size_t k = 1; k < links_.size(); ++k)
-        if (links_[k].receiver < links_[k - 1].receiver) throw std::invalid_argument("gather: links must be sorted by receiver");
     steps_.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h_.nodes[i];
@@ -98,14 +121,14 @@ Gatherer::Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, c
     }
 }
 
-double Gatherer::mean_coupling(const Link& l, uint32_t leaf) const {
+double Gatherer::mean_coupling(const GatherLink& l, uint32_t receiver, uint32_t leaf) const {
     // G / A_R over an element receiver; over a receiving cluster, what the leaf's face takes
     // of it by its orientation (Hierarchy::reception).
-    if (h_.slot_of(l.receiver) == kNoNode) return double(l.coupling) / h_.nodes[l.receiver].area;
-    return double(l.coupling) * std::max(0.0, h_.reception(l.receiver, l.source).along(h_.shape(leaf).normal));
+    if (h_.slot_of(receiver) == kNoNode) return double(l.coupling) / h_.nodes[receiver].area;
+    return double(l.coupling) * std::max(0.0, h_.reception(receiver, l.source).along(h_.shape(leaf).normal));
 }
 
-bool Gatherer::varies(const Link& l, uint32_t leaf) const {
+bool Gatherer::varies(const GatherLink& l, uint32_t leaf) const {
     const Node& me = h_.nodes[leaf];
     const Node& s = h_.nodes[l.source];
     if (!s.cluster && luminance(h_.shape(l.source).emission) > 0) return true;
@@ -121,17 +144,18 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     struct Candidate {
         double share;
         uint64_t link;
+        uint32_t receiver;
     };
     std::vector<Candidate> weak;
     Split out;
     double total = 0;
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
-            const Link& l = links_[k];
-            const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, leaf);
+            const GatherLink& l = links_[k];
+            const double share = std::max(0.0, luminance(radiosity_[l.source])) * mean_coupling(l, i, leaf);
             total += share;
             if (varies(l, leaf)) out.links.push_back(k);
-            else weak.push_back({share, k});
+            else weak.push_back({share, k, i});
         }
     // The weakest first into the rest while it stays within the allowance; ties by link order.
     std::sort(weak.begin(), weak.end(),
@@ -140,15 +164,15 @@ Gatherer::Split Gatherer::split(uint32_t leaf) const {
     size_t taken = 0;
     for (; taken < weak.size() && rest + weak[taken].share <= opt_.importance * total; ++taken) {
         rest += weak[taken].share;
-        const Link& l = links_[weak[taken].link];
-        out.rest += radiosity_[l.source] * mean_coupling(l, leaf);
+        const GatherLink& l = links_[weak[taken].link];
+        out.rest += radiosity_[l.source] * mean_coupling(l, weak[taken].receiver, leaf);
     }
     for (size_t k = taken; k < weak.size(); ++k) out.links.push_back(weak[k].link);
     std::sort(out.links.begin(), out.links.end());  // chain order: the samples drawn do not depend on the ranking
     return out;
 }
 
-RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
+RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
                                int depth) const {
     // F(x -> S) exactly, times the mean of V(x, y) B(y) over stratified points y of S, B(y)
     // from the leaf below S that holds y: where S is partly hidden from x and its radiosity
@@ -162,7 +186,7 @@ RGB Gatherer::element_transfer(const Link& link, const Vec3& x, const Vec3& n, R
         if (box_gap(node.lo, node.hi, x) < node.diagonal()) {
             RGB sum;
             for (uint32_t c = 0; c < node.child_count; ++c) {
-                Link child = link;
+                GatherLink child = link;
                 child.source = node.first_child + c;
                 sum += element_transfer(child, x, n, rng, mo, depth);
             }
@@ -237,9 +261,9 @@ RGB Gatherer::cell_difference(uint32_t source, const Vec3& y, bool near, uint64_
     const Vec3 n = h_.shape(source).normal;
     for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
-            const Link& l = links_[k];
+            const GatherLink& l = links_[k];
             if (h_.nodes[l.source].cluster || varies(l, source) != near) continue;
-            mean_h += radiosity_[l.source] * mean_coupling(l, source);
+            mean_h += radiosity_[l.source] * mean_coupling(l, i, source);
             h_y += element_transfer(l, y, n, rng, nullptr, 1);
         }
     return h_y - mean_h;
@@ -286,7 +310,7 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
     return slot->second;
 }
 
-RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
+RGB Gatherer::cell_transfer(const GatherLink& link, uint32_t source, const Patch& cell, uint64_t code, int depth,
                             const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     // Cells near x compared with their size are cut in four again (split_in_four), down to
     // kCellDepth levels below the leaf: the kernel from x sits on the cells next to it.
@@ -323,7 +347,7 @@ RGB Gatherer::cell_transfer(const Link& link, uint32_t source, const Patch& cell
     return b * f;
 }
 
-RGB Gatherer::cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
+RGB Gatherer::cluster_transfer(const GatherLink& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const {
     // Faces drawn with probability A_f / A_S (stratified), each seen through its exact
     // form factor, with the radiosity of the leaf at a point y drawn on it and the visibility
     // of y: sum_f F(x -> f) B_f ~ E[F(x -> f) B(y) V(x, y) A_S / A_f]. The cluster's mean
@@ -384,7 +408,7 @@ RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments*
     if (!sp) return chain(leaf, x, n, rng, mo);
     RGB h = sp->rest;
     for (uint64_t k : sp->links) {
-        const Link& l = links_[k];
+        const GatherLink& l = links_[k];
         h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
     }
     return h;
@@ -394,7 +418,7 @@ RGB Gatherer::chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, Radia
     RGB h;
     for (uint32_t i = leaf; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
-            const Link& l = links_[k];
+            const GatherLink& l = links_[k];
             h += h_.nodes[l.source].cluster ? cluster_transfer(l, x, n, rng, mo) : element_transfer(l, x, n, rng, mo);
         }
     return h;

@@ -56,6 +56,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "pipeline/hierarchy/hierarchy.h"
@@ -109,10 +110,33 @@ struct RadianceMoments {
     std::array<RGB, 3> l1;   // l1[a] = integral L w_a dw for world axis a, W/m^2 per channel
 };
 
+// What the gather reads of a link: 12 of its 24 bytes. Its receiver is its row in the table
+// (node i's links are links[first[i], first[i + 1])); the unoccluded estimate and the error
+// bound are refinement's. An out-of-core bake reads its store straight into this form
+// (gather_links, outofcore.h): the 1M-triangle kitchen's 14 M links take 168 MB, not 336.
+struct GatherLink {
+    uint32_t source = 0;
+    float coupling = 0;    // Link::coupling, m^2
+    float visibility = 0;  // Link::visibility, [0, 1]
+};
+static_assert(sizeof(GatherLink) == 12, "GatherLink must be 12 bytes");
+
+struct GatherLinks {
+    std::vector<uint64_t> first;    // per node, and one past the last: where its links start
+    std::vector<GatherLink> links;  // by receiver, then by source (sort_links' order)
+    GatherLinks() = default;
+    // From links sorted by receiver (sort_links) over a hierarchy of `nodes` nodes.
+    GatherLinks(const std::vector<Link>& sorted, size_t nodes);
+    size_t size() const { return links.size(); }
+};
+
 class Gatherer {
 public:
-    // `links` sorted by receiver (sort_links); `radiosity` per node; `visibility` over
-    // hierarchy.faces. All are referenced, not copied.
+    // `links` by receiver; `radiosity` per node; `visibility` over hierarchy.faces. All are
+    // referenced, not copied.
+    Gatherer(const Hierarchy& hierarchy, const GatherLinks& links, const std::vector<RGB>& radiosity,
+             const Visibility& visibility, const GatherOptions& options);
+    // The same from links sorted by receiver (sort_links), converted to a GatherLinks it owns.
     Gatherer(const Hierarchy& hierarchy, const std::vector<Link>& links, const std::vector<RGB>& radiosity,
              const Visibility& visibility, const GatherOptions& options);
 
@@ -133,40 +157,44 @@ private:
         RGB rest;
     };
     Split split(uint32_t leaf) const;
+    void build_steps();
     static constexpr size_t kSplitBlock = 8192;         // leaves whose splits irradiance() holds at once
     static constexpr size_t kCellCacheMost = 1u << 20;  // cells kept between blocks (about 80 MB)
-    double mean_coupling(const Link& l, uint32_t leaf) const;  // the link's mean irradiance at leaf per unit B_S
+    // The mean irradiance at `leaf` per unit B_S of a link to `receiver` (leaf or an ancestor).
+    double mean_coupling(const GatherLink& l, uint32_t receiver, uint32_t leaf) const;
     // Whether a link's light varies much across `leaf`: its source emits, or is closer to the
     // leaf than the larger of the two's diagonals.
-    bool varies(const Link& l, uint32_t leaf) const;
+    bool varies(const GatherLink& l, uint32_t leaf) const;
     uint32_t leaf_at(uint32_t node, double s, double t) const {
         return descend_to_leaf([this](uint32_t k) { return steps_[k]; }, node, s, t);
     }
     RGB at(uint32_t leaf, const Vec3& x, uint64_t key, RadianceMoments* mo, const Split* sp) const;
     // The irradiance at x on `leaf` from its whole chain.
     RGB chain(uint32_t leaf, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo) const;
-    RGB element_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
+    RGB element_transfer(const GatherLink& link, const Vec3& x, const Vec3& n, Rng& rng, RadianceMoments* mo,
                          int depth = 0) const;
     // The second bounce (GatherOptions::second_bounce): a close leaf cut into cells where x is
     // close to them, each cell's radiosity gathered at its centre (cached by leaf and cell).
     static constexpr int kCellDepth = 3;  // cells down to 1/8 of the leaf's side
     static_assert(2 * kCellDepth + 3 <= 16, "a cell's path and depth fill 16 bits of its cache key");
-    RGB cell_transfer(const Link& link, uint32_t source, const Patch& cell, uint64_t code, int depth, const Vec3& x,
+    RGB cell_transfer(const GatherLink& link, uint32_t source, const Patch& cell, uint64_t code, int depth, const Vec3& x,
                       const Vec3& n, Rng& rng, RadianceMoments* mo) const;
     RGB cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) const;
     // H(y) - H_S over the element links of leaf `source`'s chain that vary across it (near) or
     // not, at its point y (seeded by the leaf and `code`).
     RGB cell_difference(uint32_t source, const Vec3& y, bool near, uint64_t code) const;
     static constexpr uint64_t kLeafCode = 0xFFFF;  // the cache key of a leaf's far part, no cell's
-    RGB cluster_transfer(const Link& link, const Vec3& x, const Vec3& n, Rng& rng,
+    RGB cluster_transfer(const GatherLink& link, const Vec3& x, const Vec3& n, Rng& rng,
                          RadianceMoments* mo) const;  // B-weighted
 
     const Hierarchy& h_;
-    const std::vector<Link>& links_;
+    std::unique_ptr<const GatherLinks> own_;  // when made from a vector of Link
+    const GatherLinks& table_;
+    const std::vector<GatherLink>& links_;
+    const std::vector<uint64_t>& first_link_;  // per node: its links are [first_link_[i], first_link_[i + 1])
     const std::vector<RGB>& radiosity_;
     const Visibility& vis_;
     GatherOptions opt_;
-    std::vector<uint64_t> first_link_;  // per node: its links are [first_link_[i], first_link_[i + 1])
     std::vector<DescentStep> steps_;    // per node, for leaf_at
     // Per close leaf its cells' radiosity, made by the first point that needs it.
     // The key is (leaf << 16 | cell code), so its low bits take a few hundred values; TBB's

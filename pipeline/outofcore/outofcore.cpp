@@ -1,5 +1,10 @@
 #include "pipeline/outofcore/outofcore.h"
 
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <stdexcept>
+
 #include "pipeline/hierarchy/hierarchical_solver.h"
 
 namespace hirad {
@@ -48,6 +53,46 @@ std::vector<Link> all_links(const LinkChunks& chunks) {
     return out;
 }
 
-std::vector<Link> load_links(const std::string& dir, size_t groups) { return all_links(StoreChunks(dir, groups)); }
+GatherLinks gather_links(const LinkChunks& chunks, size_t nodes) {
+    GatherLinks out;
+    out.first.assign(nodes + 1, 0);
+    std::vector<Link> part;
+    for (size_t g = 0; g < chunks.groups(); ++g)
+        for (size_t p = 0; p < chunks.parts(g); ++p) {
+            chunks.read(g, p, part);
+            for (const Link& l : part) {
+                if (l.receiver >= nodes || l.source >= nodes)
+                    throw std::invalid_argument("gather: a stored link's node is out of range");
+                ++out.first[l.receiver + 1];
+            }
+        }
+    for (size_t i = 0; i < nodes; ++i) out.first[i + 1] += out.first[i];
+    out.links.resize(out.first[nodes]);
+    std::vector<uint64_t> next(out.first.begin(), out.first.end() - 1);
+    for (size_t g = 0; g < chunks.groups(); ++g)
+        for (size_t p = 0; p < chunks.parts(g); ++p) {
+            chunks.read(g, p, part);
+            for (const Link& l : part) {
+                if (next[l.receiver] == out.first[l.receiver + 1])
+                    throw std::runtime_error("gather: the link store changed while it was read");
+                out.links[next[l.receiver]++] = GatherLink{l.source, l.coupling, l.visibility};
+            }
+        }
+    // Within a receiver by source, then by value (a total order: the same table whatever
+    // order the parts came in).
+    tbb::parallel_for(size_t(0), nodes, [&](size_t i) {
+        std::sort(out.links.begin() + out.first[i], out.links.begin() + out.first[i + 1],
+                  [](const GatherLink& a, const GatherLink& b) {
+                      if (a.source != b.source) return a.source < b.source;
+                      if (a.coupling != b.coupling) return a.coupling < b.coupling;
+                      return a.visibility < b.visibility;
+                  });
+    });
+    return out;
+}
+
+GatherLinks gather_links(const std::string& dir, size_t groups, size_t nodes) {
+    return gather_links(StoreChunks(dir, groups), nodes);
+}
 
 }  // namespace hirad

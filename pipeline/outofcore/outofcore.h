@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "pipeline/hierarchy/gather.h"
 #include "pipeline/hierarchy/refine.h"
 #include "pipeline/outofcore/streaming_solver.h"
 
@@ -49,7 +50,11 @@ private:
 // final gather walks.
 std::vector<Link> all_links(const LinkChunks& chunks);
 
-// The final links of a store's round directory, for the final gather.
-std::vector<Link> load_links(const std::string& store_round_dir, size_t groups);
+// The final links of a store's round directory as the final gather reads them (12 bytes a
+// link, by receiver then source: the order all_links gives), over a hierarchy of `nodes`
+// nodes. The store is read twice, a part at a time (counts per receiver, then each link put
+// in its row), so that no 24-byte copy of all the links is ever held.
+GatherLinks gather_links(const std::string& store_round_dir, size_t groups, size_t nodes);
+GatherLinks gather_links(const LinkChunks& chunks, size_t nodes);
 
 }  // namespace hirad

@@ -3,6 +3,7 @@
 #include <tbb/parallel_for.h>
 
 #include <cmath>
+#include <stdexcept>
 
 namespace hirad {
 
@@ -86,6 +87,8 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
 void lift_samples(const std::vector<Patch>& patches, const Visibility& visibility, std::vector<Vec3>& points,
                   const std::vector<Vec3>& normals, double epsilon, double reach, std::vector<uint8_t>& moved,
                   const std::vector<Vec3>* anchors) {
+    if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
+    if (anchors && anchors->size() != points.size()) throw std::invalid_argument("points and anchors differ in length");
     moved.assign(points.size(), 0);
     tbb::parallel_for(size_t(0), points.size(), [&](size_t q) {
         const Vec3 n = normalize(normals[q]);

@@ -12,6 +12,7 @@
 #include "pipeline/geometry/formfactors.h"
 #include "pipeline/hierarchy/hierarchical_solver.h"
 #include "pipeline/hierarchy/refine.h"
+#include "pipeline/outofcore/outofcore.h"
 
 namespace hirad {
 namespace {
@@ -219,6 +220,68 @@ TEST(Gather, AValueDoesNotDependOnTheOtherPointsOfItsCall) {
             ASSERT_EQ(alone.z, together[k].z);
         }
     }
+}
+
+TEST(Gather, TheStoresTableIsTheSortedLinksAndGathersTheSameBits) {
+    // An out-of-core bake's gather reads its link store straight into the 12-byte table
+    // (gather_links: counted, then placed, a part at a time). The links spread over three
+    // groups in the store's part order (by source, then receiver) and parts of kChunkLinks
+    // must give the table that the links sorted by receiver give, and the same irradiance
+    // bits at points by a wall.
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 0.3, 2.0));
+    scene.faces.push_back(quad({{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, 0.5, 0.0));
+    scene.faces.push_back(quad({{1, 0, 0}, {1, 0, 1}, {1, 1, 1}, {1, 1, 0}}, 0.7, 0.5));
+    const Linked linked(scene, {1e-6, 1e-3, 16, 1});
+    const Hierarchy& h = linked.h;
+    ASSERT_GT(linked.links.size(), 2 * kChunkLinks) << "several parts a group";
+    std::vector<std::vector<Link>> by_group(3);
+    for (const Link& l : linked.links) by_group[l.source % 3].push_back(l);
+    for (auto& g : by_group) sort_part(g);
+    const MemoryChunks chunks(by_group);
+    const GatherLinks stored = gather_links(chunks, h.nodes.size());
+    const GatherLinks sorted(linked.links, h.nodes.size());
+    ASSERT_EQ(stored.first, sorted.first);
+    ASSERT_EQ(stored.size(), linked.links.size());
+    for (size_t k = 0; k < sorted.size(); ++k) {
+        ASSERT_EQ(stored.links[k].source, sorted.links[k].source) << k;
+        ASSERT_EQ(stored.links[k].coupling, sorted.links[k].coupling) << k;
+        ASSERT_EQ(stored.links[k].visibility, sorted.links[k].visibility) << k;
+    }
+    // a receiver's row holds exactly its links
+    for (size_t k = 0; k < linked.links.size(); ++k) {
+        const uint32_t r = linked.links[k].receiver;
+        ASSERT_GE(k, sorted.first[r]);
+        ASSERT_LT(k, sorted.first[r + 1]);
+    }
+    Rng rng(3);
+    const int n = 200;
+    std::vector<uint32_t> leaves(n);
+    std::vector<Vec3> xs(n);
+    std::vector<uint64_t> keys(n);
+    for (int k = 0; k < n; ++k) {
+        const double u = 0.2 * rng.uniform(), v = rng.uniform();
+        xs[k] = {u, v, 0};
+        leaves[k] = h.leaf_at(h.face_node[0], u, v);
+        keys[k] = uint64_t(k) + 1;
+    }
+    GatherOptions o;
+    o.importance = 0.02;
+    o.second_bounce = 1.0;
+    std::vector<RGB> a(n), b(n);
+    Gatherer(h, stored, linked.sol.radiosity, linked.vis, o).irradiance(leaves.data(), xs.data(), keys.data(), n, a.data());
+    Gatherer(h, linked.links, linked.sol.radiosity, linked.vis, o).irradiance(leaves.data(), xs.data(), keys.data(), n,
+                                                                              b.data());
+    for (int k = 0; k < n; ++k) {
+        ASSERT_GT(a[k].x, 0);
+        ASSERT_EQ(a[k].x, b[k].x) << k;
+        ASSERT_EQ(a[k].y, b[k].y) << k;
+        ASSERT_EQ(a[k].z, b[k].z) << k;
+    }
+    // a table of another hierarchy is refused
+    GatherLinks other;
+    other.first.assign(3, 0);
+    EXPECT_THROW(Gatherer(h, other, linked.sol.radiosity, linked.vis, o), std::invalid_argument);
 }
 
 // The solid angle of a rectangle a x b seen from a point at distance c below one corner.

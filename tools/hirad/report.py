@@ -286,8 +286,15 @@ def write_json(path: Path, data: dict) -> None:
 
 def scene_fingerprint(scene) -> str:
     """sha256 of what the light depends on: the scene's geometry, reflectance and emission
-    (not paths or output settings, so the same scene baked twice gives identical files)."""
+    (not paths or output settings, so the same scene baked twice gives identical files).
+    Taken once and kept on the scene (`fingerprint`): a bake lets the arrays go when no
+    output reads them, and asks for it later (the volume)."""
     import hashlib
+
+    if getattr(scene, "fingerprint", None):
+        return scene.fingerprint
+    if scene.points is None:
+        raise ValueError("scene_fingerprint: the scene's arrays were let go before its fingerprint was taken")
 
     h = hashlib.sha256()
     tau = getattr(scene, "face_transmittance", None)
@@ -296,5 +303,6 @@ def scene_fingerprint(scene) -> str:
               scene.face_emission, *glazing):
         arr = np.ascontiguousarray(a)
         h.update(str(arr.dtype).encode() + str(arr.shape).encode())
-        h.update(arr.tobytes())
-    return h.hexdigest()
+        h.update(arr.reshape(-1).view(np.uint8))  # the bytes in place, not a copy of them
+    scene.fingerprint = h.hexdigest()
+    return scene.fingerprint

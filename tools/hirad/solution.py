@@ -192,16 +192,28 @@ class Result(SurfaceSolution):
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
         if self.hierarchical:
-            g = self._model.gather(pts, nrm, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples,
-                                                                   seed=seed, directional=bool(directional),
-                                                                   importance=float(importance),
-                                                                   second_bounce=float(second_bounce)))
-        elif directional:
+            return hierarchical_gather(self._model, pts, nrm, rays=rays, cluster_samples=cluster_samples, seed=seed,
+                                       directional=directional, importance=importance, second_bounce=second_bounce)
+        if directional:
             raise BakeError("a directional gather needs a hierarchical bake (method: hierarchical)")
-        else:
-            g = self._model.gather_flat(pts, nrm, np.ascontiguousarray(self.patch_radiosity), rays, seed)
-        keys = ("patch", "irradiance", "radiance") + (("l0", "l1") if directional else ())
-        return {k: getattr(g, k) for k in keys}
+        g = self._model.gather_flat(pts, nrm, np.ascontiguousarray(self.patch_radiosity), rays, seed)
+        return {k: getattr(g, k) for k in ("patch", "irradiance", "radiance")}
+
+
+def hierarchical_gather(model, points: np.ndarray, normals: np.ndarray, *, rays: int = 4, cluster_samples: int = 8,
+                        seed: int = 1, directional: bool = False, importance: float = 0.0,
+                        second_bounce: float = 1.0) -> dict:
+    """The engine's final gather at (n, 3) points and normals, as
+    Result.gather returns it: the bake's final-gather lightmaps call it before the Result
+    exists (they run right after the solve, while the hierarchy is held anyway)."""
+    points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+    g = model.gather(points, normals, _engine.GatherOptions(rays=rays, cluster_samples=cluster_samples, seed=seed,
+                                                            directional=bool(directional),
+                                                            importance=float(importance),
+                                                            second_bounce=float(second_bounce)))
+    keys = ("patch", "irradiance", "radiance") + (("l0", "l1") if directional else ())
+    return {k: getattr(g, k) for k in keys}
 
 
 LUMINAIRES_FILE = "luminaires.npz"

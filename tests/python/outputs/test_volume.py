@@ -36,7 +36,7 @@ def cornell_volume(tmp_path_factory):
                        outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
                                 "volume": {"enabled": True, "spacing": SPACING, "rays": 4096}})
     result = bake(cfg)
-    return result, _engine.read_vdb(str(root / "out" / "volume.vdb"))
+    return result, _engine.read_vdb(str(root / "out" / "volume.vdb")), cfg
 
 
 def sphere_directions(n_side: int, seed: int) -> np.ndarray:
@@ -50,11 +50,21 @@ def sphere_directions(n_side: int, seed: int) -> np.ndarray:
 
 
 def test_vdb_has_named_grids_and_metadata(cornell_volume):
-    result, vdb = cornell_volume
+    from hirad.bake import read_inputs
+    from hirad.config import load_config
+    from hirad.report import scene_fingerprint
+
+    result, vdb, cfg = cornell_volume
     assert set(vdb["grids"]) == {"irradiance", "direction", "sh1_x", "sh1_y", "sh1_z"} | {f"sh2_{k}" for k in range(9)}
     assert vdb["metadata"]["hirad:version"] == __version__
     assert float(vdb["metadata"]["hirad:spacing"]) == pytest.approx(SPACING)
-    assert len(vdb["metadata"]["hirad:sceneFingerprint"]) == 64
+    # the scene's own fingerprint, though a bake without lightmaps lets its arrays go before the
+    # volume is written (it was a hash of None pointers then, different in every process)
+    scene, _ = read_inputs(load_config(cfg))
+    assert vdb["metadata"]["hirad:sceneFingerprint"] == scene_fingerprint(scene)
+    scene.face_reflectance = scene.face_reflectance * 0.5
+    scene.fingerprint = None
+    assert scene_fingerprint(scene) != vdb["metadata"]["hirad:sceneFingerprint"]
     irr = vdb["grids"]["irradiance"]
     assert irr["metadata"]["units"] == "illuminance lx (lm/m^2)" and float(irr["metadata"]["spacing"]) == pytest.approx(SPACING)
     assert irr["metadata"]["hirad:version"] == __version__
@@ -81,7 +91,7 @@ def test_vdb_has_named_grids_and_metadata(cornell_volume):
 
 
 def test_centre_probe_matches_monte_carlo(cornell_volume):
-    result, vdb = cornell_volume
+    result, vdb, _ = cornell_volume
     irr = vdb["grids"]["irradiance"]
     world = irr["coords"] * SPACING + np.asarray(irr["origin"])
     k = int(np.argmin(np.linalg.norm(world - CENTRE, axis=1)))

@@ -23,7 +23,7 @@ def _default_density(lm, patches) -> float:
     return float(lm.texels_per_patch / np.sqrt(np.median(area))) if area.size else float(lm.texels_per_patch)
 
 
-def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, epsilon: float,
+def _lift(tracer, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, epsilon: float,
           reach: float) -> tuple[np.ndarray, np.ndarray]:
     """Leak prevention for texel samples (all of them lie on their own triangles).
 
@@ -34,10 +34,10 @@ def _lift(result, points: np.ndarray, normals: np.ndarray, texel: np.ndarray, ep
     two slabs) and is moved just past that surface and lifted again. Which surface: the one
     in the direction of the texel's samples that are not inside anything (so a texel that
     straddles a wall one texel thick keeps its samples on the side it shows, instead of
-    sending half of them through to the far side), else the nearest. Returns (points, moved)."""
+    sending half of them through to the far side), else the nearest. `tracer`: what holds the
+    surfaces and their BVH (_tracer). Returns (points, moved)."""
     if len(points) == 0:
         return points, np.zeros(0, bool)
-    tracer = _tracer(result)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
     first = tracer.lift_samples(pts, nrm, float(epsilon), float(reach))
@@ -252,30 +252,32 @@ def _write_directional(lm_dir: Path, page: int, baked: np.ndarray, up_axis: str,
     return out
 
 
-def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
-                     staging: Path, result=None, warn=None) -> tuple[list[str], dict]:
-    """Lightmaps baked on the source meshes: every input mesh's own faces (triangle fans of
-    the authored polygons, in world metres) go into one atlas of pages (hirad.atlas): the
-    mesh's own lightmap UV set when it has one (outputs.lightmaps.uv_primvars), else xatlas
-    charts, at outputs.lightmaps.texels_per_metre with `padding`. Each texel holds the
-    incident radiance H/pi at its supersampled surface points (after leak-preventing
-    lifting, see _lift), from the solution's vertex irradiance ('interpolate') or a final
-    gather from the hierarchy ('final_gather'); seams are stitched and the page dilated.
-    Writes lightmaps/pages/page<k>.exr (half float), optional RGBM PNGs,
-    lightmaps/manifest.json, and (mesh_files) lightmaps/<mesh>.exr cut out of the pages.
+class LightmapPages:
+    """What bake_lightmaps leaves for attach_lightmaps: the atlas, the pages written, and per
+    atlas mesh (`mesh_index`, scene meshes with patches, in order) what the output layer needs.
+    The pages depend on the source meshes, the patches and the solution only, so a final
+    gather's pages are baked right after the solve, while the engine holds the hierarchy for
+    them anyway; the display mesh, the per-mesh output arrays and the Result come after, when
+    the hierarchy and its links are let go (the country kitchen: 1.1 GB less at the peak)."""
 
-    Each PatchMeshData gets (a) `source_lightmap`: the mesh's own UVs per authored corner
-    (faceVarying on the original prim, outputs.lightmaps.uv_set), its page and scaleOffset,
-    and (b) `lightmap_uv`: page UVs at its display corners, found by locating each display
-    corner in its source face (the solution meshes subdivide the source faces), so the
-    solution layer's meshes show the same pages.
-    Returns (per-mesh files or pages, atlas summary for the report)."""
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
+
+
+def _atlas_meshes(patches, n_meshes: int) -> list[int]:
+    """The scene meshes the atlas holds: those with patches (the ones patch_meshes makes)."""
+    return [int(m) for m in np.nonzero(np.bincount(np.asarray(patches["mesh"], np.int64), minlength=n_meshes))[0]]
+
+
+def bake_lightmaps(cfg, scene, patches, staging: Path, *, tracer, gather=None, field=None) -> LightmapPages:
+    """The atlas of the source meshes and its pages (see write_lightmaps). Texel samples are
+    lifted against `tracer` (_tracer: the engine or a SurfaceField) and read by `gather(points,
+    normals, **options)` (final_gather: hirad.solution.hierarchical_gather's dict) or probed
+    from `field` (interpolate). Writes the pages and their encodings; attach_lightmaps writes
+    the rest."""
     from .. import atlas as A
 
     lm = cfg.outputs.lightmaps
-    if lm.mode == "final_gather" and (result is None or not result.hierarchical):
-        raise BakeError("outputs.lightmaps.mode: final_gather needs a hierarchical bake (method: hierarchical); "
-                        "use mode: interpolate for flat bakes")
     t_start = time.perf_counter()
     fingerprint = scene_fingerprint(scene)
     lm_dir = staging / "lightmaps"
@@ -291,10 +293,10 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
                                                             minlength=len(scene.meshes)))]).astype(np.int64)
     fvi = np.asarray(scene.face_vertex_indices, dtype=np.int64)
 
-    geometry, existing, names, prototypes, tri_ids, pms, polygons = [], [], [], [], [], [], []
+    mesh_index = _atlas_meshes(patches, len(scene.meshes))
+    geometry, existing, names, prototypes, tri_ids, polygons = [], [], [], [], [], []
     rep_warnings: list[str] = []
-    for pm in meshes:
-        m = pm.mesh_index
+    for m in mesh_index:
         info = scene.meshes[m]
         tris = tri_order[tri_bounds[m]:tri_bounds[m + 1]]
         corners = fan["corner"][tris]  # global corner slots
@@ -315,29 +317,29 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         prototypes.append(info.prototype)
         polygons.append(fan["face"][tris])  # a polygon's triangles stay in one chart
         tri_ids.append(tris)
-        pms.append(pm)
 
     atlas = A.build_atlas(geometry, density, lm.padding, lm.max_size, existing_uvs=existing, names=names,
                           existing_layout=lm.existing_layout, polygons=polygons,
                           prototypes=prototypes if any(p is not None for p in prototypes) else None)
+    del geometry, existing, polygons
     rep_warnings += list(atlas.warnings)
 
     # Page UVs of every source triangle, for the display corners; the mesh's own UVs per
     # authored corner, for the original prim.
-    tri_xyz = np.asarray(scene.points)[fvi[fan["corner"]]]
     tri_uv = np.zeros((len(fan["face"]), 3, 2))
+    source_lightmap: dict[int, dict | None] = {}
     deinstanced: set[str] = set()
-    for k, (pm, layout) in enumerate(zip(pms, atlas.meshes)):
-        info = scene.meshes[pm.mesh_index]
-        pm.source_lightmap = None
+    for k, (m, layout) in enumerate(zip(mesh_index, atlas.meshes)):
+        info = scene.meshes[m]
+        source_lightmap[m] = None
         if layout.page < 0 or not len(layout.uvs):
             continue
         tri_uv[tri_ids[k]] = layout.uvs
         # the mesh's own [0, 1] layout and the rectangle that puts it on its page
         local, so = np.asarray(layout.local_uvs, dtype=np.float64), tuple(float(v) for v in layout.scale_offset)
-        first_corner = corner_start[face_start[pm.mesh_index]]
+        first_corner = corner_start[face_start[m]]
         slots = (fan["corner"][tri_ids[k]] - first_corner).reshape(-1)
-        n_read = int(corner_start[face_start[pm.mesh_index + 1]] - first_corner)
+        n_read = int(corner_start[face_start[m + 1]] - first_corner)
         per_corner = np.zeros((n_read, 2))
         per_corner[slots] = local.reshape(-1, 2)
         again = np.zeros_like(per_corner)
@@ -350,7 +352,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         if info.corner_source is not None:
             authored = np.zeros((info.authored_corners, 2))
             authored[info.corner_source] = per_corner
-        pm.source_lightmap = {"uv": authored, "page": int(layout.page), "scale_offset": so,
+        source_lightmap[m] = {"uv": authored, "page": int(layout.page), "scale_offset": so,
                               "author_path": info.author_path, "prim": info.path, "prototype": info.prototype,
                               "source": layout.source, "deinstance": info.deinstance,
                               "instance_root": info.instance_root}
@@ -361,37 +363,22 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
                     f"{root}: a native instance whose prototype the output layer cannot author over (it "
                     f"references another file, is nested, or its referenced mesh is drawn itself): made "
                     f"non-instanceable in solution.usda so that its meshes carry their own {lm.uv_set}")
-
-    # faceVarying page UVs per display corner: each corner located in its source face (the
-    # scene face of the patch's mesh and authored face)
-    scene_key = np.asarray(scene.face_mesh, np.int64) << 32 | np.asarray(scene.face_source, np.int64)
-    key_order = np.argsort(scene_key, kind="stable")
-    patch_key = np.asarray(patches["mesh"], np.int64) << 32 | np.asarray(patches["source_face"], np.int64)
-    patch_face = key_order[np.clip(np.searchsorted(scene_key[key_order], patch_key), 0, len(key_order) - 1)]
-    for k, (pm, fids, layout) in enumerate(zip(pms, mesh_faces, atlas.meshes)):
-        if layout.page < 0 or not len(layout.uvs):
-            pm.lightmap_uv = None
-            continue
-        counts = np.asarray(pm.face_vertex_counts)
-        src_face = np.repeat(patch_face[display["face_patch"][fids]], counts)
-        pts = np.asarray(pm.points)[np.asarray(pm.face_vertex_indices)]
-        pm.lightmap_uv = _locate_in_faces(pts, src_face, fan, tri_xyz, tri_uv)
+    del tri_ids
 
     mode = lm.mode
-    field = result.field if result is not None and mode != "final_gather" else None
 
     def evaluate(points, normals, texel):
         reach = 1.0 / density
-        lifted, moved = _lift(result, points, normals, texel, lm.sample_offset, reach)
+        lifted, moved = _lift(tracer, points, normals, texel, lm.sample_offset, reach)
         evaluate.moved += int(moved.sum())
         if mode == "final_gather":
             options = dict(rays=lm.gather_rays, directional=lm.directional, importance=lm.gather_importance,
                            second_bounce=lm.gather_second_bounce)
-            g = result.gather(lifted, normals, **options)
+            g = gather(lifted, normals, **options)
             values = g["irradiance"] / np.pi
             miss = g["patch"] < 0
             if miss.any():  # no surface facing along the normal: gathered at the nearest one
-                again = result.gather(lifted[miss], np.zeros((int(miss.sum()), 3)), **options)
+                again = gather(np.ascontiguousarray(lifted[miss]), np.zeros((int(miss.sum()), 3)), **options)
                 values[miss] = again["irradiance"] / np.pi
         else:
             q = field.probe(np.ascontiguousarray(lifted), np.ascontiguousarray(normals, dtype=np.float64), 1e30)
@@ -423,7 +410,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
     meta_base = [("hirad:units", lightmap_units), ("hirad:version", __version__),
                  ("hirad:sceneFingerprint", fingerprint), ("hirad:texelsPerMetre", f"{density:.9g}"),
                  ("hirad:lightmapMode", mode)]
-    page_files, page_images, page_masks, png_files, page_extra = [], [], [], [], []
+    page_files, page_images, covered, page_extra = [], [], 0, []
     encodings = list(dict.fromkeys((["hirad-rgbm"] if lm.rgbm else []) + list(lm.encodings)))
     for page in range(len(atlas.page_sizes)):
         baked, mask = _bake_page(atlas, page, evaluate, lm.supersample)
@@ -432,7 +419,7 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         _engine.write_exr(str(lm_dir / rel), image, meta_base + [("hirad:page", str(page))])
         page_files.append(rel)
         page_images.append(image)
-        page_masks.append(mask)
+        covered += int(mask.sum())
         extra_k: dict = {}
         for enc in encodings:
             top = None
@@ -441,20 +428,53 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
             png = f"pages/page{page}.png" if enc == "hirad-rgbm" else f"pages/page{page}.{enc}.png"
             A.write_png(lm_dir / png, image, enc, top)
             extra_k.setdefault("encoded", {})[enc] = {"file": png, **({"rgbm_range": top} if top else {})}
-            if enc == "hirad-rgbm":
-                png_files.append({"file": png, "rgbm_range": top})
         if lm.directional:
             extra_k.update(_write_directional(lm_dir, page, baked, scene.up_axis, meta_base))
         page_extra.append(extra_k)
-    elapsed = time.perf_counter() - t_start
+    return LightmapPages(atlas=atlas, mesh_index=mesh_index, source_lightmap=source_lightmap, fan=fan, tri_uv=tri_uv,
+                         density=density, mode=mode, meta_base=meta_base, encodings=encodings,
+                         page_files=page_files, page_images=page_images, page_extra=page_extra, covered=covered,
+                         samples=evaluate.samples, moved=evaluate.moved, units=lightmap_units,
+                         fingerprint=fingerprint, warnings=rep_warnings, seconds=time.perf_counter() - t_start)
 
-    written = []
-    for k, (pm, layout) in enumerate(zip(pms, atlas.meshes)):
+
+def attach_lightmaps(pages: LightmapPages, cfg, scene, patches, display, meshes, mesh_faces, staging: Path,
+                     warn=None) -> tuple[list[str], dict]:
+    """Ties baked pages to the output meshes (see write_lightmaps): each PatchMeshData's
+    `source_lightmap`, its display corners' page UVs `lightmap_uv`, its page, albedo and
+    emission; the per-mesh crops (mesh_files) and lightmaps/manifest.json. Returns (per-mesh
+    files or pages, atlas summary for the report)."""
+    from .. import atlas as A
+
+    lm = cfg.outputs.lightmaps
+    t_start = time.perf_counter()
+    atlas, fan = pages.atlas, pages.fan
+    layout_of = dict(zip(pages.mesh_index, atlas.meshes))
+    for pm in meshes:
+        if pm.mesh_index not in layout_of:
+            raise BakeError(f"lightmaps: mesh {scene.meshes[pm.mesh_index].path} has display faces but no patches "
+                            "in the atlas (internal error)")
+    tri_xyz = np.asarray(scene.points)[np.asarray(scene.face_vertex_indices, dtype=np.int64)[fan["corner"]]]
+    # faceVarying page UVs per display corner: each corner located in its source face (the
+    # scene face of the patch's mesh and authored face)
+    scene_key = np.asarray(scene.face_mesh, np.int64) << 32 | np.asarray(scene.face_source, np.int64)
+    key_order = np.argsort(scene_key, kind="stable")
+    patch_key = np.asarray(patches["mesh"], np.int64) << 32 | np.asarray(patches["source_face"], np.int64)
+    patch_face = key_order[np.clip(np.searchsorted(scene_key[key_order], patch_key), 0, len(key_order) - 1)]
+    written, instances = [], []
+    for pm, fids in zip(meshes, mesh_faces):
+        layout = layout_of[pm.mesh_index]
         info = scene.meshes[pm.mesh_index]
+        pm.source_lightmap = pages.source_lightmap[pm.mesh_index]
+        pm.lightmap_uv = None
         if layout.page < 0:
-            pm.lightmap_uv = None
             continue
-        pm.lightmap_path = f"lightmaps/{page_files[layout.page]}"
+        if len(layout.uvs):
+            counts = np.asarray(pm.face_vertex_counts)
+            src_face = np.repeat(patch_face[display["face_patch"][fids]], counts)
+            pts = np.asarray(pm.points)[np.asarray(pm.face_vertex_indices)]
+            pm.lightmap_uv = _locate_in_faces(pts, src_face, fan, tri_xyz, pages.tri_uv)
+        pm.lightmap_path = f"lightmaps/{pages.page_files[layout.page]}"
         if pm.source_lightmap is not None:
             pm.source_lightmap.update(file=pm.lightmap_path, uv_set=lm.uv_set)
         of_mesh = patches["mesh"] == pm.mesh_index
@@ -466,46 +486,44 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
         if lm.mesh_files:
             w, h = atlas.page_sizes[layout.page]
             bx, by, bw, bh = layout.block
-            crop = page_images[layout.page][h - (by + bh):h - by, bx:bx + bw]
+            crop = pages.page_images[layout.page][h - (by + bh):h - by, bx:bx + bw]
             name = f"lightmaps/{info.name}.exr"
             _engine.write_exr(str(staging / name), np.ascontiguousarray(crop, dtype=np.float32),
-                              meta_base + [("hirad:mesh", info.path), ("hirad:page", str(layout.page)),
-                                           ("hirad:pageBlock", f"{bx} {by} {bw} {bh}")])
+                              pages.meta_base + [("hirad:mesh", info.path), ("hirad:page", str(layout.page)),
+                                                 ("hirad:pageBlock", f"{bx} {by} {bw} {bh}")])
             written.append(name)
+        sl = pm.source_lightmap
+        if sl is not None:
+            instances.append({"prim": sl["prim"], "mesh": sl["author_path"], "prototype": sl["prototype"],
+                              "page": sl["page"], "file": pages.page_files[sl["page"]],
+                              "scaleOffset": [float(v) for v in sl["scale_offset"]], "uvSet": lm.uv_set,
+                              "uvSource": sl["source"], "texelsPerMetre": float(layout.texels_per_metre)})
 
+    elapsed = pages.seconds + (time.perf_counter() - t_start)
     texels = sum(w * h for w, h in atlas.page_sizes)
-    covered = int(sum(int(m.sum()) for m in page_masks))
+    rep_warnings = pages.warnings
     summary = {
         "manifest": "lightmaps/manifest.json",
-        "pages": [f"lightmaps/{f}" for f in page_files],
+        "pages": [f"lightmaps/{f}" for f in pages.page_files],
         "page_sizes": [list(s) for s in atlas.page_sizes],
-        "mode": mode,
-        "texels_per_metre": density,
+        "mode": pages.mode,
+        "texels_per_metre": pages.density,
         "padding": lm.padding,
         "supersample": lm.supersample,
         "fill": [round(f, 6) for f in atlas.fill],
-        "covered_texels": covered,
-        "samples": evaluate.samples,
-        "moved_samples": evaluate.moved,
+        "covered_texels": pages.covered,
+        "samples": pages.samples,
+        "moved_samples": pages.moved,
         "page_bytes_half_rgb": texels * 6,
         "seconds": round(elapsed, 4),
-        "texels_per_second": round(covered / elapsed, 1) if elapsed > 0 else None,
+        "texels_per_second": round(pages.covered / elapsed, 1) if elapsed > 0 else None,
         "warnings": rep_warnings,
     }
-    instances = []
-    for pm, layout in zip(pms, atlas.meshes):
-        sl = getattr(pm, "source_lightmap", None)
-        if sl is None:
-            continue
-        instances.append({"prim": sl["prim"], "mesh": sl["author_path"], "prototype": sl["prototype"],
-                          "page": sl["page"], "file": page_files[sl["page"]],
-                          "scaleOffset": [float(v) for v in sl["scale_offset"]], "uvSet": lm.uv_set,
-                          "uvSource": sl["source"], "texelsPerMetre": float(layout.texels_per_metre)})
-    pages = [{"file": f, "width": w, "height": h, "fill": round(fill, 6), **more}
-             for f, (w, h), fill, more in zip(page_files, atlas.page_sizes, atlas.fill, page_extra)]
-    extra = {"version": 2, "hirad:version": __version__, "pages": pages,
-             "encodings": {e: A.ENCODINGS[e] for e in encodings}, "units": lightmap_units, "sceneFingerprint": fingerprint,
-             "mode": mode, "supersample": lm.supersample,
+    page_list = [{"file": f, "width": w, "height": h, "fill": round(fill, 6), **more}
+                 for f, (w, h), fill, more in zip(pages.page_files, atlas.page_sizes, atlas.fill, pages.page_extra)]
+    extra = {"version": 2, "hirad:version": __version__, "pages": page_list,
+             "encodings": {e: A.ENCODINGS[e] for e in pages.encodings}, "units": pages.units,
+             "sceneFingerprint": pages.fingerprint, "mode": pages.mode, "supersample": lm.supersample,
              "value": "incident radiance H/pi per texel (linear); a Lambertian surface shows albedo x value",
              "uvSet": lm.uv_set,
              "uvPrimvar": (f"primvars:{lm.uv_set} (texCoord2f, faceVarying) on each original mesh prim: the "
@@ -517,8 +535,48 @@ def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mes
                          "unreal": {"flipV": True, "rule": "v' = 1 - v (top-left origin)"},
                          "gltf": {"flipV": True, "rule": "v' = 1 - v (top-left origin)"}},
              "instances": instances, "warnings": rep_warnings}
-    A.write_manifest(lm_dir / "manifest.json", atlas, page_files, extra)
+    A.write_manifest(staging / "lightmaps" / "manifest.json", atlas, pages.page_files, extra)
     if warn is not None:
         for w in rep_warnings:
             warn(f"outputs.lightmaps: {w}")
     return (written if lm.mesh_files else summary["pages"]), summary
+
+
+def write_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, mesh_faces,
+                     staging: Path, result=None, warn=None) -> tuple[list[str], dict]:
+    """Lightmaps baked on the source meshes: every input mesh's own faces (triangle fans of
+    the authored polygons, in world metres) go into one atlas of pages (hirad.atlas): the
+    mesh's own lightmap UV set when it has one (outputs.lightmaps.uv_primvars), else xatlas
+    charts, at outputs.lightmaps.texels_per_metre with `padding`. Each texel holds the
+    incident radiance H/pi at its supersampled surface points (after leak-preventing
+    lifting, see _lift), from the solution's vertex irradiance ('interpolate') or a final
+    gather from the hierarchy ('final_gather'); seams are stitched and the page dilated.
+    Writes lightmaps/pages/page<k>.exr (half float), optional RGBM PNGs,
+    lightmaps/manifest.json, and (mesh_files) lightmaps/<mesh>.exr cut out of the pages.
+
+    Each PatchMeshData gets (a) `source_lightmap`: the mesh's own UVs per authored corner
+    (faceVarying on the original prim, outputs.lightmaps.uv_set), its page and scaleOffset,
+    and (b) `lightmap_uv`: page UVs at its display corners, found by locating each display
+    corner in its source face (the solution meshes subdivide the source faces), so the
+    solution layer's meshes show the same pages. bake_lightmaps then attach_lightmaps: a bake
+    with final-gather lightmaps calls them apart (the pages before the reconstruction).
+    Returns (per-mesh files or pages, atlas summary for the report)."""
+    pages = bake_lightmaps(cfg, scene, patches, staging, **lightmap_sources(cfg, result))
+    return attach_lightmaps(pages, cfg, scene, patches, display, meshes, mesh_faces, staging, warn)
+
+
+def lightmap_sources(cfg, result=None, model=None) -> dict:
+    """bake_lightmaps' tracer and gather (final_gather) or field (interpolate): from a Result,
+    or, for a final gather before the Result exists, from the engine model holding the solved
+    hierarchy (its leaves published as the patches)."""
+    from ..solution import hierarchical_gather
+
+    lm = cfg.outputs.lightmaps
+    if lm.mode == "final_gather":
+        if model is None and (result is None or not result.hierarchical):
+            raise BakeError("outputs.lightmaps.mode: final_gather needs a hierarchical bake (method: hierarchical); "
+                            "use mode: interpolate for flat bakes")
+        if model is not None:
+            return {"tracer": model, "gather": lambda p, n, **o: hierarchical_gather(model, p, n, **o)}
+        return {"tracer": _tracer(result), "gather": result.gather}
+    return {"tracer": _tracer(result), "field": result.field}

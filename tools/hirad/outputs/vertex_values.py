@@ -75,12 +75,12 @@ class _Sampler:
         self.samples = self.unfound = self.enclosed = 0
 
     def __call__(self, points: np.ndarray, patch: np.ndarray, groups: np.ndarray):
-        from .lightmaps import _lift
+        from .lightmaps import _lift, _tracer
 
         if len(points) == 0:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
         normals = np.ascontiguousarray(self.normal_of_patch[patch])
-        lifted, _ = _lift(self.result, np.ascontiguousarray(points), normals, groups, self.offset, self.reach)
+        lifted, _ = _lift(_tracer(self.result), np.ascontiguousarray(points), normals, groups, self.offset, self.reach)
         g = self.result.gather(lifted, normals, rays=self.rays, importance=self.importance,
                                second_bounce=self.second_bounce)
         found = np.asarray(g["patch"]) >= 0

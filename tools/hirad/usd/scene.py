@@ -156,6 +156,8 @@ class SceneArrays:
     # glazing: per face the normal transmittance of direct light (0 opaque; hirad:transmittance or
     # UsdPreviewSurface opacity < 1), its reflectance at most 1 - transmittance
     face_transmittance: np.ndarray | None = None
+    # sha256 of the arrays the light depends on (hirad.report.scene_fingerprint), once taken
+    fingerprint: str | None = None
 
     @property
     def num_faces(self) -> int:
