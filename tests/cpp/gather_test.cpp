@@ -182,6 +182,23 @@ TEST(Gather, SecondBounceTakesACloseSourcesRadiosityWhereTheKernelIs) {
     EXPECT_EQ(a.y, b.y);
 }
 
+// n random points on face 0 (the floor [0, 1]^2 at z = 0) with x < width, by a wall at x = 0:
+// their leaves, and keys k * 7 + 1.
+struct FloorPoints {
+    std::vector<uint32_t> leaves;
+    std::vector<Vec3> xs;
+    std::vector<uint64_t> keys;
+    FloorPoints(const Hierarchy& h, int n, double width, uint64_t seed) : leaves(n), xs(n), keys(n) {
+        Rng rng(seed);
+        for (int k = 0; k < n; ++k) {
+            const double u = width * rng.uniform(), v = rng.uniform();
+            xs[k] = {u, v, 0};
+            leaves[k] = h.leaf_at(h.face_node[0], u, v);
+            keys[k] = uint64_t(k) * 7 + 1;
+        }
+    }
+};
+
 TEST(Gather, AValueDoesNotDependOnTheOtherPointsOfItsCall) {
     // Gatherer::irradiance takes its points in leaf order, a block of leaves at a time, and
     // empties its cell cache between blocks once it is large: a point's value must depend only
@@ -193,17 +210,11 @@ TEST(Gather, AValueDoesNotDependOnTheOtherPointsOfItsCall) {
     scene.faces.push_back(quad({{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, 0.5, 0.0));
     const Linked linked(scene, {1e-4, 0.01, 16, 1});
     const Hierarchy& h = linked.h;
-    Rng rng(11);
     const int n = 300;
-    std::vector<uint32_t> leaves(n);
-    std::vector<Vec3> xs(n);
-    std::vector<uint64_t> keys(n);
-    for (int k = 0; k < n; ++k) {
-        const double u = 0.3 * rng.uniform(), v = rng.uniform();
-        xs[k] = {u, v, 0};
-        leaves[k] = h.leaf_at(h.face_node[0], u, v);
-        keys[k] = uint64_t(k) * 7 + 1;
-    }
+    const FloorPoints p(h, n, 0.3, 11);
+    const std::vector<uint32_t>& leaves = p.leaves;
+    const std::vector<Vec3>& xs = p.xs;
+    const std::vector<uint64_t>& keys = p.keys;
     for (double importance : {0.0, 0.02}) {
         GatherOptions o;
         o.importance = importance;
@@ -254,17 +265,11 @@ TEST(Gather, TheStoresTableIsTheSortedLinksAndGathersTheSameBits) {
         ASSERT_GE(k, sorted.first[r]);
         ASSERT_LT(k, sorted.first[r + 1]);
     }
-    Rng rng(3);
     const int n = 200;
-    std::vector<uint32_t> leaves(n);
-    std::vector<Vec3> xs(n);
-    std::vector<uint64_t> keys(n);
-    for (int k = 0; k < n; ++k) {
-        const double u = 0.2 * rng.uniform(), v = rng.uniform();
-        xs[k] = {u, v, 0};
-        leaves[k] = h.leaf_at(h.face_node[0], u, v);
-        keys[k] = uint64_t(k) + 1;
-    }
+    const FloorPoints p(h, n, 0.2, 3);
+    const std::vector<uint32_t>& leaves = p.leaves;
+    const std::vector<Vec3>& xs = p.xs;
+    const std::vector<uint64_t>& keys = p.keys;
     GatherOptions o;
     o.importance = 0.02;
     o.second_bounce = 1.0;

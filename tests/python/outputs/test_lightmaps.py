@@ -527,7 +527,7 @@ def test_no_light_under_the_walls_of_a_room(room):
 def test_final_gather_pages_come_before_the_display_and_the_hierarchy_goes_first(scene, monkeypatch):
     """A bake with final-gather lightmaps bakes their pages right after the solve, from the
     engine's hierarchy, and lets the hierarchy go before the display mesh, the Result and the
-    per-mesh output arrays are made (the 1M-triangle kitchen's peak: 4.4 -> 3.1 GiB); the
+    per-mesh output arrays are made (the 1M-triangle kitchen's peak: 4,396 -> 3,093 MiB); the
     pages are tied to the output meshes afterwards. The order is recorded as it happens."""
     import sys
 
