@@ -108,3 +108,59 @@ def _meshed_patch_count(_engine, scene, cfg) -> int:
     model.mesh(_engine.MeshOptions(max_patch_area=cfg.meshing.max_patch_area,
                                    max_edge_length=cfg.meshing.max_edge_length))
     return int(model.num_patches)
+
+
+def test_memory_counts_the_scene_besides_the_links_and_grows_with_its_faces(tmp_path):
+    # An out-of-core bake's links take at most the budget; the scene, its hierarchy and the
+    # outputs take memory of their own, in proportion to the input faces (the kitchen's
+    # 2.0-2.6 KB a face): the same surface cut into 100 times more faces needs more memory,
+    # the links' part unchanged, and final-gather lightmaps more again.
+    def cut(n):
+        return _quads([(2.0 / n, 2.0 / n)] * (n * n))
+    base = {"method": "hierarchical", "hierarchy": {"min_area": 0.01, "cluster_receivers": True},
+            "solver": {"method": "block_southwell"}, "links": {"memory_budget": "1GB"},
+            "outputs": {"lightmaps": {"enabled": False}}}
+    coarse, fine = estimate(cut(20), _cfg(tmp_path, **base)), estimate(cut(200), _cfg(tmp_path, **base))
+    assert coarse["memory_parts"]["links"] == fine["memory_parts"]["links"] == 2 ** 30
+    grown = fine["memory_parts"]["scene_and_outputs"] - coarse["memory_parts"]["scene_and_outputs"]
+    assert grown > (40_000 - 400) * 1000  # at least a kilobyte a face
+    assert fine["memory_bytes"] == fine["memory_parts"]["links"] + fine["memory_parts"]["scene_and_outputs"]
+    lit = estimate(cut(200), _cfg(tmp_path, **{**base, "outputs": {"lightmaps": {"enabled": True,
+                                                                                  "mode": "final_gather"}}}))
+    assert lit["memory_parts"]["scene_and_outputs"] > fine["memory_parts"]["scene_and_outputs"]
+    assert any("the scene, its hierarchy and the outputs" in line for line in describe(fine))
+
+
+def test_a_bake_expected_not_to_fit_says_so_before_it_starts(tmp_path):
+    """A budget larger than the machine: the bake warns, with the numbers (the links' part and
+    the scene's, the faces, the machine's memory), and still runs; within the machine's
+    memory nothing is said."""
+    import json
+
+    from hirad_e2e_helpers import CORNELL, write_config
+
+    from hirad.bake import bake
+
+    cfg = write_config(tmp_path / "c.yaml", CORNELL, tmp_path / "out", method="hierarchical",
+                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 1},
+                       solver={"method": "block_southwell"},
+                       links={"memory_budget": "1PB", "store": str(tmp_path / "links")},
+                       outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
+                                "volume": {"enabled": False}})
+    result = bake(cfg)
+    warnings = json.loads((tmp_path / "out" / "report.json").read_text())["warnings"]
+    said = [w for w in warnings if w.startswith("expected to need about")]
+    assert len(said) == 1, warnings
+    assert "links 1.0 PiB" in said[0] and "this machine has" in said[0]
+    assert "input faces" in said[0] and "links.memory_budget" in said[0]
+    assert result.patch_radiosity is not None and len(result.patch_radiosity) > 0
+    # within what the machine has, nothing is said
+    cfg2 = write_config(tmp_path / "d.yaml", CORNELL, tmp_path / "out2", method="hierarchical",
+                        hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 1},
+                        solver={"method": "block_southwell"},
+                        links={"memory_budget": "64MB", "store": str(tmp_path / "links2")},
+                        outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
+                                 "volume": {"enabled": False}})
+    bake(cfg2)
+    warnings = json.loads((tmp_path / "out2" / "report.json").read_text())["warnings"]
+    assert not [w for w in warnings if w.startswith("expected to need")], warnings

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import __version__, _engine, files, interrupts, units, usd
 from .engine import build_engine, display_dict, patch_dict, streaming_dict
+from .estimate import estimate as estimate_cost, memory_warning
 from .outputs import images
 from .config import Config, load_config
 from .errors import BakeError  # noqa: F401
@@ -233,6 +234,9 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
     for w in cfg.ignored_settings():
         rep.warn(w)
+    est = estimate_cost(scene, cfg)  # a bake expected not to fit says so before it starts
+    if est.get("machine_bytes") and est["memory_bytes"] > est["machine_bytes"]:
+        rep.warn(memory_warning(est))
     grids = _build_config_grids(cfg, scene, source)
 
     with rep.stage("build scene"):

@@ -44,6 +44,14 @@ CLUSTER_LINK_ESTIMATES_PER_S = 0.32e6
 CLUSTER_SOLVE_PER_LINKING = 1.3
 STORE_BYTES_PER_LINK = 10.75
 FLAT_LINK_BYTES = 8.0
+# Memory besides the links (bench/README.md, the country kitchen end to end, 1,050,937 input
+# faces, stop 37): the process and its libraries about 170 MB; the scene, the engine's copy, the
+# hierarchy and its BVHs, the leaves as patches and the outputs about 2.0 KB per input face at
+# the solve's peak (2,470 MiB, of which 463 MB the streaming solver's state and chunks) and
+# 2.6 KB with final-gather lightmaps, whose gather is the bake's peak (3,093 MiB).
+PROCESS_BYTES = 170e6
+FACE_BYTES = 2.0e3
+FACE_BYTES_GATHERED_LIGHTMAPS = 2.6e3
 
 # Beyond these a setting is called out in a warning.
 SLOW_SECONDS = 3600.0
@@ -65,7 +73,11 @@ def _face_geometry(scene):
         sel = np.nonzero(counts == n)[0]
         corners = pts[idx[starts[sel][:, None] + np.arange(n)[None, :]]]          # (F, n, 3)
         nxt = np.roll(corners, -1, axis=1)
-        area[sel] = 0.5 * np.linalg.norm(np.cross(corners, nxt).sum(axis=1), axis=1)
+        x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
+        u, v, w = nxt[..., 0], nxt[..., 1], nxt[..., 2]
+        # Newell: half the norm of the sum of corner cross products (np.cross is 4x slower here)
+        nx, ny, nz = (y * w - z * v).sum(axis=1), (z * u - x * w).sum(axis=1), (x * v - y * u).sum(axis=1)
+        area[sel] = 0.5 * np.sqrt(nx * nx + ny * ny + nz * nz)
         edges = np.linalg.norm(nxt - corners, axis=2)
         if n == 4:
             # the engine's grid directions: u along edges 0-1 and 3-2, v along 0-3 and 1-2
@@ -155,18 +167,33 @@ def estimate(scene, cfg) -> dict:
             out["warnings"].append(
                 f"hierarchy.min_area {h.min_area:g} m^2 on {total_area:,.1f} m^2 of surface allows "
                 f"{bound:.3g} elements; raise min_area unless the lighting needs that detail")
+    # the links' part (the solver's budget out of core) and the scene's and outputs' part
+    lm = getattr(getattr(cfg, "outputs", None), "lightmaps", None)
+    gathered = (cfg.method == "hierarchical" and lm is not None and lm.enabled and lm.mode == "final_gather")
+    scene_bytes = PROCESS_BYTES + len(area) * (FACE_BYTES_GATHERED_LIGHTMAPS if gathered else FACE_BYTES)
+    out["memory_parts"] = {"links": out["memory_bytes"], "scene_and_outputs": scene_bytes}
+    out["memory_bytes"] = out["memory_bytes"] + scene_bytes
     if out["seconds"] > SLOW_SECONDS:
         out["warnings"].append(f"expected to take about {_duration(out['seconds'])} on 2 cores")
     try:
         import os
 
         ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        out["machine_bytes"] = float(ram)
         if out["memory_bytes"] > ram:
-            out["warnings"].append(f"expected to need {_bytes(out['memory_bytes'])} of memory, "
-                                   f"this machine has {_bytes(ram)}")
+            out["warnings"].append(memory_warning(out))
     except (ValueError, OSError, AttributeError):
         pass
     return out
+
+
+def memory_warning(est: dict) -> str:
+    """What a bake expected not to fit says before it starts, with the numbers."""
+    parts = est["memory_parts"]
+    return (f"expected to need about {_bytes(est['memory_bytes'])} of memory (links "
+            f"{_bytes(parts['links'])}, the scene, its hierarchy and the outputs {_bytes(parts['scene_and_outputs'])}, "
+            f"{est['input_faces']:,} input faces), this machine has {_bytes(est['machine_bytes'])}"
+            + (": lower links.memory_budget, or raise hierarchy.min_area" if est["method"] == "hierarchical" else ""))
 
 
 def _bytes(n: float) -> str:
@@ -196,8 +223,10 @@ def describe(est: dict) -> list[str]:
     else:
         lo, hi = est["links_range"]
         lines.append(f"  elements: at most {est['elements_at_most']:,.0f}, typically about {est['elements_typical']:,.0f}")
+        parts = est["memory_parts"]
         lines.append(f"  links: about {est['links_typical']:,.0f} (range {lo:,.0f} to {hi:,.0f}); "
-                     f"memory about {_bytes(est['memory_bytes'])}")
+                     f"memory about {_bytes(est['memory_bytes'])} (links {_bytes(parts['links'])}, the scene, "
+                     f"its hierarchy and the outputs {_bytes(parts['scene_and_outputs'])})")
         if est["disk_bytes"]:
             lines.append(f"  link store on disk: about {_bytes(est['disk_bytes'])}")
     lines.append(f"  time on 2 cores: about {_duration(est['seconds'])}")
