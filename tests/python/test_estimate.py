@@ -141,26 +141,21 @@ def test_a_bake_expected_not_to_fit_says_so_before_it_starts(tmp_path):
 
     from hirad.bake import bake
 
-    cfg = write_config(tmp_path / "c.yaml", CORNELL, tmp_path / "out", method="hierarchical",
-                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 1},
-                       solver={"method": "block_southwell"},
-                       links={"memory_budget": "1PB", "store": str(tmp_path / "links")},
-                       outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
-                                "volume": {"enabled": False}})
-    result = bake(cfg)
-    warnings = json.loads((tmp_path / "out" / "report.json").read_text())["warnings"]
+    def baked(name: str, budget: str):
+        cfg = write_config(tmp_path / f"{name}.yaml", CORNELL, tmp_path / name, method="hierarchical",
+                           hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 1},
+                           solver={"method": "block_southwell"},
+                           links={"memory_budget": budget, "store": str(tmp_path / f"{name}.links")},
+                           outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
+                                    "volume": {"enabled": False}})
+        return bake(cfg), json.loads((tmp_path / name / "report.json").read_text())["warnings"]
+
+    result, warnings = baked("huge", "1PB")
     said = [w for w in warnings if w.startswith("expected to need about")]
     assert len(said) == 1, warnings
     assert "links 1.0 PiB" in said[0] and "this machine has" in said[0]
     assert "input faces" in said[0] and "links.memory_budget" in said[0]
     assert result.patch_radiosity is not None and len(result.patch_radiosity) > 0
     # within what the machine has, nothing is said
-    cfg2 = write_config(tmp_path / "d.yaml", CORNELL, tmp_path / "out2", method="hierarchical",
-                        hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 1},
-                        solver={"method": "block_southwell"},
-                        links={"memory_budget": "64MB", "store": str(tmp_path / "links2")},
-                        outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
-                                 "volume": {"enabled": False}})
-    bake(cfg2)
-    warnings = json.loads((tmp_path / "out2" / "report.json").read_text())["warnings"]
+    _, warnings = baked("small", "64MB")
     assert not [w for w in warnings if w.startswith("expected to need")], warnings
