@@ -104,6 +104,15 @@ auto lift_samples_of(const Source& source, const In<double>& p, const In<double>
     return source.lift_samples(std::move(pts), nrm, epsilon, reach, a ? &anc : nullptr);
 }
 
+// `source.ray_cast` (Engine, RayScene): first hits of rays (origins, directions: (n, 3)).
+template <typename Source>
+RayCastResult ray_cast_of(const Source& source, const In<double>& o, const In<double>& d) {
+    auto org = vec3_rows(o, "origins");
+    auto dir = vec3_rows(d, "directions", long(org.size()));
+    nb::gil_scoped_release release;
+    return source.ray_cast(org, dir);
+}
+
 // Runs `work` on a worker thread; meanwhile calls `tick()` (with the GIL) every 100 ms and
 // checks for Ctrl-C. Exceptions from the work are rethrown here.
 template <typename Work, typename Tick>

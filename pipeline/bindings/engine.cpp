@@ -252,6 +252,7 @@ void bind_engine(nb::module_& m) {
         .def("lift_samples", &lift_samples_of<Engine>, "points"_a, "normals"_a, "epsilon"_a, "reach"_a,
              "anchors"_a.none() = nb::none(),
              "SurfaceField.lift_samples against the current patches and their BVH (LiftResult).")
+        .def("ray_cast", &ray_cast_of<Engine>, "origins"_a, "directions"_a, "First hits of rays (RayCastResult).")
         .def("direct_transmittance", &direct_transmittance_of<Engine>, "points"_a, "normals"_a, "directions"_a,
              "(P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit "
              "direction out of the scene (0 blocked; glass factors), over the current patches.")

@@ -232,14 +232,7 @@ void bind_fields(nb::module_& m) {
              "Illuminance on small planes at points (n, 3) facing unit normals (n, 3), anywhere: the direct light "
              "of the patches whose emitted_radiance (patches, 3) W/(m^2 sr) is positive, exact where unoccluded, "
              "plus the indirect light of the rest by `rays` cosine-distributed hemisphere rays (Illuminance).")
-        .def("ray_cast",
-             [](const RayScene& s, In<double> o, In<double> d) {
-                 auto org = vec3_rows(o, "origins");
-                 auto dir = vec3_rows(d, "directions", long(org.size()));
-                 nb::gil_scoped_release release;
-                 return s.ray_cast(org, dir);
-             },
-             "origins"_a, "directions"_a, "First hits of rays (RayCastResult).")
+        .def("ray_cast", &ray_cast_of<RayScene>, "origins"_a, "directions"_a, "First hits of rays (RayCastResult).")
         .def("camera_rays",
              [](const RayScene& s, const std::vector<double>& pos, const std::vector<double>& fwd,
                 const std::vector<double>& up, double fov, int width, int height) {

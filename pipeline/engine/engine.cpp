@@ -1074,6 +1074,11 @@ LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3
     return r;
 }
 
+RayCastResult Engine::ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const {
+    if (!visibility_) throw std::invalid_argument("ray_cast needs meshed patches");
+    return cast_rays(patches_.patches, *visibility_, origins, directions);
+}
+
 PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                                 const std::vector<RGB>& radiosity, int rays, uint64_t seed) const {
     const size_t n = points.size(), np = patches_.patches.size();

@@ -63,7 +63,8 @@
 
 namespace hirad {
 
-struct LiftResult;  // pipeline/engine/ray_scene.h
+struct LiftResult;     // pipeline/engine/ray_scene.h
+struct RayCastResult;  // pipeline/engine/ray_scene.h
 
 // Caps the engine's TBB threads (0: all cores). Results do not depend on it.
 void set_threads(int threads);
@@ -371,6 +372,9 @@ public:
     // gather's lightmaps then build no second ray-tracing scene (SurfaceField) for it.
     LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
                             double reach, const std::vector<Vec3>* anchors) const;
+    // First hits of rays against the current patches and their BVH (as SurfaceField.ray_cast):
+    // the vertex gather's enclosure test, without a SurfaceField of its own.
+    RayCastResult ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const;
     // Direct light from far directions at points (daylight: annual sun hours, sky patches):
     // out[p * D + d] = max(0, n_p . d_d) T(x_p, d_d), T the transmittance of the ray from x_p
     // (lifted off its surface) towards unit direction d_d out of the scene (visibility.h: 0

@@ -160,6 +160,11 @@ std::vector<float> RayScene::direct_transmittance(const std::vector<Vec3>& point
 }
 
 RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<Vec3>& d) const {
+    return cast_rays(patches_, *visibility_, o, d);
+}
+
+RayCastResult cast_rays(const std::vector<Patch>& patches, const Visibility& visibility, const std::vector<Vec3>& o,
+                        const std::vector<Vec3>& d) {
     if (o.size() != d.size()) throw std::invalid_argument("origins and directions differ in length");
     const size_t n = o.size();
     RayCastResult r;
@@ -172,12 +177,12 @@ RayCastResult RayScene::ray_cast(const std::vector<Vec3>& o, const std::vector<V
     r.v.assign(n, 0.0);
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
         const Vec3 dir = normalize(d[q]);
-        const RayHit h = visibility_->intersect(o[q], dir);
+        const RayHit h = visibility.intersect(o[q], dir);
         if (h.patch < 0) return;
         r.patch[q] = h.patch;
         r.t[q] = h.t;
         r.points[q] = o[q] + dir * h.t;
-        r.normals[q] = patches_[h.patch].normal;
+        r.normals[q] = patches[h.patch].normal;
         r.back[q] = dot(r.normals[q], dir) >= 0;
         r.u[q] = h.u;
         r.v[q] = h.v;

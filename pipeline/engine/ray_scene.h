@@ -40,6 +40,10 @@ struct RayCastResult {
     std::vector<double> u, v;         // the hit's coordinates on its patch (interpolate_corners)
 };
 
+// First hits of rays against `patches` and their BVH (RayScene and Engine::ray_cast).
+RayCastResult cast_rays(const std::vector<Patch>& patches, const Visibility& visibility,
+                        const std::vector<Vec3>& origins, const std::vector<Vec3>& directions);
+
 struct LiftResult {
     std::vector<Vec3> points;         // lifted off the surface, out of geometry
     std::vector<uint8_t> moved;       // 1 where a point had to be moved out of geometry

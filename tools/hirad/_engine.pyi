@@ -1053,6 +1053,9 @@ class Engine:
         SurfaceField.lift_samples against the current patches and their BVH (LiftResult).
         """
 
+    def ray_cast(self, origins: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> RayCastResult:
+        """First hits of rays (RayCastResult)."""
+
     def direct_transmittance(self, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], directions: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)]) -> NDArray[numpy.float32]:
         """
         (P, D) float32: max(0, n . d) x the transmittance of the ray from each point towards each unit direction out of the scene (0 blocked; glass factors), over the current patches.

@@ -599,6 +599,20 @@ def test_final_gather_lightmaps_lift_against_the_engines_own_scene(room):
         # (the two BVHs hold the same faces, one from the leaves and one from the display mesh's
         # welded corners: a hit distance may differ in its last float bits, nanometres)
         np.testing.assert_allclose(np.asarray(mine.points), np.asarray(field.points), rtol=0, atol=1e-7)
+    # The vertex gather's enclosure test casts its rays the same way (Engine.ray_cast): rays from
+    # the same samples along the normals and 45 degrees off them meet the same surfaces, from
+    # the same side, at the same distance (the engine's patches are the leaves, the field's the
+    # display faces: their indices differ, their planes do not).
+    dirs = np.concatenate([normals, normals + rng.normal(0, 0.5, normals.shape)])
+    origins = np.concatenate([points, points]) + 1e-3 * dirs
+    mine, field = result._model.ray_cast(origins, dirs), result.field.ray_cast(origins, dirs)
+    hit = np.asarray(field.patch) >= 0
+    assert hit.sum() > 1000 and (~hit).sum() > 100
+    np.testing.assert_array_equal(np.asarray(mine.patch) >= 0, hit)
+    np.testing.assert_array_equal(np.asarray(mine.back)[hit], np.asarray(field.back)[hit])
+    assert np.asarray(mine.back)[hit].sum() > 100  # samples under the walls see their backs
+    # (Embree's single-precision distances: a float's last bit, 1.2e-7 of a metre or so)
+    np.testing.assert_allclose(np.asarray(mine.t)[hit], np.asarray(field.t)[hit], rtol=1e-6, atol=1e-7)
     # without the hierarchy kept, it is the field's
     from hirad.solution import Result
 

@@ -311,3 +311,33 @@ def _t_junctions(tris: np.ndarray) -> int:
         off = np.linalg.norm(pts[None] - (aa + t[..., None] * ab), axis=2)
         found += int(((t > 1e-6) & (t < 1 - 1e-6) & (off < 1e-9)).sum())
     return found
+
+
+def test_the_vertex_gather_builds_no_ray_tracing_scene_of_its_own(tmp_path, monkeypatch):
+    """values: final_gather lifts its samples and tests them for enclosure against the engine's
+    own patches and BVH (Engine.lift_samples, Engine.ray_cast): a bake whose other outputs do not
+    read the display's SurfaceField (no preview, lightmaps or volume) never builds one (on the
+    1M-triangle kitchen a second BVH and a 328-byte face each, about 0.6 GB)."""
+    import hirad
+    from hirad import _engine
+
+    built = []
+    real = _engine.SurfaceField
+
+    def counted(*a, **k):
+        built.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(_engine, "SurfaceField", counted)
+    path = write_config(tmp_path / "c.yaml", SCENE, tmp_path / "out", method="hierarchical",
+                        hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 4, "max_rounds": 2},
+                        solver={"method": "jacobi", "tolerance": 1e-4},
+                        reconstruction={"values": "final_gather", "refine_levels": 1},
+                        outputs={"usd": True, "lightmaps": {"enabled": False}, "volume": {"enabled": False},
+                                 "preview": {"enabled": False}, "report": True})
+    result = hirad.bake(path)
+    assert "vertex gather" in result.report["timings_s"]
+    assert result.report["display"]["samples"] > 0 and result.report["display"]["enclosed"] >= 0
+    assert not built
+    result.field  # the count sees a SurfaceField when one is made
+    assert built == [1]

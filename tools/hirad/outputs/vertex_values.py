@@ -45,9 +45,11 @@ LUM = np.array([0.2126, 0.7152, 0.0722])
 _TILT = np.sqrt(0.5)  # the enclosure test's four tilted rays: 45 degrees from the normal
 
 
-def _enclosed(field, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def _enclosed(tracer, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Samples inside geometry: the normal's ray and at least two of four rays tilted 45 degrees
-    from it (along the tangent frame's four half-axes) meet the back of a surface."""
+    from it (along the tangent frame's four half-axes) meet the back of a surface. `tracer`:
+    the surfaces and their BVH (lightmaps._tracer: the engine's own while it holds the
+    hierarchy, so that the gather builds no SurfaceField of the display mesh)."""
     n = len(points)
     if n == 0:
         return np.zeros(0, bool)
@@ -58,7 +60,7 @@ def _enclosed(field, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     t2 = np.cross(nrm, t1)
     dirs = np.stack([nrm, _TILT * (nrm + t1), _TILT * (nrm - t1), _TILT * (nrm + t2), _TILT * (nrm - t2)], axis=1)
     origins = np.repeat(points, 5, axis=0)
-    hits = field.ray_cast(np.ascontiguousarray(origins), np.ascontiguousarray(dirs.reshape(-1, 3)))
+    hits = tracer.ray_cast(np.ascontiguousarray(origins), np.ascontiguousarray(dirs.reshape(-1, 3)))
     back = (np.asarray(hits.back, dtype=bool) & (np.asarray(hits.patch) >= 0)).reshape(n, 5)
     return back[:, 0] & (back.sum(axis=1) >= 3)
 
@@ -84,7 +86,7 @@ class _Sampler:
         g = self.result.gather(lifted, normals, rays=self.rays, importance=self.importance,
                                second_bounce=self.second_bounce)
         found = np.asarray(g["patch"]) >= 0
-        inside = _enclosed(self.result.field, lifted, normals)
+        inside = _enclosed(_tracer(self.result), lifted, normals)
         ok = found & ~inside
         self.samples += len(points)
         self.unfound += int((~found).sum())
