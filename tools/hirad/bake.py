@@ -263,16 +263,20 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if stats.faces == 0:
         raise BakeError(f"{cfg.scene}: no usable faces (all {stats.input_faces} were degenerate, not finite "
                         "or self-intersecting)")
-    # The report's count, taken now: without lightmaps, grids or light groups nothing after this
-    # reads the scene's per-face and per-corner arrays (the engine holds its own copy), so they
-    # are let go (the kitchen: about 150 MB).
+    # The report's count and the scene's fingerprint, taken now: without grids or light groups
+    # nothing after this reads the faces' materials, and without lightmaps nothing reads the
+    # scene's per-face and per-corner arrays at all (the engine holds its own copy), so they are
+    # let go (the kitchen: about 150 MB).
     emitter_meshes = sum(1 for m in scene.meshes if m.is_light) + len({
         int(scene.face_mesh[f]) for f in np.nonzero(scene.face_emission.max(axis=1) > 0)[0]
         if not scene.meshes[int(scene.face_mesh[f])].is_light})
     scene_fingerprint(scene)  # kept on the scene: the volume's and the lightmaps' files name it
-    if not (cfg.outputs.lightmaps.enabled or grids or cfg.light_groups or day_groups):
-        for k in ("points", "face_vertex_counts", "face_vertex_indices", "face_mesh", "face_source",
-                  "face_reflectance", "face_emission", "face_transmittance"):
+    if not (grids or cfg.light_groups or day_groups):
+        # (lightmaps read the faces' corners, meshes and source faces, not their materials: 56
+        # bytes a face, the kitchen's 59 MB)
+        geometry = ("points", "face_vertex_counts", "face_vertex_indices", "face_mesh", "face_source")
+        for k in ("face_reflectance", "face_emission", "face_transmittance") + (
+                () if cfg.outputs.lightmaps.enabled else geometry):
             setattr(scene, k, None)
 
     values = cfg.reconstruction.values
@@ -352,7 +356,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             and cfg.outputs.lightmaps.mode == "final_gather"):
         with rep.stage("lightmaps"):
             early_pages = bake_lightmaps(cfg, scene, patches, staging, **lightmap_sources(cfg, model=model))
-        done_gathering("lightmaps")
+            done_gathering("lightmaps")  # (in the stage: its held memory is without the hierarchy)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
