@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -252,6 +253,7 @@ def _write_directional(lm_dir: Path, page: int, baked: np.ndarray, up_axis: str,
     return out
 
 
+@dataclass
 class LightmapPages:
     """What bake_lightmaps leaves for attach_lightmaps: the atlas, the pages written, and per
     atlas mesh (`mesh_index`, scene meshes with patches, in order) what the output layer needs.
@@ -260,8 +262,25 @@ class LightmapPages:
     them anyway; the display mesh, the per-mesh output arrays and the Result come after, when
     the hierarchy and its links are let go (the country kitchen: 1.1 GB less at the peak)."""
 
-    def __init__(self, **fields):
-        self.__dict__.update(fields)
+    atlas: object                 # hirad.atlas's Atlas
+    mesh_index: list              # scene mesh of each atlas mesh
+    source_lightmap: dict         # per scene mesh: its layout on the original prim, or None
+    fan: dict                     # _source_triangles
+    tri_uv: np.ndarray            # (T, 3, 2) page UVs of every source triangle
+    density: float                # texels per metre
+    mode: str
+    meta_base: list               # the pages' EXR metadata
+    encodings: list
+    page_files: list
+    page_images: list             # (h, w, 3) float32 per page, for the per-mesh crops
+    page_extra: list              # per page, its manifest fields beyond the file and size
+    covered: int                  # texels covered on all pages
+    samples: int
+    moved: int                    # samples lifted out of geometry
+    units: str
+    fingerprint: str
+    warnings: list
+    seconds: float
 
 
 def _atlas_meshes(patches, n_meshes: int) -> list[int]:
