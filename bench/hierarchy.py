@@ -11,6 +11,7 @@ Figures are printed, not asserted. Subcommands (each also runs alone):
     python bench/hierarchy.py receivers-accuracy [--tess 8] # 7. the same, error against the reference at one t
     python bench/hierarchy.py kitchen  [--points 200]     # 8. the country kitchen end to end, out of core
     python bench/hierarchy.py cornell  [--settings E:A:S,...] # 9. the bundled Cornell box end to end, primvars' error
+    python bench/hierarchy.py threads  [--hall PATH]      # 10. every stage with 1 and with 2 threads
     python bench/hierarchy.py all
 
 The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
@@ -856,10 +857,52 @@ def cmd_cornell(args) -> None:
     print("target (issue 12): <= 1 % mean error in <= 1.5 s end to end on 2 cores")
 
 
+# --------------------------------------------------------------------------------------------
+# 10. Threads: every stage's wall time with 1 thread and with 2 (issue 12: "keep both cores
+# busy the whole time"). One child process per bake, so each starts cold.
+
+def cmd_threads(args) -> None:
+    print("# 10. 1 -> 2 threads: wall seconds of every stage of the report (child process per bake; "
+          "speed-up = 1-thread time / 2-thread time, 2.00 the most two cores give)")
+    bundled = yaml.safe_load(CORNELL.read_text())
+    bundled["scene"] = str((CORNELL.parent / bundled["scene"]).resolve())
+    scenes = [("cornell_hierarchical.yaml (every output on)", bundled)]
+    if args.hall.exists():
+        hall = hier_config(args.hall, 1e-4, 0.02, samples=8, max_rounds=4)
+        hall["hierarchy"]["cluster_receivers"] = True
+        hall["reconstruction"] = {"values": "final_gather"}
+        hall["outputs"] = {"usd": True, "report": True, "preview": {"enabled": False},
+                           "lightmaps": {"enabled": True, "mode": "final_gather", "texels_per_metre": 16,
+                                         "supersample": 1}}
+        scenes.append(("modern_hall (clusters receive, epsilon 1e-4, min_area 0.02, samples 8; final-gather "
+                       "vertices and lightmaps at 16 texels/m)", hall))
+    else:
+        print(f"{args.hall} is absent: Modern Hall skipped")
+    for name, cfg in scenes:
+        runs = {}
+        for threads in (1, 2):
+            ld = load()
+            runs[threads] = child_bake(dict(cfg, threads=threads))
+            print(f"  {name}: {threads} thread(s) done, {ld} at its start")
+        t1, t2 = runs[1]["timings_s"], runs[2]["timings_s"]
+        print(f"\n== {name}")
+        print(f"  {'stage':<28}{'1 thread s':>11}{'2 threads s':>12}{'speed-up':>10}")
+        for stage in t1:
+            if stage in t2 and t1[stage] >= 0.01:
+                print(f"  {stage:<28}{t1[stage]:>11.2f}{t2[stage]:>12.2f}{t1[stage] / max(t2[stage], 1e-9):>10.2f}")
+        w1, w2 = runs[1]["child_wall_s"], runs[2]["child_wall_s"]
+        print(f"  {'process (with start-up)':<28}{w1:>11.2f}{w2:>12.2f}{w1 / w2:>10.2f}")
+        h1, h2 = runs[1]["hierarchy"], runs[2]["hierarchy"]
+        print(f"  refine rounds s: {[round(x, 2) for x in h1['refine_seconds']]} -> "
+              f"{[round(x, 2) for x in h2['refine_seconds']]}; links {runs[1]['counts']['links']:,} and "
+              f"{runs[2]['counts']['links']:,} (the same bits whatever the thread count: "
+              f"{runs[1]['counts']['links'] == runs[2]['counts']['links']})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "receivers",
-                                     "receivers-accuracy", "kitchen", "cornell", "all"])
+                                     "receivers-accuracy", "kitchen", "cornell", "threads", "all"])
     ap.add_argument("--hall", type=Path, default=HALL)
     ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
     ap.add_argument("--min-area", type=float, default=None,
@@ -897,7 +940,7 @@ def main() -> None:
         print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
         {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall,
          "spread": cmd_spread, "receivers": cmd_receivers, "receivers-accuracy": cmd_receivers_accuracy,
-         "kitchen": cmd_kitchen, "cornell": cmd_cornell}[part](a)
+         "kitchen": cmd_kitchen, "cornell": cmd_cornell, "threads": cmd_threads}[part](a)
         print()
 
 

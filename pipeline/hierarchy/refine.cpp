@@ -128,12 +128,34 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const uint32_t sampled = polygon_source ? r : (polygon_receiver ? s : r);
     const Patch& target = std::as_const(h_).shape(polygon_source ? s : r);  // (empty between clusters)
     const double area = h_.nodes[sampled].area;
+    // A polygon far from the sampled end compared with its size (RefineOptions::far): the
+    // point-to-point kernel between stratified points of both ends, the polygon's strata
+    // paired with the sampled end's in a shuffled order.
+    const bool far = (polygon_source || polygon_receiver) &&
+                     h_.nodes[polygon_source ? s : r].diagonal() <= opt_.far * node_gap(nr, ns);
+    std::vector<int> cell;
+    if (far) {
+        cell.resize(n);
+        for (int k = 0; k < n; ++k) cell[k] = k;
+        for (int k = n - 1; k > 0; --k) std::swap(cell[k], cell[rng.next() % uint64_t(k + 1)]);
+    }
     for (int k = 0; k < n; ++k) {
         const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
         Vec3 x, nx;
         h_.sample(sampled, rng.uniform(), s0, t0, x, nx);
         const double s1 = rng.uniform(), t1 = rng.uniform();
-        if (polygon_source || polygon_receiver) {
+        if (far) {
+            const Vec3 y = target.point((cell[k] % g + s1) / g, (cell[k] / g + t1) / g);
+            const Vec3 d = y - x;
+            const double r2 = dot(d, d);
+            const double cx = dot(nx, d), cy = -dot(target.normal, d);
+            if (!(r2 > 0) || cx <= 0 || cy <= 0) continue;
+            const double w = cx * cy / (kPi * r2 * r2) * target.area * area / n;
+            unoccluded += w;
+            from.push_back(x + nx * lift);
+            to.push_back(y + target.normal * lift);
+            weight.push_back(w);
+        } else if (polygon_source || polygon_receiver) {
             // y drawn by the kernel, not by area (formfactors.h): V(x, y) then estimates the
             // visible share of F, however large the polygon is next to x.
             Vec3 y;

@@ -73,6 +73,12 @@ It was written again for cornell_hierarchical.yaml's report section alone (stop 
 final gather's lightmaps began to lift their texel samples with the engine's own patches and BVH
 instead of building the SurfaceField (650 MB on the kitchen): the report's counts.rays now counts
 those lift rays, which the field's scene did not; every USD, EXR and volume value held bit for bit.
+It was written again for the two hierarchical configs (stop 38, issue 12's cheaper link estimates)
+when a link estimate whose polygon end is far from its other end (its diagonal at most the gap
+between them, RefineOptions::far) began to use the point-to-point kernel between stratified
+points of both ends instead of Lambert's contour sum and Arvo's sampling: an unbiased estimate
+of the same integral from other samples, so the links split a little differently and every
+value moved within sampling noise.
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 
