@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <stdexcept>
+#include <string>
 
 #include "pipeline/hierarchy/hierarchical_solver.h"
 
@@ -62,7 +63,10 @@ GatherLinks gather_links(const LinkChunks& chunks, size_t nodes) {
             chunks.read(g, p, part);
             for (const Link& l : part) {
                 if (l.receiver >= nodes || l.source >= nodes)
-                    throw std::invalid_argument("gather: a stored link's node is out of range");
+                    throw std::invalid_argument(chunks.where(g, p) + ": a link from node " + std::to_string(l.source) +
+                                                " to node " + std::to_string(l.receiver) +
+                                                " is out of the hierarchy's " + std::to_string(nodes) +
+                                                " nodes (the store is not this bake's, or is damaged)");
                 ++out.first[l.receiver + 1];
             }
         }
@@ -74,7 +78,9 @@ GatherLinks gather_links(const LinkChunks& chunks, size_t nodes) {
             chunks.read(g, p, part);
             for (const Link& l : part) {
                 if (next[l.receiver] == out.first[l.receiver + 1])
-                    throw std::runtime_error("gather: the link store changed while it was read");
+                    throw std::runtime_error(chunks.where(g, p) + ": node " + std::to_string(l.receiver) +
+                                             " receives more links than when the store was first read (it "
+                                             "changed while the gather read it)");
                 out.links[next[l.receiver]++] = GatherLink{l.source, l.coupling, l.visibility};
             }
         }

@@ -62,6 +62,11 @@ public:
     virtual uint64_t transport_bytes(size_t group, size_t part) const = 0;  // decoded, in memory
     virtual void read(size_t group, size_t part, std::vector<Link>& out) const = 0;
     virtual void read_transport(size_t group, size_t part, TransportLinks& out) const = 0;
+    // Where a part comes from, for errors about its contents: a chunk file's path, or a
+    // description of the part in memory.
+    virtual std::string where(size_t group, size_t part) const {
+        return "links in memory, group " + std::to_string(group) + " part " + std::to_string(part);
+    }
     uint64_t links(size_t group) const;
     void read(size_t group, std::vector<Link>& out) const;   // all parts, in order
     uint64_t total_links() const;
@@ -104,6 +109,7 @@ public:
         return TransportLinks::bytes_for(e.link_count, e.run_count, e.escape_count);
     }
     void read(size_t g, size_t p, std::vector<Link>& out) const override { reader_.read_chunk(parts_[g][p], out); }
+    std::string where(size_t g, size_t p) const override { return reader_.chunk_path(parts_[g][p]); }
     void read_transport(size_t g, size_t p, TransportLinks& out) const override {
         reader_.read_transport(parts_[g][p], out);
     }

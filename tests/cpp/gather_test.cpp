@@ -5,8 +5,11 @@
 #include "pipeline/hierarchy/gather.h"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
+#include <filesystem>
+#include <string>
 #include <vector>
 
 #include "pipeline/geometry/formfactors.h"
@@ -287,6 +290,51 @@ TEST(Gather, TheStoresTableIsTheSortedLinksAndGathersTheSameBits) {
     GatherLinks other;
     other.first.assign(3, 0);
     EXPECT_THROW(Gatherer(h, other, linked.sol.radiosity, linked.vis, o), std::invalid_argument);
+}
+
+// A store that is not this bake's (its links reach nodes the hierarchy does not have) is
+// refused by the gather with the file the bad link is in, the link's nodes and the count.
+TEST(Gather, AStoreOfAnotherHierarchyIsRefusedNamingItsChunk) {
+    std::vector<Link> part;
+    for (uint32_t k = 0; k < 5; ++k) {
+        Link l;
+        l.receiver = k;
+        l.source = 9 - k;
+        l.coupling = l.unoccluded = 0.1f;
+        l.visibility = 1.0f;
+        part.push_back(l);
+    }
+    sort_part(part);  // by source: the first out of range is 8 -> 1
+    // in memory
+    const MemoryChunks chunks({part});
+    EXPECT_NO_THROW(gather_links(chunks, 10));
+    try {
+        gather_links(chunks, 8);
+        ADD_FAILURE() << "no error";
+    } catch (const std::invalid_argument& e) {
+        EXPECT_EQ(std::string(e.what()).rfind("links in memory, group 0 part 0: a link from node 8 to node 1 is out of "
+                                              "the hierarchy's 8 nodes", 0), 0u) << e.what();
+    }
+    // on disk: the chunk file's path
+    const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                      ("hirad_gather_store_" + std::to_string(::getpid()));
+    std::filesystem::remove_all(dir);
+    {
+        LinkStoreWriter w(dir.string(), LinkStoreInfo{1, 2, 10, 10});
+        w.write_chunk(0, 1, part.data(), part.size());
+        w.commit();
+    }
+    EXPECT_EQ(gather_links(dir.string(), 1, 10).size(), part.size());
+    try {
+        gather_links(dir.string(), 1, 8);
+        ADD_FAILURE() << "no error";
+    } catch (const std::invalid_argument& e) {
+        const std::string what = e.what();
+        EXPECT_EQ(what.rfind((dir / "chunk-").string(), 0), 0u) << what;
+        EXPECT_NE(what.find(".hlc: a link from node 8 to node 1 is out of the hierarchy's 8 nodes"), std::string::npos)
+            << what;
+    }
+    std::filesystem::remove_all(dir);
 }
 
 // The solid angle of a rectangle a x b seen from a point at distance c below one corner.
