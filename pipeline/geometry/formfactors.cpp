@@ -128,6 +128,37 @@ double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly,
     return clipped_form_factor(x, n, clipped, m);
 }
 
+double point_polygon_form_factor_by_quadrature(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
+                                               const Vec3& poly_normal, double area) {
+    if (dot(x - poly[0], poly_normal) <= 0) return 0;  // behind the emitting side
+    for (int k = 0; k < nv; ++k)
+        if (!(dot(poly[k] - x, n) > 0)) return point_polygon_form_factor(x, n, poly, nv, poly_normal);
+    auto kernel = [&](const Vec3& y) {
+        const Vec3 d = y - x;
+        const double r2 = dot(d, d);
+        return std::max(0.0, dot(n, d)) * std::max(0.0, -dot(poly_normal, d)) / (kPi * r2 * r2);
+    };
+    if (nv == 3) {
+        const Vec3 e1 = poly[1] - poly[0], e2 = poly[2] - poly[0];
+        const double sum = kernel(poly[0] + e1 / 6.0 + e2 / 6.0) + kernel(poly[0] + e1 * (2 / 3.0) + e2 / 6.0) +
+                           kernel(poly[0] + e1 / 6.0 + e2 * (2 / 3.0));
+        return sum * area / 3;
+    }
+    // y(s, t) = (1-s)(1-t) p0 + s(1-t) p1 + s t p2 + (1-s) t p3 at the Gauss points of [0, 1]^2
+    // (weights 1/4), times |dy/ds x dy/dt|.
+    const double g[2] = {0.5 - 0.5 / std::sqrt(3.0), 0.5 + 0.5 / std::sqrt(3.0)};
+    double sum = 0;
+    for (double t : g)
+        for (double s : g) {
+            const Vec3 y = poly[0] * ((1 - s) * (1 - t)) + poly[1] * (s * (1 - t)) + poly[2] * (s * t) +
+                           poly[3] * ((1 - s) * t);
+            const Vec3 ds = (poly[1] - poly[0]) * (1 - t) + (poly[2] - poly[3]) * t;
+            const Vec3 dt = (poly[3] - poly[0]) * (1 - s) + (poly[2] - poly[1]) * s;
+            sum += 0.25 * length(cross(ds, dt)) * kernel(y);
+        }
+    return sum;
+}
+
 double point_polygon_form_factor_and_point(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
                                            const Vec3& poly_normal, Rng& rng, Vec3& y, bool& drawn) {
     drawn = false;

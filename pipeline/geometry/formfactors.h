@@ -21,6 +21,18 @@ namespace hirad {
 double point_polygon_form_factor(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
                                  const Vec3& poly_normal);
 
+// The same by Gauss quadrature of the kernel cos theta_x cos theta_y / (pi r^2) over the
+// polygon, for a polygon far from x compared with its size: 2 x 2 Gauss-Legendre points on a
+// quad's bilinear map (times its Jacobian), the 3-point rule of degree 2 (Strang and Fix) on a
+// triangle. Where the polygon's diagonal is at most kQuadratureFar times its box's distance from
+// x, it agrees with the contour sum within about 1e-3 relative (tests/cpp/formfactors_test.cpp:
+// mean error of order 1e-6 over random orientations), with no atan2 and no clipping. When a
+// corner is not in front of x's tangent plane, or x is not in front of the polygon, the contour
+// sum is returned (the quadrature does not clip).
+constexpr double kQuadratureFar = 0.25;
+double point_polygon_form_factor_by_quadrature(const Vec3& x, const Vec3& n, const Vec3* poly, int nv,
+                                               const Vec3& poly_normal, double area);
+
 // A point y of the polygon for estimating its visible form factor from (x, n): the direction
 // from x is drawn over the polygon's solid angle with density proportional to cos theta_x
 // (directions uniform over each spherical triangle of the clipped polygon by Arvo's method,

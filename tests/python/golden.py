@@ -78,7 +78,10 @@ when a link estimate whose polygon end is far from its other end (its diagonal a
 between them, RefineOptions::far) began to use the point-to-point kernel between stratified
 points of both ends instead of Lambert's contour sum and Arvo's sampling: an unbiased estimate
 of the same integral from other samples, so the links split a little differently and every
-value moved within sampling noise.
+value moved within sampling noise. In the same stop the final gather began to take the form factor
+of a reflecting (not self-emitting) source far from the point compared with its size by Gauss
+quadrature of the kernel (within about 1e-3 of the contour sum, formfactors.h): of the golden
+values only cornell_hierarchical.yaml's final-gather lightmap pages (its EXR section) moved.
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 
