@@ -870,12 +870,11 @@ def cmd_threads(args) -> None:
     if args.hall.exists():
         hall = hier_config(args.hall, 1e-4, 0.02, samples=8, max_rounds=4)
         hall["hierarchy"]["cluster_receivers"] = True
-        hall["reconstruction"] = {"values": "final_gather"}
         hall["outputs"] = {"usd": True, "report": True, "preview": {"enabled": False},
                            "lightmaps": {"enabled": True, "mode": "final_gather", "texels_per_metre": 16,
                                          "supersample": 1}}
         scenes.append(("modern_hall (clusters receive, epsilon 1e-4, min_area 0.02, samples 8; final-gather "
-                       "vertices and lightmaps at 16 texels/m)", hall))
+                       "lightmaps at 16 texels/m)", hall))
     else:
         print(f"{args.hall} is absent: Modern Hall skipped")
     for name, cfg in scenes:
