@@ -8,6 +8,7 @@
 #include <cstring>
 #include <atomic>
 #include <chrono>
+#include <mutex>
 #include <stdexcept>
 #include <utility>
 
@@ -87,6 +88,15 @@ struct Engine::Solved {
     std::vector<std::vector<RGB>> group_radiosity;  // per light group, per node
     std::string store_round;                 // out of core: the final links' store
     size_t groups = 0;                       // and its number of source groups
+    // The last gather's Gatherer, kept for the next gather with the same options and light
+    // group: its cell cache (GatherOptions::second_bounce) and descent steps then serve every
+    // call of a lightmap bake (one a page, or one a level of hirad.atlas.evaluate_adaptive),
+    // not one call each. A cell's value depends on its key alone, so keeping it changes no
+    // bits. Gathers on one engine take turns (the cache is cleared between blocks).
+    std::unique_ptr<Gatherer> gatherer;
+    GatherOptions gatherer_options;
+    int gatherer_group = -2;
+    std::mutex gather_mutex;
 };
 
 Engine::Engine(const SceneInput& in, size_t num_indices) {
@@ -1034,7 +1044,15 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
         key.push_back(q);
         slot.push_back(q);
     }
-    Gatherer g(solved_->hierarchy, *solved_->gather_table, radiosity, *solved_->visibility, options);
+    std::lock_guard<std::mutex> turn(solved_->gather_mutex);
+    if (!solved_->gatherer || !same_gather(solved_->gatherer_options, options) || solved_->gatherer_group != group) {
+        solved_->gatherer.reset();
+        solved_->gatherer = std::make_unique<Gatherer>(solved_->hierarchy, *solved_->gather_table, radiosity,
+                                                       *solved_->visibility, options);
+        solved_->gatherer_options = options;
+        solved_->gatherer_group = group;
+    }
+    const Gatherer& g = *solved_->gatherer;
     std::vector<RGB> e(leaf.size());
     std::vector<RadianceMoments> mo(options.directional ? leaf.size() : 0);
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data(), options.directional ? mo.data() : nullptr);

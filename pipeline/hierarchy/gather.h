@@ -104,6 +104,12 @@ struct GatherOptions {
     double second_bounce = 0;
 };
 
+// Whether two option sets gather the same values (every field above; extend it with them).
+inline bool same_gather(const GatherOptions& a, const GatherOptions& b) {
+    return a.rays == b.rays && a.cluster_samples == b.cluster_samples && a.seed == b.seed &&
+           a.directional == b.directional && a.importance == b.importance && a.second_bounce == b.second_bounce;
+}
+
 // The moments of the radiance arriving at a surface point over its hemisphere (see above).
 struct RadianceMoments {
     RGB l0;                  // integral L dw, W/m^2 per channel

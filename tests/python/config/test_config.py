@@ -257,6 +257,20 @@ def test_directional_lightmaps_need_the_gather_and_gltf_needs_its_sources(tmp_pa
     assert cfg.outputs.gltf and cfg.outputs.lightmaps.directional
 
 
+def test_gather_stride_is_a_power_of_two_and_needs_the_gather(tmp_path: Path) -> None:
+    err = load_error(write(tmp_path, "scene: scene.usda\nmethod: hierarchical\noutputs:\n  lightmaps:\n"
+                                     "    mode: final_gather\n    gather_stride: 3\n"))
+    assert (err.line, err.key) == (6, "outputs.lightmaps.gather_stride") and "power of two" in err.problem
+    err = load_error(write(tmp_path, "scene: scene.usda\noutputs:\n  lightmaps:\n    gather_stride: 4\n"))
+    assert err.key == "outputs.lightmaps" and "final_gather" in err.problem
+    err = load_error(write(tmp_path, "scene: scene.usda\nmethod: hierarchical\noutputs:\n  lightmaps:\n"
+                                     "    mode: final_gather\n    gather_tolerance: 0\n"))
+    assert err.key == "outputs.lightmaps.gather_tolerance"
+    cfg = load_config(write(tmp_path, "scene: scene.usda\nmethod: hierarchical\noutputs:\n  lightmaps:\n"
+                                      "    mode: final_gather\n    gather_stride: 8\n"))
+    assert cfg.outputs.lightmaps.gather_stride == 8 and cfg.outputs.lightmaps.gather_tolerance == 0.05
+
+
 def test_cluster_receivers_need_a_solver_that_gathers_at_clusters(tmp_path: Path) -> None:
     # Gauss-Seidel and Southwell on the hierarchy work face by face; links that end on clusters
     # are solved by Jacobi and the streaming block Southwell only. Southwell is the default.

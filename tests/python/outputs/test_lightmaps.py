@@ -116,6 +116,19 @@ def gathered(scene):
     return bake(cfg), root / "hier"
 
 
+@pytest.fixture(scope="module")
+def strided(scene):
+    """The `gathered` bake with gather_stride 4: the same solve (deterministic), texels
+    interpolated between gathered ones where they agree."""
+    root, path = scene
+    cfg = write_config(root / "strided.yaml", path, root / "strided", method="hierarchical",
+                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 8, "max_rounds": 3},
+                       solver={"method": "jacobi", "tolerance": 1e-3},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {**LIGHTMAPS, "mode": "final_gather", "gather_stride": 4}})
+    return bake(cfg), root / "strided"
+
+
 # ---------------------------------------------------------------------------------------
 # reading the outputs back
 
@@ -340,8 +353,8 @@ def test_texel_centres_match_the_solution(flat):
     assert checked > 3000
 
 
-def test_no_light_leaks_into_the_closed_box(flat, gathered):
-    for result, out in (flat, gathered):
+def test_no_light_leaks_into_the_closed_box(flat, gathered, strided):
+    for result, out in (flat, gathered, strided):
         _, pages = load_pages(out)
         shell = solved_meshes(out)["World_shell"]
         img = pages[shell["texture"]]
@@ -411,6 +424,32 @@ def test_throughput_is_reported(flat, gathered):
         assert all(0 < f <= 1 for f in info["fill"])
         print(f"\n{info['mode']}: {info['texels_per_second']:.0f} texels/s, fill {info['fill']}, "
               f"{info['page_bytes_half_rgb']} bytes, moved samples {info['moved_samples']}")
+
+
+def test_a_strided_gather_matches_the_gather_of_every_texel(gathered, strided):
+    """gather_stride 4 interpolates most texels, and the pages stay those of the full gather:
+    the texels it interpolates lie between gathered ones that agree within gather_tolerance
+    (5 %), so they may differ from their own gather by about that, plus the gather's noise,
+    which both bakes have (another seed per texel)."""
+    info = strided[0].report["outputs"]["lightmap_atlas"]
+    assert info["gather_stride"] == 4 and info["gather_tolerance"] == 0.05
+    assert info["interpolated_texels"] > 0.25 * info["covered_texels"], info
+    assert info["samples"] < 0.75 * gathered[0].report["outputs"]["lightmap_atlas"]["samples"]
+    m_full, p_full = load_pages(gathered[1])
+    m_strided, p_strided = load_pages(strided[1])
+    assert [p["file"] for p in m_full["pages"]] == [p["file"] for p in m_strided["pages"]]
+    rel = []
+    for (a_path, a), b in zip(p_full.items(), p_strided.values()):
+        la, lb = np.asarray(a)[..., :3].mean(axis=2), np.asarray(b)[..., :3].mean(axis=2)
+        lit = la > 0.05 * la.max()
+        rel.append(np.abs(lb[lit] / la[lit] - 1.0))
+    rel = np.concatenate(rel)
+    print(f"\nstrided vs every texel: {len(rel)} lit texels, mean |diff| {rel.mean():.3%}, "
+          f"p95 {np.quantile(rel, 0.95):.3%}, max {rel.max():.3%}; interpolated {info['interpolated_texels']} of "
+          f"{info['covered_texels']}")
+    assert len(rel) > 1000
+    assert rel.mean() < 0.02
+    assert np.mean(rel > 0.10) < 0.01
 
 
 # ---------------------------------------------------------------------------------------

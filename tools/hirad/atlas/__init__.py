@@ -50,10 +50,10 @@ from .charts import _isolated, build_atlas, chart_area_bound, uv_islands
 from .files import (ENCODINGS, decode, decode_rgbm, decode_unity_dldr, decode_unity_rgbm, encode, encode_rgbm,
                     encode_unity_dldr, encode_unity_rgbm, manifest_entry, read_png, read_rgbm_png, write_manifest,
                     write_png, write_rgbm_png)
-from .texels import bake_page, dilate, rasterize, resolve, sample_points, seam_pairs, stitch
+from .texels import bake_page, dilate, evaluate_adaptive, rasterize, resolve, sample_points, seam_pairs, stitch
 
 __all__ = ["Atlas", "Mesh", "MeshLayout", "TexelSamples", "build_atlas", "chart_area_bound", "uv_islands",
            "ENCODINGS", "decode", "decode_rgbm", "decode_unity_dldr", "decode_unity_rgbm", "encode", "encode_rgbm",
            "encode_unity_dldr", "encode_unity_rgbm", "manifest_entry", "read_png", "read_rgbm_png",
            "write_manifest", "write_png", "write_rgbm_png",
-           "bake_page", "dilate", "rasterize", "resolve", "sample_points", "seam_pairs", "stitch"]
+           "bake_page", "dilate", "evaluate_adaptive", "rasterize", "resolve", "sample_points", "seam_pairs", "stitch"]

@@ -394,6 +394,170 @@ def stitch(image: np.ndarray, pairs: np.ndarray, iterations: int = 4) -> np.ndar
 # One call for the bake
 
 
+def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.ndarray,
+                      evaluate: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray], stride: int,
+                      tolerance: float, floor: float = 0.02) -> tuple[np.ndarray, dict]:
+    """Per-sample values of a page from `evaluate(points, normals, texel)` called on fewer texels:
+    the texel lattice is evaluated coarse to fine, and a texel between already evaluated ones is
+    interpolated from them where the light agrees, else evaluated itself.
+
+    The first pass evaluates every texel whose column and row are multiples of `stride` (a power
+    of two), together with every texel that cannot be interpolated: a conservative texel (its
+    one sample is the closest point of a touching triangle, not on the lattice) and a texel
+    whose samples lie on more than one mesh or plane. Then for h = stride/2, ..., 1 each texel
+    at a multiple of h not yet valued has its parents on the 2h lattice: the two texels h
+    away along the row or column (an edge midpoint) or the four diagonal ones (a cell centre).
+    It takes their mean (bilinear interpolation on the lattice) when all of them
+    - exist (covered by the page) and are interpolable texels of the same mesh and normal,
+    - lie where an affine chart puts them: the texel's surface point (the mean of its samples)
+      is their mean point, within 1e-3 of its distance to them (two charts side by side in
+      the page but apart in space fail this, and so does a texel the chart covers only in
+      part, whose samples' mean is off its centre), and
+    - and either agree: per colour channel (the first three values), max - min <= tolerance x
+      max(their mean, floor x the page's mean of the first pass), or vary smoothly: the
+      valued lattice texels on the lines through them (two steps on from each parent, along
+      the row or column; for a cell centre both rows and both columns) give second differences
+      whose linear-interpolation error, |second difference| / 8 per line (the larger of a
+      row's two, a row's plus a column's for a centre), is within the same bound. A gradient
+      is interpolated however steep; a shadow edge between the parents shows as a second
+      difference as large as the edge itself;
+    otherwise it is evaluated. What is missed is light that varies between lattice points by
+    more than the tolerance without showing at them (a shadow narrower than 2 h texels whose
+    ends all fall between them): `stride` bounds that size. Deterministic: the texels each
+    pass evaluates depend only on the page and the values, not on threads.
+
+    Returns ((K, C) values per sample, as `evaluate` on every sample would; an interpolated
+    texel's samples all take its value) and counts of texels: "evaluated", "interpolated", and
+    why texels were evaluated: "lattice" (the first pass), "not_interpolable", "apart" (a parent
+    missing, of another mesh, plane or chart) and "disagree" (the parents' values)."""
+    stride = int(stride)
+    if stride < 1 or stride & (stride - 1):
+        raise ValueError(f"stride must be a power of two, not {stride}")
+    tex = np.asarray(samples.texel, dtype=np.int64)
+    n_tex = len(samples.x)
+    x = np.asarray(samples.x, dtype=np.int64)
+    y = np.asarray(samples.y, dtype=np.int64)
+    count = np.bincount(tex, minlength=n_tex).astype(np.float64)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)  # samples are grouped by texel
+    centre = np.stack([np.bincount(tex, points[:, c], minlength=n_tex) for c in range(3)], 1) / count[:, None]
+    nrm = normals[first]
+    mesh = np.asarray(samples.mesh)[first]
+    same = (np.asarray(samples.mesh) == mesh[tex]) & (np.abs(normals - nrm[tex]).max(axis=1) < 1e-9)
+    interpolable = (np.bincount(tex, (~same).astype(np.float64), minlength=n_tex) == 0) & ~samples.conservative
+    index = np.full((samples.height, samples.width), -1, np.int64)
+    index[y, x] = np.arange(n_tex)
+
+    values = None
+    texel_value = None
+    done = np.zeros(n_tex, bool)
+    own = np.zeros(n_tex, bool)  # evaluated itself (its samples keep their own values)
+    evaluated = 0
+
+    def run(which: np.ndarray) -> None:
+        nonlocal values, texel_value, evaluated
+        if not len(which):
+            return
+        mark = np.zeros(n_tex, bool)
+        mark[which] = True
+        sel = np.nonzero(mark[tex])[0]
+        v = np.asarray(evaluate(np.ascontiguousarray(points[sel]), np.ascontiguousarray(normals[sel]), tex[sel]),
+                       dtype=np.float64)
+        v = v[:, None] if v.ndim == 1 else v
+        if values is None:
+            values = np.zeros((len(tex), v.shape[1]))
+            texel_value = np.zeros((n_tex, v.shape[1]))
+        values[sel] = v
+        for ch in range(v.shape[1]):
+            texel_value[which, ch] = (np.bincount(tex[sel], v[:, ch], minlength=n_tex) / count)[which]
+        done[which] = True
+        own[which] = True
+        evaluated += len(which)
+
+    lattice = (x % stride == 0) & (y % stride == 0)
+    run(np.nonzero(lattice | ~interpolable)[0])
+    why = {"lattice": int(lattice.sum()), "not_interpolable": int((~lattice & ~interpolable).sum()), "apart": 0,
+           "disagree": 0}
+    if values is None:
+        return np.zeros((0, 3)), {"evaluated": 0, "interpolated": 0, **why}
+    scale = floor * np.maximum(texel_value[done, :3].mean(axis=0), 1e-300)
+    interpolated = 0
+
+    def line_curvature(c: np.ndarray, ox: int, oy: int, dx: int, dy: int) -> tuple[np.ndarray, np.ndarray]:
+        """Along the line through texel position (x[c] + ox, y[c] + oy) in direction (dx, dy):
+        the four lattice texels at -3, -1, 1 and 3 steps, whether they are usable (valued,
+        interpolable, the texel's mesh and normal, equally spaced on a straight line in
+        space), and |second difference| / 8 per colour channel, the larger of the two
+        (points 1-3 and 2-4): the error of the linear interpolation at the line's centre for
+        light with that curvature."""
+        k = np.array([-3, -1, 1, 3])
+        px, py = x[c, None] + ox + k * dx, y[c, None] + oy + k * dy
+        inside = (px >= 0) & (px < samples.width) & (py >= 0) & (py < samples.height)
+        q = np.where(inside, index[np.clip(py, 0, samples.height - 1), np.clip(px, 0, samples.width - 1)], -1)
+        usable = (q >= 0).all(axis=1)
+        q = np.where(q >= 0, q, 0)
+        usable &= done[q].all(axis=1) & interpolable[q].all(axis=1)
+        usable &= (mesh[q] == mesh[c, None]).all(axis=1)
+        usable &= (np.abs(nrm[q] - nrm[c, None, :]).max(axis=2) < 1e-9).all(axis=1)
+        pq = centre[q]
+        step = np.linalg.norm(pq[:, 2] - pq[:, 1], axis=1)
+        for a in (0, 1):
+            usable &= np.linalg.norm(pq[:, a] - 2 * pq[:, a + 1] + pq[:, a + 2], axis=1) <= 1e-3 * step
+        v = texel_value[q][:, :, :3]
+        d = np.maximum(np.abs(v[:, 0] - 2 * v[:, 1] + v[:, 2]), np.abs(v[:, 1] - 2 * v[:, 2] + v[:, 3]))
+        return usable, d / 8.0
+
+    h = stride // 2
+    while h >= 1:
+        cand = np.nonzero(~done & (x % h == 0) & (y % h == 0))[0]
+        mx, my = x[cand] % (2 * h) != 0, y[cand] % (2 * h) != 0
+        redo = []
+        for kind, offsets in (((mx & ~my), ((-h, 0), (h, 0))), ((~mx & my), ((0, -h), (0, h))),
+                              ((mx & my), ((-h, -h), (h, -h), (-h, h), (h, h)))):
+            c = cand[kind]
+            if not len(c):
+                continue
+            dx = np.array([o[0] for o in offsets])
+            dy = np.array([o[1] for o in offsets])
+            px, py = x[c, None] + dx, y[c, None] + dy
+            inside = (px >= 0) & (px < samples.width) & (py >= 0) & (py < samples.height)
+            pid = np.where(inside, index[np.clip(py, 0, samples.height - 1), np.clip(px, 0, samples.width - 1)], -1)
+            ok = (pid >= 0).all(axis=1)
+            p = np.where(pid >= 0, pid, 0)
+            ok &= done[p].all(axis=1) & interpolable[p].all(axis=1) & interpolable[c]
+            ok &= (mesh[p] == mesh[c, None]).all(axis=1)
+            ok &= (np.abs(nrm[p] - nrm[c, None, :]).max(axis=2) < 1e-9).all(axis=1)
+            mean_point = centre[p].mean(axis=1)
+            reach = np.linalg.norm(centre[p] - centre[c, None, :], axis=2).mean(axis=1)
+            ok &= np.linalg.norm(centre[c] - mean_point, axis=1) <= 1e-3 * reach
+            why["apart"] += int((~ok).sum())
+            vp = texel_value[p]
+            mean = vp.mean(axis=1)
+            allowed = tolerance * np.maximum(mean[:, :3], scale)
+            spread = vp[:, :, :3].max(axis=1) - vp[:, :, :3].min(axis=1)
+            agree = (spread <= allowed).all(axis=1)
+            if len(offsets) == 2:  # an edge midpoint: the line through its parents
+                usable, err = line_curvature(c, 0, 0, offsets[1][0], offsets[1][1])
+            else:  # a cell centre: the two rows and the two columns through its parents
+                u1, e1 = line_curvature(c, 0, -h, h, 0)
+                u2, e2 = line_curvature(c, 0, h, h, 0)
+                u3, e3 = line_curvature(c, -h, 0, 0, h)
+                u4, e4 = line_curvature(c, h, 0, 0, h)
+                usable, err = u1 & u2 & u3 & u4, np.maximum(e1, e2) + np.maximum(e3, e4)
+            smooth = usable & (err <= allowed).all(axis=1)
+            why["disagree"] += int((ok & ~agree & ~smooth).sum())
+            ok &= agree | smooth
+            take = c[ok]
+            texel_value[take] = mean[ok]
+            done[take] = True
+            interpolated += len(take)
+            redo.append(c[~ok])
+        run(np.concatenate(redo) if redo else np.zeros(0, np.int64))
+        h //= 2
+    taken = ~own[tex]
+    values[taken] = texel_value[tex[taken]]
+    return values, {"evaluated": evaluated, "interpolated": interpolated, **why}
+
+
 def bake_page(atlas: Atlas, page: int,
               evaluate: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
               supersample: int = 2, dilate_texels: int | None = None,

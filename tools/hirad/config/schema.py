@@ -692,6 +692,26 @@ class LightmapOutputConfig(BaseModel):
         " error; 0.02 is about twice as fast as 0 on the Cornell box at the same error (0: every"
         " link at every sample). Directional lightmaps evaluate every link."
     )
+    gather_stride: StrictInt = Field(
+        json_schema_extra={"unit": "texels"},
+        default=1, ge=1, le=16,
+        description=(
+            "final_gather: 1 gathers every texel. A power of two s gathers the texels on every s-th"
+            " row and column first, then each texel between gathered ones is interpolated from"
+            " them where they agree within gather_tolerance (same mesh, plane and chart) and"
+            " gathered itself where not (hirad.atlas.evaluate_adaptive). Light that varies"
+            " within s texels without showing at the lattice is missed: keep s texels below the"
+            " smallest shadow that matters."
+        ),
+    )
+    gather_tolerance: StrictFloat = Field(
+        json_schema_extra={"unit": "fraction"},
+        default=0.05, gt=0.0, le=1.0,
+        description=(
+            "final_gather with gather_stride > 1: gathered texels whose values differ by at most"
+            " this fraction of their mean (per colour channel) are interpolated between."
+        ),
+    )
     gather_second_bounce: StrictFloat = _gather_second_bounce(
         "final_gather: a source element nearer to the sample than this times its diagonal has its"
         " radiosity gathered again where the sample sees it, instead of taken as its one mean"
@@ -760,10 +780,20 @@ class LightmapOutputConfig(BaseModel):
         ),
     )
 
+    @field_validator("gather_stride")
+    @classmethod
+    def _stride_power_of_two(cls, value: int) -> int:
+        if value & (value - 1):
+            raise ValueError(f"must be a power of two (1, 2, 4, 8 or 16), got {value}")
+        return value
+
     @model_validator(mode="after")
     def _directional_needs_the_gather(self) -> "LightmapOutputConfig":
         if self.directional and self.mode != "final_gather":
             raise ValueError("directional: true needs mode: final_gather (the directions come from the gather)")
+        if self.gather_stride > 1 and self.mode != "final_gather":
+            raise ValueError(f"gather_stride: {self.gather_stride} needs mode: final_gather (the interpolate mode "
+                             "reads every texel from the solution's vertices anyway)")
         return self
 
 

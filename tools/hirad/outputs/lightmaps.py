@@ -98,17 +98,23 @@ def _visible_mean(values: np.ndarray, moved: np.ndarray, texel: np.ndarray) -> n
     return out
 
 
-def _bake_page(atlas, page: int, evaluate, supersample: int):
+def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int = 1, tolerance: float = 0.05):
     """hirad.atlas.bake_page, with each sample's texel passed to `evaluate` (for _lift):
-    rasterize -> evaluate -> resolve -> stitch seams -> dilate into the padding."""
+    rasterize -> evaluate (every texel, or coarse to fine with interpolation between texels
+    that agree: stride > 1, hirad.atlas.evaluate_adaptive) -> resolve -> stitch seams ->
+    dilate into the padding. Returns (image, mask, evaluate_adaptive's counts or {})."""
     from .. import atlas as A
 
     samples = A.rasterize(atlas, page, supersample)
     points, normals = A.sample_points(samples, atlas.geometry)
-    values = np.asarray(evaluate(points, normals, samples.texel))
+    counts = {}
+    if stride > 1:
+        values, counts = A.evaluate_adaptive(samples, points, normals, evaluate, stride, tolerance)
+    else:
+        values = np.asarray(evaluate(points, normals, samples.texel))
     image, mask = A.resolve(samples, values)
     image = A.stitch(image, A.seam_pairs(atlas, page))
-    return A.dilate(image, mask, max(int(atlas.padding), 1)), mask
+    return A.dilate(image, mask, max(int(atlas.padding), 1)), mask, counts
 
 
 def _source_triangles(scene) -> dict:
@@ -275,8 +281,9 @@ class LightmapPages:
     page_images: list             # (h, w, 3) float32 per page, for the per-mesh crops
     page_extra: list              # per page, its manifest fields beyond the file and size
     covered: int                  # texels covered on all pages
-    samples: int
+    samples: int                  # samples evaluated (gathered or probed)
     moved: int                    # samples lifted out of geometry
+    adaptive: dict                # gather_stride > 1: texels interpolated, and why others were gathered
     units: str
     fingerprint: str
     warnings: list
@@ -424,6 +431,7 @@ def bake_lightmaps(cfg, scene, patches, staging: Path, *, tracer, gather=None, f
 
     evaluate.moved = 0
     evaluate.samples = 0
+    evaluate.texels = {}
 
     lightmap_units = lightmap_units_label(cfg.units)
     meta_base = [("hirad:units", lightmap_units), ("hirad:version", __version__),
@@ -432,7 +440,10 @@ def bake_lightmaps(cfg, scene, patches, staging: Path, *, tracer, gather=None, f
     page_files, page_images, covered, page_extra = [], [], 0, []
     encodings = list(dict.fromkeys((["hirad-rgbm"] if lm.rgbm else []) + list(lm.encodings)))
     for page in range(len(atlas.page_sizes)):
-        baked, mask = _bake_page(atlas, page, evaluate, lm.supersample)
+        stride = lm.gather_stride if mode == "final_gather" else 1
+        baked, mask, counts = _bake_page(atlas, page, evaluate, lm.supersample, stride, lm.gather_tolerance)
+        for k, v in counts.items():
+            evaluate.texels[k] = evaluate.texels.get(k, 0) + v
         image = np.ascontiguousarray(baked[..., :3], dtype=np.float32)
         rel = f"pages/page{page}.exr"
         _engine.write_exr(str(lm_dir / rel), image, meta_base + [("hirad:page", str(page))])
@@ -453,7 +464,7 @@ def bake_lightmaps(cfg, scene, patches, staging: Path, *, tracer, gather=None, f
     return LightmapPages(atlas=atlas, mesh_index=mesh_index, source_lightmap=source_lightmap, fan=fan, tri_uv=tri_uv,
                          density=density, mode=mode, meta_base=meta_base, encodings=encodings,
                          page_files=page_files, page_images=page_images, page_extra=page_extra, covered=covered,
-                         samples=evaluate.samples, moved=evaluate.moved, units=lightmap_units,
+                         samples=evaluate.samples, moved=evaluate.moved, adaptive=evaluate.texels, units=lightmap_units,
                          fingerprint=fingerprint, warnings=rep_warnings, seconds=time.perf_counter() - t_start)
 
 
@@ -533,6 +544,11 @@ def attach_lightmaps(pages: LightmapPages, cfg, scene, patches, display, meshes,
         "covered_texels": pages.covered,
         "samples": pages.samples,
         "moved_samples": pages.moved,
+        "interpolated_texels": pages.adaptive.get("interpolated", 0),
+        **({"gather_stride": lm.gather_stride, "gather_tolerance": lm.gather_tolerance,
+            "gathered_texels": {k: pages.adaptive.get(k, 0) for k in ("lattice", "not_interpolable", "apart",
+                                                                      "disagree")}}
+           if pages.mode == "final_gather" and lm.gather_stride > 1 else {}),
         "page_bytes_half_rgb": texels * 6,
         "seconds": round(elapsed, 4),
         "texels_per_second": round(pages.covered / elapsed, 1) if elapsed > 0 else None,
