@@ -444,12 +444,15 @@ def hirad_bake(scene: Path, density: float, work: Path, args) -> tuple[dict, Pat
     cfg = {"scene": str(scene), "output": str(out), "method": "hierarchical",
            "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": args.link_samples,
                          "max_rounds": args.max_rounds,
-                         **({} if args.spread is None else {"spread_epsilon": args.spread})},
+                         **({} if args.spread is None else {"spread_epsilon": args.spread}),
+                         **({"cluster_receivers": True} if args.cluster_receivers else {})},
            "solver": {"method": "jacobi", "tolerance": 1e-4},
            "outputs": {"usd": True,
                        "lightmaps": {"enabled": True, "texels_per_metre": density, "padding": 2, "max_size": 4096,
                                      "supersample": args.supersample, "mode": args.mode,
-                                     **({"gather_stride": args.gather_stride, "gather_tolerance": args.gather_tolerance}
+                                     **({"gather_stride": args.gather_stride, "gather_tolerance": args.gather_tolerance,
+                                         **({} if args.gather_second_bounce is None else
+                                            {"gather_second_bounce": args.gather_second_bounce})}
                                         if args.mode == "final_gather" else {})},
                        "preview": {"enabled": False}, "report": True}}
     path = work / "hirad.yaml"
@@ -734,6 +737,9 @@ def main() -> None:
     ap.add_argument("--gather-stride", type=int, default=1,
                     help="outputs.lightmaps.gather_stride (final_gather: 1 gathers every texel)")
     ap.add_argument("--gather-tolerance", type=float, default=0.05, help="outputs.lightmaps.gather_tolerance")
+    ap.add_argument("--gather-second-bounce", type=float, default=None,
+                    help="outputs.lightmaps.gather_second_bounce (default: the config's, 1; 0: off)")
+    ap.add_argument("--cluster-receivers", action="store_true", help="hierarchy.cluster_receivers: true")
     ap.add_argument("--link-samples", type=int, default=16, help="hierarchy.samples")
     ap.add_argument("--max-rounds", type=int, default=6, help="hierarchy.max_rounds")
     ap.add_argument("--calibrate", action="store_true", help="only Blender's unit checks")
@@ -756,7 +762,9 @@ def main() -> None:
     if args.calibrate:
         return
     scene_path = args.scene.resolve()
-    print(f"scene {scene_path}, {args.density:g} texels/m, hirad lightmaps.mode {args.mode} (gather_stride {args.gather_stride}, tolerance {args.gather_tolerance:g}), hierarchy epsilon "
+    print(f"scene {scene_path}, {args.density:g} texels/m, hirad lightmaps.mode {args.mode} (gather_stride {args.gather_stride}, tolerance {args.gather_tolerance:g}, second bounce "
+          f"{'default' if args.gather_second_bounce is None else args.gather_second_bounce}), hierarchy "
+          f"{'cluster_receivers, ' if args.cluster_receivers else ''}epsilon "
           f"{args.epsilon:g}, min_area {args.min_area:g}; work files in {work}")
 
     from hirad import _engine, usd
@@ -869,7 +877,7 @@ def main() -> None:
               f"EXTRAPOLATED from {last['samples']} spp as 1/sqrt(samples): {extrapolated:.0f} s; hirad "
               f"{run_h['wall_s']:.1f} s: ratio {extrapolated / run_h['wall_s']:.1f}x (an estimate)")
     figures = {"machine": state, "end_load": os.getloadavg(), "calibration": cal, "scene": str(scene_path),
-               "density": args.density, "mode": args.mode, "gather_stride": args.gather_stride, "gather_tolerance": args.gather_tolerance, "epsilon": args.epsilon, "min_area": args.min_area, "pages": [{k: pg[k] for k in ("width", "height", "fill")} for pg in pages],
+               "density": args.density, "mode": args.mode, "gather_stride": args.gather_stride, "gather_tolerance": args.gather_tolerance, "gather_second_bounce": args.gather_second_bounce, "cluster_receivers": args.cluster_receivers, "epsilon": args.epsilon, "min_area": args.min_area, "pages": [{k: pg[k] for k in ("width", "height", "fill")} for pg in pages],
                "covered_texels": texels, "points": len(keep), "points_unbaked_left_out": int(unbaked.sum()), "ref_paths": args.ref_paths, "select_paths": args.select_paths, "selection_run": run_s,
                "ref_mean_rse": float(np.mean(rse_k)), "hirad": {**run_h, **s_h}, "reference_run": run_r,
                "blender": {"process": run_b, "build_s": bj["build_s"], "rows": rows, "bounces": args.bounces,

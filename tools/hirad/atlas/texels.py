@@ -444,8 +444,19 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
     mesh = np.asarray(samples.mesh)[first]
     same = (np.asarray(samples.mesh) == mesh[tex]) & (np.abs(normals - nrm[tex]).max(axis=1) < 1e-9)
     interpolable = (np.bincount(tex, (~same).astype(np.float64), minlength=n_tex) == 0) & ~samples.conservative
-    index = np.full((samples.height, samples.width), -1, np.int64)
-    index[y, x] = np.arange(n_tex)
+    # texel lookup by position, sorted keys rather than an (H, W) array (a 4096 page's would be
+    # 128 MB)
+    key = y * samples.width + x
+    by_key = np.argsort(key, kind="stable")
+    sorted_key = key[by_key]
+
+    def texel_at(px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """The texel at each page position (column px, row py from the top), -1 where the
+        position is off the page or no texel is covered there."""
+        inside = (px >= 0) & (px < samples.width) & (py >= 0) & (py < samples.height)
+        k = np.where(inside, py * samples.width + px, -1)
+        pos = np.minimum(np.searchsorted(sorted_key, k), max(n_tex - 1, 0))
+        return np.where(inside & (sorted_key[pos] == k), by_key[pos], -1)
 
     values = None
     texel_value = None
@@ -490,9 +501,7 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
         (points 1-3 and 2-4): the error of the linear interpolation at the line's centre for
         light with that curvature."""
         k = np.array([-3, -1, 1, 3])
-        px, py = x[c, None] + ox + k * dx, y[c, None] + oy + k * dy
-        inside = (px >= 0) & (px < samples.width) & (py >= 0) & (py < samples.height)
-        q = np.where(inside, index[np.clip(py, 0, samples.height - 1), np.clip(px, 0, samples.width - 1)], -1)
+        q = texel_at(x[c, None] + ox + k * dx, y[c, None] + oy + k * dy)
         usable = (q >= 0).all(axis=1)
         q = np.where(q >= 0, q, 0)
         usable &= done[q].all(axis=1) & interpolable[q].all(axis=1)
@@ -518,9 +527,7 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
                 continue
             dx = np.array([o[0] for o in offsets])
             dy = np.array([o[1] for o in offsets])
-            px, py = x[c, None] + dx, y[c, None] + dy
-            inside = (px >= 0) & (px < samples.width) & (py >= 0) & (py < samples.height)
-            pid = np.where(inside, index[np.clip(py, 0, samples.height - 1), np.clip(px, 0, samples.width - 1)], -1)
+            pid = texel_at(x[c, None] + dx, y[c, None] + dy)
             ok = (pid >= 0).all(axis=1)
             p = np.where(pid >= 0, pid, 0)
             ok &= done[p].all(axis=1) & interpolable[p].all(axis=1) & interpolable[c]
