@@ -530,14 +530,19 @@ def test_each_polygon_is_one_piece_of_its_chart(baked):
     assert worst < 1e-3, f"a polygon's corners leave its first triangle's chart by {worst:.3g} texels"
 
 
-def test_directional_maps_decode_to_the_gathered_light(tmp_path):
+@pytest.mark.parametrize("stride", [1, 4])
+def test_directional_maps_decode_to_the_gathered_light(tmp_path, stride):
     """directional: true. At chart-centre texels of the floor and the box, each engine's own decode
     (hirad.outputs.directional: Godot's packed L1 shader, Unity's DecodeDirectionalLightmap) for
     normals tilted 35 degrees four ways gives the light a fresh directional gather at that point
     predicts for the tilted normal (E1(n') = l0/4 + n'.l1/2, within 2 % of the light at the
     texel's own normal); Unity's decode at the
     texel's own normal is the plain lightmap (within 8-bit rounding); and on the floor under the
-    lamp the dominant direction points at the lamp."""
+    lamp the dominant direction points at the lamp. With gather_stride 4 the texels interpolated
+    between gathered ones carry all 18 channels' means (E, l0, l1 and the normal alike), so the
+    decodes still hold at every texel; the chart-centre texels here stay within the same 2 %
+    (a texel may differ from its own gather by up to the tolerance, 5 %, where the light bends
+    between lattice points; measured 1.3 % at most)."""
     from PIL import Image
 
     from hirad.outputs import directional as D
@@ -549,8 +554,11 @@ def test_directional_maps_decode_to_the_gathered_light(tmp_path):
                        solver={"method": "jacobi", "tolerance": 1e-4},
                        outputs={"preview": {"enabled": False},
                                 "lightmaps": {"texels_per_metre": TPM, "padding": 2, "max_size": 512,
-                                              "mode": "final_gather", "gather_rays": 16, "directional": True}})
+                                              "mode": "final_gather", "gather_rays": 16, "directional": True,
+                                              "gather_stride": stride}})
     result = bake(cfg, keep_hierarchy=True)  # (result.gather)
+    if stride > 1:
+        assert result.report["outputs"]["lightmap_atlas"]["interpolated_texels"] > 0
     out = tmp_path / "out"
     manifest = json.loads((out / "lightmaps" / "manifest.json").read_text())
     godot_m, unity_m = engine_frame("Y", "godot"), engine_frame("Y", "unity")
@@ -607,6 +615,7 @@ def test_directional_maps_decode_to_the_gathered_light(tmp_path):
                         cosang = v @ to_lamp / np.linalg.norm(v) / np.linalg.norm(to_lamp)
                         angles.append(math.degrees(math.acos(min(1.0, cosang))))
                         break
+    print(f"\nstride {stride}: {len(errors)} tilted decodes, p95 {np.quantile(errors, 0.95):.4f}, max {max(errors):.4f}")
     assert len(errors) >= 40 and len(angles) >= 2
     assert max(errors) < 0.02, f"Godot decode vs gather: max {max(errors):.4f}"
     assert max(own) < 0.01, f"Unity decode at the normal vs the lightmap: max {max(own):.4f}"
