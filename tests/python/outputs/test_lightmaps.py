@@ -452,6 +452,26 @@ def test_a_strided_gather_matches_the_gather_of_every_texel(gathered, strided):
     assert np.mean(rel > 0.10) < 0.01
 
 
+def test_a_strided_gather_is_the_same_bits_on_one_thread(scene, strided):
+    """Which texels a strided gather interpolates depends on the gathered values alone, and
+    those do not depend on the threads: one thread writes the same pages, byte for byte."""
+    root, path = scene
+    cfg = write_config(root / "strided1.yaml", path, root / "strided1", method="hierarchical",
+                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 8, "max_rounds": 3},
+                       solver={"method": "jacobi", "tolerance": 1e-3},
+                       outputs={"preview": {"enabled": False},
+                                "lightmaps": {**LIGHTMAPS, "mode": "final_gather", "gather_stride": 4}})
+    one = bake(cfg, threads=1)
+    assert one.report["threads"] == 1
+    a = sorted((strided[1] / "lightmaps" / "pages").glob("*.exr"))
+    b = sorted((root / "strided1" / "lightmaps" / "pages").glob("*.exr"))
+    assert a and [p.name for p in a] == [p.name for p in b]
+    for pa, pb in zip(a, b):
+        assert pa.read_bytes() == pb.read_bytes(), pa.name
+    assert one.report["outputs"]["lightmap_atlas"]["gathered_texels"] == \
+        strided[0].report["outputs"]["lightmap_atlas"]["gathered_texels"]
+
+
 # ---------------------------------------------------------------------------------------
 # a room standing on the ground: walls and roof one texel thick, the ground running under
 # the walls into the room (the common cause of leaks: floor texels that reach under a wall)

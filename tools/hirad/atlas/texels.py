@@ -412,14 +412,14 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
     - lie where an affine chart puts them: the texel's surface point (the mean of its samples)
       is their mean point, within 1e-3 of its distance to them (two charts side by side in
       the page but apart in space fail this, and so does a texel the chart covers only in
-      part, whose samples' mean is off its centre), and
+      part, whose samples' mean is off its centre),
     - and either agree: per colour channel (the first three values), max - min <= tolerance x
       max(their mean, floor x the page's mean of the first pass), or vary smoothly: the
       valued lattice texels on the lines through them (two steps on from each parent, along
       the row or column; for a cell centre both rows and both columns) give second differences
       whose linear-interpolation error, |second difference| / 8 per line (the larger of a
       row's two, a row's plus a column's for a centre), is within the same bound. A gradient
-      is interpolated however steep; a shadow edge between the parents shows as a second
+        is interpolated however steep; a shadow edge between the parents shows as a second
       difference as large as the edge itself;
     otherwise it is evaluated. What is missed is light that varies between lattice points by
     more than the tolerance without showing at them (a shadow narrower than 2 h texels whose
