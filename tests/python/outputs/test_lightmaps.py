@@ -116,17 +116,21 @@ def gathered(scene):
     return bake(cfg), root / "hier"
 
 
+def strided_config(scene, name: str):
+    """The `gathered` bake's config with gather_stride 4, writing into root / name."""
+    root, path = scene
+    return write_config(root / f"{name}.yaml", path, root / name, method="hierarchical",
+                        hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 8, "max_rounds": 3},
+                        solver={"method": "jacobi", "tolerance": 1e-3},
+                        outputs={"preview": {"enabled": False},
+                                 "lightmaps": {**LIGHTMAPS, "mode": "final_gather", "gather_stride": 4}})
+
+
 @pytest.fixture(scope="module")
 def strided(scene):
     """The `gathered` bake with gather_stride 4: the same solve (deterministic), texels
     interpolated between gathered ones where they agree."""
-    root, path = scene
-    cfg = write_config(root / "strided.yaml", path, root / "strided", method="hierarchical",
-                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 8, "max_rounds": 3},
-                       solver={"method": "jacobi", "tolerance": 1e-3},
-                       outputs={"preview": {"enabled": False},
-                                "lightmaps": {**LIGHTMAPS, "mode": "final_gather", "gather_stride": 4}})
-    return bake(cfg), root / "strided"
+    return bake(strided_config(scene, "strided")), scene[0] / "strided"
 
 
 # ---------------------------------------------------------------------------------------
@@ -455,13 +459,8 @@ def test_a_strided_gather_matches_the_gather_of_every_texel(gathered, strided):
 def test_a_strided_gather_is_the_same_bits_on_one_thread(scene, strided):
     """Which texels a strided gather interpolates depends on the gathered values alone, and
     those do not depend on the threads: one thread writes the same pages, byte for byte."""
-    root, path = scene
-    cfg = write_config(root / "strided1.yaml", path, root / "strided1", method="hierarchical",
-                       hierarchy={"epsilon": 1e-3, "min_area": 0.01, "samples": 8, "max_rounds": 3},
-                       solver={"method": "jacobi", "tolerance": 1e-3},
-                       outputs={"preview": {"enabled": False},
-                                "lightmaps": {**LIGHTMAPS, "mode": "final_gather", "gather_stride": 4}})
-    one = bake(cfg, threads=1)
+    root = scene[0]
+    one = bake(strided_config(scene, "strided1"), threads=1)
     assert one.report["threads"] == 1
     a = sorted((strided[1] / "lightmaps" / "pages").glob("*.exr"))
     b = sorted((root / "strided1" / "lightmaps" / "pages").glob("*.exr"))

@@ -493,6 +493,15 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
     scale = floor * np.maximum(texel_value[done, :3].mean(axis=0), 1e-300)
     interpolated = 0
 
+    def same_surface(q: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Per row of texels q (-1: none), whether every one is valued, interpolable and of the
+        mesh and normal of texel c."""
+        ok = (q >= 0).all(axis=1)
+        q = np.where(q >= 0, q, 0)
+        ok &= done[q].all(axis=1) & interpolable[q].all(axis=1)
+        ok &= (mesh[q] == mesh[c, None]).all(axis=1)
+        return ok & (np.abs(nrm[q] - nrm[c, None, :]).max(axis=2) < 1e-9).all(axis=1)
+
     def line_curvature(c: np.ndarray, ox: int, oy: int, dx: int, dy: int) -> tuple[np.ndarray, np.ndarray]:
         """Along the line through texel position (x[c] + ox, y[c] + oy) in direction (dx, dy):
         the four lattice texels at -3, -1, 1 and 3 steps, whether they are usable (valued,
@@ -502,11 +511,8 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
         light with that curvature."""
         k = np.array([-3, -1, 1, 3])
         q = texel_at(x[c, None] + ox + k * dx, y[c, None] + oy + k * dy)
-        usable = (q >= 0).all(axis=1)
+        usable = same_surface(q, c)
         q = np.where(q >= 0, q, 0)
-        usable &= done[q].all(axis=1) & interpolable[q].all(axis=1)
-        usable &= (mesh[q] == mesh[c, None]).all(axis=1)
-        usable &= (np.abs(nrm[q] - nrm[c, None, :]).max(axis=2) < 1e-9).all(axis=1)
         pq = centre[q]
         step = np.linalg.norm(pq[:, 2] - pq[:, 1], axis=1)
         for a in (0, 1):
@@ -528,11 +534,8 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
             dx = np.array([o[0] for o in offsets])
             dy = np.array([o[1] for o in offsets])
             pid = texel_at(x[c, None] + dx, y[c, None] + dy)
-            ok = (pid >= 0).all(axis=1)
+            ok = same_surface(pid, c) & interpolable[c]
             p = np.where(pid >= 0, pid, 0)
-            ok &= done[p].all(axis=1) & interpolable[p].all(axis=1) & interpolable[c]
-            ok &= (mesh[p] == mesh[c, None]).all(axis=1)
-            ok &= (np.abs(nrm[p] - nrm[c, None, :]).max(axis=2) < 1e-9).all(axis=1)
             mean_point = centre[p].mean(axis=1)
             reach = np.linalg.norm(centre[p] - centre[c, None, :], axis=2).mean(axis=1)
             ok &= np.linalg.norm(centre[c] - mean_point, axis=1) <= 1e-3 * reach
