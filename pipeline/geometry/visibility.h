@@ -55,7 +55,7 @@ public:
     Visibility& operator=(const Visibility&) = delete;
 
     // visible[k] = 1 when the open segment from[k] -> to[k] hits nothing. Rays are traced in
-    // packets of 16 (rtcOccluded16). The ends are expected to be lifted off their surfaces
+    // packets of 16 (rtcOccluded16), a last batch of fewer than 9 one by one. The ends are expected to be lifted off their surfaces
     // already; the last `end_gap` fraction of each segment is not tested.
     void segments_visible(const Vec3* from, const Vec3* to, size_t count, uint8_t* visible,
                           double end_gap = 1e-4) const;

@@ -460,7 +460,7 @@ def _one_block(i, p, t, existing_uvs, names, texels_per_metre, padding, limit, e
 # triangles still killed the first after 315 s.
 _ATTEMPT_SECONDS = (30.0, 120.0, 600.0, None)
 # Atlases of at least this many triangles are charted by one child per core (_mesh_blocks).
-_PARALLEL_TRIANGLES = 50_000
+_PARALLEL_TRIANGLES = 10_000
 _ATTEMPT_TRIANGLES = 20_000
 
 
