@@ -398,6 +398,30 @@ def test_texture_srgb_decoding(tmp_path):
     np.testing.assert_allclose(lin, 128 / 255, atol=1e-6)
 
 
+@pytest.mark.parametrize("mode", ["L", "LA", "RGB", "RGBA"])
+def test_texture_mean_of_every_8_bit_layout(tmp_path, mode):
+    """An 8-bit texture's mean colour (read from each channel's histogram) is the mean of its
+    texels decoded one by one (IEC 61966-2-1's sRGB curve), alpha undecoded; grey layouts give
+    the grey in all three channels."""
+    Image = pytest.importorskip("PIL.Image")
+    from hirad.usd.materials import _MaterialResolver
+
+    rng = np.random.default_rng(7)
+    channels = len(mode)
+    texels = rng.integers(0, 256, size=(37, 53, channels), dtype=np.uint8)
+    Image.fromarray(texels[:, :, 0] if channels == 1 else texels, mode).save(tmp_path / "t.png")
+    c = texels.astype(np.float64) / 255.0
+    decoded = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    colour = [0, 0, 0] if channels <= 2 else [0, 1, 2]
+    alpha = c[:, :, channels - 1].mean() if channels in (2, 4) else 1.0
+    resolver = object.__new__(_MaterialResolver)
+    resolver._tex_cache = {}
+    for space, values in (("sRGB", decoded), ("raw", c)):
+        got = resolver._texture_mean(str(tmp_path / "t.png"), space)
+        np.testing.assert_allclose(got, [*values[:, :, colour].reshape(-1, 3).mean(axis=0), alpha], rtol=1e-12,
+                                   atol=1e-15)
+
+
 def test_uv_primvars(tmp_path):
     stage, path = new_stage(tmp_path)
     a = add_quad(stage, "/a")

@@ -259,6 +259,24 @@ class _MaterialResolver:
                 arr = np.asarray(img)
             linearise = colorspace == "sRGB" or (colorspace == "auto" and eight_bit)
             if arr.dtype == np.uint8:
+                # 8 bits: the mean from each channel's histogram of its 256 values, each value
+                # decoded once (the Modern Hall's three textures: 0.76 -> 0.1 s)
+                plane = arr[:, :, None] if arr.ndim == 2 else arr
+                ch = plane.shape[2]
+                level = np.arange(256, dtype=np.float64) / 255.0
+                decoded = _srgb_to_linear(level) if linearise else level
+                count = float(plane.shape[0] * plane.shape[1])
+
+                def channel_mean(c: int, values: np.ndarray) -> float:
+                    return float(np.bincount(plane[:, :, c].reshape(-1), minlength=256) @ values / count)
+
+                colour = [0, 0, 0] if ch <= 2 else [0, 1, 2]
+                mean_rgb = np.array([channel_mean(c, decoded) for c in colour])
+                mean_a = channel_mean(ch - 1, level) if ch in (2, 4) else 1.0
+                result = np.array([*mean_rgb, mean_a], dtype=np.float64)
+                self._tex_cache[key] = result
+                return result
+            if arr.dtype == np.uint8:
                 data = arr.astype(np.float64) / 255.0
             elif arr.dtype == np.uint16 or img.mode.startswith("I;16"):
                 data = arr.astype(np.float64) / 65535.0
