@@ -82,6 +82,11 @@ value moved within sampling noise. In the same stop the final gather began to ta
 of a reflecting (not self-emitting) source far from the point compared with its size by Gauss
 quadrature of the kernel (within about 1e-3 of the contour sum, formfactors.h): of the golden
 values only cornell_hierarchical.yaml's final-gather lightmap pages (its EXR section) moved.
+It was written again for all three configs' EXR sections (stop 40, issue 14) when the lightmaps
+stopped stitching chart borders across creases (hirad.atlas.seam_pairs: only where the two
+triangles' normals are within reconstruction.crease_angle): only the texels along the blocks'
+edges moved (the two blocks' per-mesh crops and page 0); USD, volume and report values held,
+and the report section gained stop 39's count lightmap_atlas.interpolated_texels (0 at stride 1).
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 

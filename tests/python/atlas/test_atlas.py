@@ -526,11 +526,14 @@ def smooth(points):
 
 
 def test_seam_stitching_on_a_cube():
+    """The stitching itself, on every chart border (crease_angle 180: the cube's edges are all
+    creases, which the default leaves alone, test below), with a field smooth in 3D."""
     atlas = A.build_atlas([unit_cube()], T, 2, 256)
     samples = A.rasterize(atlas, 0, 4)
     pts, _ = A.sample_points(samples, atlas.geometry)
     image, mask = A.resolve(samples, smooth(pts))
-    pairs = A.seam_pairs(atlas, 0)
+    assert len(A.seam_pairs(atlas, 0)) == 0  # 90 degrees: creases, not seams of a smooth surface
+    pairs = A.seam_pairs(atlas, 0, crease_angle=180.0)
     # charts joining the 6 faces can keep at most 5 of the 12 edges uncut (a tree), so at
     # least 7 edges are seams; each is 32 texels long, a pair per texel (ends may be shared)
     assert len(pairs) >= 7 * 31
@@ -557,6 +560,50 @@ def test_seam_stitching_on_a_cube():
     assert (stitched[~mask] == 0).all()
     # a single flat chart has no seams
     assert len(A.seam_pairs(A.build_atlas([quad()], T, 2, 256), 0)) == 0
+
+
+def folded_strip(bend: float):
+    """Two 1 m squares sharing the edge x = 0 (z from 0 to 1): a floor facing +y at x in [0, 1],
+    and a face bent `bend` degrees up from the floor's plane on the other side (90: a wall
+    facing +x), each its own island of authored lightmap UVs, so the shared edge is a seam."""
+    c, s_ = math.cos(math.radians(bend)), math.sin(math.radians(bend))
+    p = np.array([[0, 0, 0], [0, 0, 1], [1, 0, 0], [1, 0, 1], [-c, s_, 0], [-c, s_, 1]], float)
+    f = np.array([[0, 1, 3], [0, 3, 2], [0, 4, 5], [0, 5, 1]])
+    uv = np.array([[[0.05, 0.05], [0.45, 0.05], [0.45, 0.45]], [[0.05, 0.05], [0.45, 0.45], [0.05, 0.45]],
+                   [[0.55, 0.05], [0.95, 0.05], [0.95, 0.45]], [[0.55, 0.05], [0.95, 0.45], [0.55, 0.45]]])
+    return (p, f), uv
+
+
+@pytest.mark.parametrize("bend", [10.0, 90.0])
+def test_seams_are_stitched_only_where_the_surface_is_smooth(bend):
+    """Across a crease the light itself changes (a floor and the wall on it see different
+    hemispheres): texels there keep their own surface's value. Across a shallow fold (within
+    crease_angle, 30 degrees by default, the display mesh's rule) the seam is stitched."""
+    mesh, uv = folded_strip(bend)
+    normals = np.cross(mesh[0][mesh[1][:, 1]] - mesh[0][mesh[1][:, 0]], mesh[0][mesh[1][:, 2]] - mesh[0][mesh[1][:, 0]])
+    np.testing.assert_allclose(normals[0] / np.linalg.norm(normals[0]), [0, 1, 0], atol=1e-12)
+    atlas = A.build_atlas([mesh], T, 2, 256, existing_uvs=[uv])
+    every = A.seam_pairs(atlas, 0, crease_angle=180.0)
+    assert len(every) >= 0.8 * T  # the shared 1 m edge
+    default = A.seam_pairs(atlas, 0)
+    if bend < 30:
+        np.testing.assert_array_equal(default, every)
+    else:
+        assert len(default) == 0
+
+    def own_light(points, normals, mesh, triangle):  # floor 1, the other face 0.2, uniform on each
+        return np.repeat(np.where(normals[:, 1:2] > 0.99, 1.0, 0.2), 3, axis=1)
+
+    floor, other = np.float32(1.0), np.float32(0.2)
+    image, mask = A.bake_page(atlas, 0, own_light)
+    values = image[mask][:, 0]
+    mixed = ~np.isin(values, [floor, other])
+    if bend < 30:
+        assert mixed.sum() >= 0.8 * T  # the seam's texels on both sides moved to their average
+    else:
+        assert not mixed.any()  # every texel its own face's light
+        stitched, _ = A.bake_page(atlas, 0, own_light, crease_angle=180.0)
+        assert (~np.isin(stitched[mask][:, 0], [floor, other])).sum() >= 0.8 * T  # (what the default avoids)
 
 
 def test_bake_page_degenerate_triangles_and_fallbacks():

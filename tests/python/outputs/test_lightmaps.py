@@ -373,7 +373,15 @@ def test_no_light_leaks_into_the_closed_box(flat, gathered, strided):
         assert float(dark.max()) <= 1e-3 * lit, (out.name, float(dark.max()), lit)
 
 
+def face_normal(corners: np.ndarray) -> np.ndarray:
+    """Newell's normal of a polygon, unit length."""
+    n = np.cross(corners, np.roll(corners, -1, axis=0)).sum(axis=0)
+    return n / np.linalg.norm(n)
+
+
 def test_seams_are_continuous(flat):
+    """Across UV seams of a smooth surface (the cylinder's 15-degree facets, normals within the
+    default crease_angle of 30 degrees) both sides read the same light within 2 %."""
     _, out = flat
     _, pages = load_pages(out)
     worst, pairs = 0.0, 0
@@ -396,6 +404,8 @@ def test_seams_are_continuous(flat):
             if np.abs(a0 - b0).max() < 1e-6 and np.abs(a1 - b1).max() < 1e-6:
                 continue  # not a seam
             na, nb = mesh["faces"][fa], mesh["faces"][fb]
+            if np.dot(face_normal(mesh["points"][na]), face_normal(mesh["points"][nb])) < math.cos(math.radians(30)):
+                continue  # a crease (the shell's edges): each side keeps its own light, not a seam to hide
             ca, cb = mesh["uv"][fa].mean(axis=0), mesh["uv"][fb].mean(axis=0)
             n_t = int(np.ceil(max(np.linalg.norm((a1 - a0) * [w, h]), 1.0))) * 2
             for t in (np.arange(n_t) + 0.5) / n_t:

@@ -231,36 +231,12 @@ def test_texels_at_chart_centres_match_the_final_gather(baked):
     assert rel_errors.max() < 0.02, f"texel vs gather: max {rel_errors.max():.4f}, mean {rel_errors.mean():.4f}"
 
 
-def test_seams_agree_and_no_texel_is_black(baked):
-    """Where two charts meet along one 3D edge, both sides read the same light (< 2 %), and no
-    texel anywhere on a page is black (the page is dilated outward over all its empty texels)."""
+def test_no_texel_is_black(baked):
+    """No texel anywhere on a page is black: the page is dilated outward over all its empty
+    texels. (The box's chart borders are all creases, where each side keeps its own light:
+    seams are stitched only on smooth surfaces, tested on the cylinder of test_lightmaps.py and
+    the folds of test_atlas.py.)"""
     root, scene, before, result, out = baked
-    orig = _originals(out)
-    lum = np.array([0.2126, 0.7152, 0.0722])
-    diffs = []
-    for name in ("box",):
-        e = orig[name]
-        page = _read_exr(out / e["file"].path)
-        counts, idx = e["counts"], e["indices"]
-        uv = e["st1"] * e["so"][:2] + e["so"][2:]
-        edges: dict = {}
-        s = 0
-        for c in counts:
-            for k in range(c):
-                i, j = idx[s + k], idx[s + (k + 1) % c]
-                key = (min(i, j), max(i, j))
-                ui, uj = uv[s + k], uv[s + (k + 1) % c]
-                edges.setdefault(key, []).append((ui, uj) if i < j else (uj, ui))
-            s += c
-        for key, sides in edges.items():
-            if len(sides) != 2 or np.allclose(sides[0][0], sides[1][0]) and np.allclose(sides[0][1], sides[1][1]):
-                continue
-            t = np.linspace(0.2, 0.8, 5)[:, None]
-            va = _bilinear(page, sides[0][0] + t * (sides[0][1] - sides[0][0])) @ lum
-            vb = _bilinear(page, sides[1][0] + t * (sides[1][1] - sides[1][0])) @ lum
-            diffs.extend((np.abs(va - vb) / np.maximum(0.5 * (va + vb), 1e-12)).tolist())
-    assert len(diffs) >= 10, "the box should have UV seams"
-    assert max(diffs) < 0.02, f"seam difference max {max(diffs):.4f}"
     for f in sorted((out / "lightmaps" / "pages").glob("page*.exr")):
         image = _read_exr(f)
         assert (image.max(axis=-1) > 0).all(), f"{f.name}: {(image.max(axis=-1) <= 0).sum()} black texels"

@@ -566,7 +566,7 @@ class ReconstructionConfig(BaseModel):
         le=180.0,
         description=(
             "Degrees; neighbouring patches whose normals differ by more than this"
-            " are not blended across their shared edge."
+            " are not blended across their shared edge, nor lightmap texels across a chart seam there."
         ),
     )
     values: Literal["auto", "final_gather", "patches"] = Field(

@@ -98,11 +98,13 @@ def _visible_mean(values: np.ndarray, moved: np.ndarray, texel: np.ndarray) -> n
     return out
 
 
-def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int = 1, tolerance: float = 0.05):
+def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int = 1, tolerance: float = 0.05,
+               crease_angle: float = 30.0):
     """hirad.atlas.bake_page, with each sample's texel passed to `evaluate` (for _lift):
     rasterize -> evaluate (every texel, or coarse to fine with interpolation between texels
-    that agree: stride > 1, hirad.atlas.evaluate_adaptive) -> resolve -> stitch seams ->
-    dilate into the padding. Returns (image, mask, evaluate_adaptive's counts or {})."""
+    that agree: stride > 1, hirad.atlas.evaluate_adaptive) -> resolve -> stitch the seams of
+    smooth surfaces (normals within `crease_angle` degrees) -> dilate into the padding.
+    Returns (image, mask, evaluate_adaptive's counts or {})."""
     from .. import atlas as A
 
     samples = A.rasterize(atlas, page, supersample)
@@ -113,7 +115,7 @@ def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int = 1, to
     else:
         values = np.asarray(evaluate(points, normals, samples.texel))
     image, mask = A.resolve(samples, values)
-    image = A.stitch(image, A.seam_pairs(atlas, page))
+    image = A.stitch(image, A.seam_pairs(atlas, page, crease_angle))
     return A.dilate(image, mask, max(int(atlas.padding), 1)), mask, counts
 
 
@@ -441,7 +443,8 @@ def bake_lightmaps(cfg, scene, patches, staging: Path, *, tracer, gather=None, f
     encodings = list(dict.fromkeys((["hirad-rgbm"] if lm.rgbm else []) + list(lm.encodings)))
     for page in range(len(atlas.page_sizes)):
         stride = lm.gather_stride if mode == "final_gather" else 1
-        baked, mask, counts = _bake_page(atlas, page, evaluate, lm.supersample, stride, lm.gather_tolerance)
+        baked, mask, counts = _bake_page(atlas, page, evaluate, lm.supersample, stride, lm.gather_tolerance,
+                                         cfg.reconstruction.crease_angle)
         for k, v in counts.items():
             evaluate.texels[k] = evaluate.texels.get(k, 0) + v
         image = np.ascontiguousarray(baked[..., :3], dtype=np.float32)
