@@ -276,9 +276,7 @@ class _MaterialResolver:
                 result = np.array([*mean_rgb, mean_a], dtype=np.float64)
                 self._tex_cache[key] = result
                 return result
-            if arr.dtype == np.uint8:
-                data = arr.astype(np.float64) / 255.0
-            elif arr.dtype == np.uint16 or img.mode.startswith("I;16"):
+            if arr.dtype == np.uint16 or img.mode.startswith("I;16"):
                 data = arr.astype(np.float64) / 65535.0
             elif np.issubdtype(arr.dtype, np.integer):
                 data = arr.astype(np.float64) / 65535.0  # Pillow "I" images from 16-bit files
