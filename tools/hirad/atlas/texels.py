@@ -432,7 +432,7 @@ def evaluate_adaptive(samples: TexelSamples, points: np.ndarray, normals: np.nda
       the row or column; for a cell centre both rows and both columns) give second differences
       whose linear-interpolation error, |second difference| / 8 per line (the larger of a
       row's two, a row's plus a column's for a centre), is within the same bound. A gradient
-        is interpolated however steep; a shadow edge between the parents shows as a second
+      is interpolated however steep; a shadow edge between the parents shows as a second
       difference as large as the edge itself;
     otherwise it is evaluated. What is missed is light that varies between lattice points by
     more than the tolerance without showing at them (a shadow narrower than 2 h texels whose

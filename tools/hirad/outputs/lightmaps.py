@@ -98,8 +98,7 @@ def _visible_mean(values: np.ndarray, moved: np.ndarray, texel: np.ndarray) -> n
     return out
 
 
-def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int = 1, tolerance: float = 0.05,
-               crease_angle: float = 30.0):
+def _bake_page(atlas, page: int, evaluate, supersample: int, stride: int, tolerance: float, crease_angle: float):
     """hirad.atlas.bake_page, with each sample's texel passed to `evaluate` (for _lift):
     rasterize -> evaluate (every texel, or coarse to fine with interpolation between texels
     that agree: stride > 1, hirad.atlas.evaluate_adaptive) -> resolve -> stitch the seams of

@@ -258,43 +258,28 @@ class _MaterialResolver:
                     img = img.convert("RGBA")
                 arr = np.asarray(img)
             linearise = colorspace == "sRGB" or (colorspace == "auto" and eight_bit)
-            if arr.dtype == np.uint8:
-                # 8 bits: the mean from each channel's histogram of its 256 values, each value
+            plane = arr[:, :, None] if arr.ndim == 2 else arr
+            if plane.dtype == np.uint8:
+                # 8 bits: each channel's mean from its histogram of 256 values, each value
                 # decoded once (the Modern Hall's three textures: 0.76 -> 0.1 s)
-                plane = arr[:, :, None] if arr.ndim == 2 else arr
-                ch = plane.shape[2]
                 level = np.arange(256, dtype=np.float64) / 255.0
                 decoded = _srgb_to_linear(level) if linearise else level
                 count = float(plane.shape[0] * plane.shape[1])
 
-                def channel_mean(c: int, values: np.ndarray) -> float:
-                    return float(np.bincount(plane[:, :, c].reshape(-1), minlength=256) @ values / count)
+                def channel_mean(c: int, colour: bool) -> float:
+                    hist = np.bincount(plane[:, :, c].reshape(-1), minlength=256)
+                    return float(hist @ (decoded if colour else level) / count)
+            else:
+                scale = 65535.0 if np.issubdtype(plane.dtype, np.integer) else 1.0  # 16-bit and "I" images
 
-                colour = [0, 0, 0] if ch <= 2 else [0, 1, 2]
-                mean_rgb = np.array([channel_mean(c, decoded) for c in colour])
-                mean_a = channel_mean(ch - 1, level) if ch in (2, 4) else 1.0
-                result = np.array([*mean_rgb, mean_a], dtype=np.float64)
-                self._tex_cache[key] = result
-                return result
-            if arr.dtype == np.uint16 or img.mode.startswith("I;16"):
-                data = arr.astype(np.float64) / 65535.0
-            elif np.issubdtype(arr.dtype, np.integer):
-                data = arr.astype(np.float64) / 65535.0  # Pillow "I" images from 16-bit files
-            else:
-                data = arr.astype(np.float64)
-            if data.ndim == 2:
-                data = data[:, :, None]
-            ch = data.shape[2]
-            if ch == 1:
-                rgb, alpha = np.repeat(data, 3, axis=2), None
-            elif ch == 2:
-                rgb, alpha = np.repeat(data[:, :, :1], 3, axis=2), data[:, :, 1]
-            else:
-                rgb, alpha = data[:, :, :3], (data[:, :, 3] if ch >= 4 else None)
-            if linearise:
-                rgb = _srgb_to_linear(rgb)
-            mean_rgb = rgb.reshape(-1, 3).mean(axis=0)
-            mean_a = float(alpha.mean()) if alpha is not None else 1.0
+                def channel_mean(c: int, colour: bool) -> float:
+                    v = plane[:, :, c].astype(np.float64) / scale
+                    return float((_srgb_to_linear(v) if colour and linearise else v).mean())
+
+            ch = plane.shape[2]  # 1 grey, 2 grey + alpha, 3 RGB, 4 RGBA
+            grey = channel_mean(0, True) if ch <= 2 else None
+            mean_rgb = np.array([grey] * 3 if ch <= 2 else [channel_mean(c, True) for c in range(3)])
+            mean_a = channel_mean(ch - 1, False) if ch in (2, 4) else 1.0
             result = np.array([*mean_rgb, mean_a], dtype=np.float64)
         except Exception:
             result = None
