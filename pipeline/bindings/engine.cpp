@@ -16,7 +16,6 @@
 namespace hirad::py {
 
 using namespace nb::literals;
-
 namespace {
 
 SceneInput scene_input(In<double> points, In<int32_t> counts, In<int32_t> indices, In<int32_t> face_mesh,
@@ -225,13 +224,14 @@ void bind_engine(nb::module_& m) {
              "A worker's share of a distributed out-of-core bake: round `round`'s refinement of source groups "
              "[begin, end) from the link store's state, written to its spill directory (SpillLog). The scene, "
              "luminaires and options must be the driver's.")
-        .def("use_leaves_as_patches", &Engine::use_leaves_as_patches,
-             "Makes the last hierarchical solve's leaves the patches (in the order of its per-leaf arrays), for "
-             "patch_arrays, display_mesh, vertex_values, gather and reference.")
+        .def("use_leaves_as_patches", &Engine::use_leaves_as_patches, "release_hierarchy"_a = false,
+             "Makes the last hierarchical solve's leaves the patches, in the order of its per-leaf arrays (engine.h).")
         .def_prop_ro("leaves_are_patches", &Engine::leaves_are_patches)
+        .def("leaf_arrays", &Engine::leaf_arrays, "The last hierarchical solve's leaves' meshes and areas (LeafArrays).")
         .def("release_hierarchy", &Engine::release_hierarchy, "Lets go of the solved hierarchy (engine.h).")
         .def_prop_ro("has_hierarchy", &Engine::has_hierarchy)
         .def("release_scene", &Engine::release_scene, "Lets go of the input faces (engine.h).")
+        .def("release_patches", &Engine::release_patches, "Lets go of the patches, their BVH, the display mesh.")
         .def("display_mesh", [](Engine& e, double crease) { return e.display_mesh(crease); }, "crease_angle"_a,
              "Welded display mesh of the patches (DisplayMesh), kept for vertex_values.")
         .def("vertex_values",

@@ -58,6 +58,9 @@ void bind_results(nb::module_& m) {
         .def_ro("link_bytes", &Stats::link_bytes, "Their memory, bytes.")
         .def_ro("rays", &Stats::rays, "Rays cast against the current patches.");
 
+    nb::class_<LeafArrays>(m, "LeafArrays", "A hierarchical solve's leaves, published or not; row k is leaf k.")
+        .def_prop_ro("mesh", arr(&LeafArrays::mesh), kOwned, "(n) input mesh index.")
+        .def_prop_ro("area", arr(&LeafArrays::area), kOwned, "(n) m^2.");
     nb::class_<PatchArrays>(m, "PatchArrays", "The current patches as arrays; row k is patch k.")
         .def_ro("count", &PatchArrays::count)
         .def_prop_ro("corners", rows(&PatchArrays::corners, &PatchArrays::count, {4, 3}), kOwned,

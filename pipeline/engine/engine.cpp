@@ -84,7 +84,8 @@ struct Engine::Solved {
     std::unique_ptr<GatherLinks> gather_table;  // what the gathers read, made by the first
     std::vector<RGB> radiosity;              // per node
     std::vector<uint32_t> leaves;            // node of each leaf (of each published patch)
-    std::vector<Patch> leaf_patches;         // the leaves' shapes, until published (then freed)
+    std::vector<uint32_t> leaf_index;        // per node, its place in `leaves` (gathers before publishing)
+    uint64_t rays_at_solve = 0;              // its BVH's rays at the solve's end (the solve's own)
     std::vector<std::vector<RGB>> group_radiosity;  // per light group, per node
     std::string store_round;                 // out of core: the final links' store
     size_t groups = 0;                       // and its number of source groups
@@ -144,6 +145,8 @@ void Engine::require_scene(const char* what) const {
 }
 
 void Engine::require_mesh() const {
+    if (!visibility_ && patches_released_)
+        throw std::invalid_argument("the patches were let go once every output was made (release_patches)");
     if (!visibility_) throw std::invalid_argument("no patches yet: call mesh() (or use_leaves_as_patches()) first");
 }
 
@@ -397,8 +400,13 @@ std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::
 }
 
 PatchArrays Engine::patch_arrays() const {
-    require_scene("patch_arrays");
+    if (patches_released_) require_mesh();  // says they were let go
     const auto& P = patches_.patches;
+    auto record = [&](uint32_t f) {
+        if (!scene_released_) return FaceRecord{scene_.faces[f].emission, scene_.faces[f].transmittance,
+                                                scene_.faces[f].source_face};
+        return face_records_[f];
+    };
     const size_t n = P.size();
     PatchArrays a;
     a.count = n;
@@ -417,6 +425,7 @@ PatchArrays Engine::patch_arrays() const {
     a.transmittance.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Patch& p = P[i];
+        const FaceRecord r = record(p.face);
         for (int k = 0; k < 4; ++k) {
             for (int c = 0; c < 3; ++c) a.corners[i * 12 + k * 3 + c] = p.p[k][c];
             a.uv[i * 8 + k * 2] = p.uv[k].u;
@@ -426,15 +435,15 @@ PatchArrays Engine::patch_arrays() const {
             a.normal[i * 3 + c] = p.normal[c];
             a.centroid[i * 3 + c] = p.centroid[c];
             a.reflectance[i * 3 + c] = p.reflectance[c];
-            a.emission[i * 3 + c] = scene_.faces[p.face].emission[c];
+            a.emission[i * 3 + c] = r.emission[c];
             a.direct[i * 3 + c] = p.direct[c];
         }
         a.area[i] = p.area;
         a.nv[i] = p.nv;
         a.mesh[i] = static_cast<int32_t>(p.mesh);
         a.face[i] = static_cast<int32_t>(p.face);
-        a.source_face[i] = static_cast<int32_t>(scene_.faces[p.face].source_face);
-        a.transmittance[i] = scene_.faces[p.face].transmittance;
+        a.source_face[i] = static_cast<int32_t>(r.source_face);
+        a.transmittance[i] = r.transmittance;
     }
     return a;
 }
@@ -602,7 +611,11 @@ std::vector<double> Engine::hemicube_row(uint32_t i, int resolution, int points)
     return dense;
 }
 
-uint64_t Engine::rays_cast() const { return visibility_ ? visibility_->rays_cast() : 0; }
+uint64_t Engine::rays_cast() const {
+    // the patches' BVH, the hierarchy's since its solve (its gathers), and those let go
+    return (visibility_ ? visibility_->rays_cast() : 0) + rays_let_go_ +
+           (solved_ ? solved_->visibility->rays_cast() - solved_->rays_at_solve : 0);
+}
 
 // ---- hierarchical ------------------------------------------------------------------------
 
@@ -849,14 +862,12 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
             r.groups.push_back(std::move(gs));
         }
     }
-    state->leaf_patches.reserve(leaves.size());
     r.radiosity.resize(leaves.size());
     r.irradiance.resize(leaves.size());
     r.escaped.resize(leaves.size());
     r.open.resize(leaves.size());
     for (size_t k = 0; k < leaves.size(); ++k) {
         const Node& node = h.nodes[leaves[k]];
-        state->leaf_patches.push_back(h.shape(leaves[k]));
         r.radiosity[k] = sol.radiosity[leaves[k]];
         r.irradiance[k] = sol.irradiance[leaves[k]];
         // Signed, as for the flat method: the per-leaf shares only add up unclamped.
@@ -885,7 +896,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.refine_seconds = run.log.refine_seconds;
     r.solve_seconds = run.log.solve_seconds;
     r.link_estimates = run.refine.evaluated;
-    r.rays = state->visibility->rays_cast();
+    r.rays = state->rays_at_solve = state->visibility->rays_cast();
     r.epsilon_watts = epsilon_watts;
     r.link_receiver.resize(links.size());
     r.link_source.resize(links.size());
@@ -915,24 +926,71 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     return r;
 }
 
-void Engine::use_leaves_as_patches() {
+void Engine::use_leaves_as_patches(bool release_hierarchy) {
     if (!solved_) throw std::invalid_argument("use_leaves_as_patches needs a hierarchical solve first");
     if (leaves_published_) return;
-    replace_patches(weld_patches(solved_->leaf_patches));
-    std::vector<Patch>().swap(solved_->leaf_patches);  // published: the patches hold them now
+    // The leaves' shapes are copied now, not at the solve's end: until then (final-gather
+    // lightmaps) the hierarchy's own serve, and no second copy is held.
+    if (release_hierarchy) {  // what the copy does not read goes first: the peak holds less
+        solved_->gatherer.reset();
+        solved_->gather_table.reset();
+        std::vector<Link>().swap(solved_->links);
+        std::vector<RGB>().swap(solved_->radiosity);
+        std::vector<std::vector<RGB>>().swap(solved_->group_radiosity);
+        std::vector<uint32_t>().swap(solved_->leaf_index);
+    }
+    std::vector<Patch> shapes;
+    shapes.reserve(solved_->leaves.size());
+    for (uint32_t leaf : solved_->leaves) shapes.push_back(solved_->hierarchy.shape(leaf));
+    if (release_hierarchy) {
+        rays_let_go_ += solved_->visibility->rays_cast() - solved_->rays_at_solve;
+        solved_.reset();
+        hierarchy_released_ = true;
+    } else {
+        std::vector<uint32_t>().swap(solved_->leaf_index);  // the published patches' BVH finds leaves now
+    }
+    replace_patches(weld_patches(std::move(shapes)));
     leaves_published_ = true;
+}
+
+LeafArrays Engine::leaf_arrays() const {
+    if (!solved_) throw std::invalid_argument("leaf_arrays needs a hierarchical solve (and its hierarchy held)");
+    const size_t n = solved_->leaves.size();
+    LeafArrays a;
+    a.mesh.resize(n);
+    a.area.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+        const Patch& s = solved_->hierarchy.shape(solved_->leaves[k]);
+        a.mesh[k] = static_cast<int32_t>(s.mesh);
+        a.area[k] = s.area;
+    }
+    return a;
 }
 
 void Engine::release_scene() {
     if (scene_released_) return;
     scene_faces_ = scene_.faces.size();
+    face_records_.resize(scene_faces_);
+    for (size_t f = 0; f < scene_faces_; ++f)
+        face_records_[f] = {scene_.faces[f].emission, scene_.faces[f].transmittance, scene_.faces[f].source_face};
     std::vector<Face>().swap(scene_.faces);
     scene_released_ = true;
+}
+
+void Engine::release_patches() {
+    if (solved_) throw std::invalid_argument("release_patches: the hierarchy is held (release_hierarchy first)");
+    links_.reset();
+    if (visibility_) rays_let_go_ += visibility_->rays_cast();
+    visibility_.reset();
+    patches_ = PatchSet{};
+    display_ = DisplayMesh{};
+    patches_released_ = true;
 }
 
 void Engine::release_hierarchy() {
     if (!solved_) return;
     if (!leaves_published_) throw std::invalid_argument("release_hierarchy: call use_leaves_as_patches() first");
+    rays_let_go_ += solved_->visibility->rays_cast() - solved_->rays_at_solve;
     solved_.reset();
     hierarchy_released_ = true;
 }
@@ -1011,7 +1069,6 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
                                     std::to_string(solved_->group_radiosity.size()) + " solved)");
     const std::vector<RGB>& radiosity = group < 0 ? solved_->radiosity : solved_->group_radiosity[group];
     const std::vector<Luminaire>& lums = group < 0 ? luminaires_ : groups_[group].luminaires;
-    if (!leaves_published_) throw std::invalid_argument("gather needs the leaves as patches: call use_leaves_as_patches()");
     require_points(points, normals);
     // The first gather makes the links' table (12 bytes a link): an out-of-core solve's read
     // from its store, an in-memory solve's from its links, which it replaces.
@@ -1030,21 +1087,38 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     out.patch.assign(n, -1);
     out.irradiance.assign(n, RGB{});
     out.radiance.assign(n, RGB{});
-    std::vector<RayHit> hits(n);
-    tbb::parallel_for(size_t(0), n, [&](size_t q) { hits[q] = visibility_->closest_point(points[q], normals[q], max_distance); });
+    // Each point's leaf: the nearest published leaf, or, before the leaves are published (a
+    // bake's final-gather lightmaps, baked right after the solve), the nearest face of the
+    // hierarchy's own BVH and the leaf below it at the point (Hierarchy::leaf_at), so that the
+    // gather needs no second copy of the surfaces and their BVH (the 1M-triangle kitchen:
+    // 0.35 GB of polygons and their BVH less at the lightmaps' peak).
+    const Hierarchy& h = solved_->hierarchy;
+    std::lock_guard<std::mutex> turn(solved_->gather_mutex);
+    if (!leaves_published_ && solved_->leaf_index.empty()) {
+        solved_->leaf_index.assign(h.nodes.size(), UINT32_MAX);
+        for (size_t k = 0; k < solved_->leaves.size(); ++k) solved_->leaf_index[solved_->leaves[k]] = uint32_t(k);
+    }
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+        if (leaves_published_) {
+            out.patch[q] = visibility_->closest_point(points[q], normals[q], max_distance).patch;
+            return;
+        }
+        const RayHit hit = solved_->visibility->closest_point(points[q], normals[q], max_distance);
+        if (hit.patch < 0) return;
+        const Vec2 st = h.faces[hit.patch].coordinates(points[q]);
+        out.patch[q] = int32_t(solved_->leaf_index[h.leaf_at(h.face_node[hit.patch], st.u, st.v)]);
+    });
     std::vector<uint32_t> leaf;
     std::vector<Vec3> x;
     std::vector<uint64_t> key;
     std::vector<size_t> slot;
     for (size_t q = 0; q < n; ++q) {
-        if (hits[q].patch < 0) continue;
-        out.patch[q] = hits[q].patch;
-        leaf.push_back(solved_->leaves[hits[q].patch]);
+        if (out.patch[q] < 0) continue;
+        leaf.push_back(solved_->leaves[out.patch[q]]);
         x.push_back(points[q]);
         key.push_back(q);
         slot.push_back(q);
     }
-    std::lock_guard<std::mutex> turn(solved_->gather_mutex);
     if (!solved_->gatherer || !same_gather(solved_->gatherer_options, options) || solved_->gatherer_group != group) {
         solved_->gatherer.reset();
         solved_->gatherer = std::make_unique<Gatherer>(solved_->hierarchy, *solved_->gather_table, radiosity,
@@ -1085,9 +1159,14 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
 
 LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
                                 double reach, const std::vector<Vec3>* anchors) const {
-    if (!visibility_) throw std::invalid_argument("lift_samples needs meshed patches");
     LiftResult r;
-    hirad::lift_samples(patches_.patches, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
+    if (solved_ && !leaves_published_)  // the hierarchy's faces, as the gather before publishing
+        hirad::lift_samples(solved_->hierarchy.faces, *solved_->visibility, points, normals, epsilon, reach, r.moved,
+                            anchors);
+    else if (visibility_)
+        hirad::lift_samples(patches_.patches, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
+    else
+        throw std::invalid_argument("lift_samples needs meshed patches or a solved hierarchy");
     r.points = std::move(points);
     return r;
 }

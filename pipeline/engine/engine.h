@@ -147,6 +147,12 @@ struct Stats {
     uint64_t rays = 0;                // rays cast against the current patches
 };
 
+// What the atlas needs of a hierarchical solve's leaves, published or not (row k is leaf k).
+struct LeafArrays {
+    std::vector<int32_t> mesh;  // input mesh index
+    std::vector<double> area;   // m^2
+};
+
 // The current patches as flat arrays (row k is patch k).
 struct PatchArrays {
     size_t count = 0;
@@ -345,31 +351,44 @@ public:
     // Makes the last hierarchical solve's leaves the patches (in the order of the result's
     // per-leaf arrays), so that patch_arrays, display_mesh, vertex_values, gather and
     // reference work on them. Until then the patches are the flat meshing's (if any).
-    void use_leaves_as_patches();
+    // With release_hierarchy the hierarchy is let go (release_hierarchy) as soon as the leaves
+    // are copied out of it, before their BVH is built: the peak holds one of the two.
+    void use_leaves_as_patches(bool release_hierarchy = false);
     bool leaves_are_patches() const { return leaves_published_; }
+    // The last hierarchical solve's leaves' meshes and areas (m^2), in the per-leaf order,
+    // published or not: what the atlas needs of them before they are published.
+    LeafArrays leaf_arrays() const;
     // Lets go of the solved hierarchy once no output will gather from it: its nodes, face
     // polygons and their BVH, its links (when held in memory) and per-node radiosity. The
     // patches (the published leaves), the display mesh and everything read from them stay.
     // On the 1M-triangle kitchen this is about 0.7 GB. gather then refuses, saying why.
     void release_hierarchy();
     bool has_hierarchy() const { return solved_ != nullptr; }
-    // Lets go of the input faces once nothing will mesh, solve or read patch_arrays again
-    // (those then refuse): about 240 bytes a face. Stats keep their counts.
+    // Lets go of the input faces once nothing will mesh or solve again (those then refuse):
+    // about 200 bytes a face. What patch_arrays reads of them is kept; stats keep their counts.
     void release_scene();
+    // Lets go of the patches, their BVH and the display mesh once every output read from them
+    // is made (a hierarchical bake's reconstruction and vertex gather; the written layer and
+    // the Result keep their own arrays): the 1M-triangle kitchen's published leaves, about
+    // 0.45 GB. Needs the hierarchy let go first; what reads the patches then refuses.
+    void release_patches();
 
     // ---- outputs
     const DisplayMesh& display_mesh(double crease_angle_degrees);   // kept for vertex_values
     std::vector<RGB> vertex_values(const std::vector<RGB>& patch_values) const;
-    // Final gather after a hierarchical solve whose leaves are the patches: each point goes to
-    // the nearest leaf facing along its normal within max_distance, every link reaching that
-    // leaf is re-evaluated at the point.
+    // Final gather after a hierarchical solve: each point goes to the nearest leaf facing along
+    // its normal within max_distance, every link reaching that leaf is re-evaluated at the
+    // point. Before use_leaves_as_patches the leaf is found through the hierarchy's own faces
+    // and BVH (no published copy needed); `patch` is the leaf's place in the per-leaf arrays
+    // either way.
     // `group` >= 0: the gather of that light group's solution alone (its radiosity on the same
     // links, its luminaires, its emission).
     PointValues gather(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                        const GatherOptions& options, double max_distance = 1e30, int group = -1);
     // Lightmap sample points lifted off their surface and out of geometry (volume.h's
-    // lift_samples) against the current patches and their BVH, the gather's own: a final
-    // gather's lightmaps then build no second ray-tracing scene (SurfaceField) for it.
+    // lift_samples) against the surfaces the gather finds its leaves on (the published patches,
+    // or before publishing the hierarchy's faces) and their BVH: a final gather's lightmaps
+    // then build no second ray-tracing scene (SurfaceField) for it.
     LiftResult lift_samples(std::vector<Vec3> points, const std::vector<Vec3>& normals, double epsilon,
                             double reach, const std::vector<Vec3>* anchors) const;
     // First hits of rays against the current patches and their BVH (as SurfaceField.ray_cast):
@@ -441,7 +460,17 @@ private:
     DisplayMesh display_;
     bool hierarchy_released_ = false;
     bool scene_released_ = false;
+    bool patches_released_ = false;
+    uint64_t rays_let_go_ = 0;  // rays counted by BVHs since let go (release_patches, release_hierarchy)
     size_t scene_faces_ = 0;  // their count, kept when they are let go
+    // What patch_arrays reads of an input face, kept when the faces are let go (36 bytes of a
+    // Face's 232), so that leaves published after release_scene still have their arrays.
+    struct FaceRecord {
+        RGB emission;
+        double transmittance = 0;
+        uint32_t source_face = 0;
+    };
+    std::vector<FaceRecord> face_records_;
     void require_scene(const char* what) const;
 };
 

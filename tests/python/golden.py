@@ -87,6 +87,15 @@ stopped stitching chart borders across creases (hirad.atlas.seam_pairs: only whe
 triangles' normals are within reconstruction.crease_angle): only the texels along the blocks'
 edges moved (the two blocks' per-mesh crops and page 0); USD, volume and report values held,
 and the report section gained stop 39's count lightmap_atlas.interpolated_texels (0 at stride 1).
+It was written again for cornell_hierarchical.yaml (stop 41, issue 12's memory) when final-gather
+lightmaps began to be baked before the leaves are published: a sample's leaf is found through
+the hierarchy's faces (Hierarchy::leaf_at) and samples are lifted against those faces, instead of
+the published leaves and their BVH. At points inside a leaf both find that leaf and gather the
+same bits (tests/python/hierarchy/test_gather.py); samples on a leaf's edge may go to either
+neighbour. Page 0 kept 99.77 % of its texels to the bit, its sum within 4e-5; 26 of 18,679
+samples fewer were found inside geometry; and the report's counts.rays began to count the rays
+the bake's gathers cast on the hierarchy after its solve (35.3 M -> 74.4 M: before, of the
+gathers' rays only the lightmap samples' lift was counted).
 Rewrite it only for a change of the physics or of an output's layout, and say which in the commit.
 """
 

@@ -193,7 +193,17 @@ def test_the_hierarchy_is_let_go_once_nothing_gathers(tmp_path):
     with pytest.raises(BakeError, match="keep_hierarchy=True"):
         let_go.gather(pts, nrm)
     with pytest.raises(ValueError, match="input faces were let go"):  # and so were the input faces
+        let_go._model.mesh(_engine.MeshOptions())
+    with pytest.raises(ValueError, match="patches were let go"):  # and, every output made, the patches
         let_go._model.patch_arrays()
+    # What the patch arrays read of the input faces is kept when those go (the leaves may be
+    # published after release_scene): the same arrays before and after.
+    before = kept._model.patch_arrays()
+    kept._model.release_scene()
+    after = kept._model.patch_arrays()
+    for k in ("emission", "source_face", "transmittance", "area", "mesh", "corners"):
+        np.testing.assert_array_equal(getattr(before, k), getattr(after, k))
+    assert np.asarray(after.emission).max() > 0
     assert let_go._model.stats().faces == kept._model.stats().faces > 0
     # an output that gathers keeps it until it is done: the vertex gather, then let go
     gathered = bake(cornell_config(tmp_path / "c.yaml", tmp_path / "c", **hier,

@@ -58,8 +58,8 @@ def test_a_hierarchical_solve_changes_the_patches_only_when_asked():
     r = m.solve_hierarchical(_engine.HierarchyOptions(epsilon=1e-3, min_area=0.05, samples=64),
                              _engine.SolveOptions(method="jacobi", tolerance=1e-9))
     assert m.stats().patches == 54 and not m.leaves_are_patches
-    with pytest.raises(ValueError, match="use_leaves_as_patches"):
-        m.gather(np.array([[0.5, 0.5, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    # the gather finds its leaf through the hierarchy's faces until the leaves are published
+    before = m.gather(np.array([[0.5, 0.5, 0.0]]), np.array([[0.0, 0.0, 1.0]]), _engine.GatherOptions(rays=16))
     m.use_leaves_as_patches()
     assert m.leaves_are_patches
     assert m.stats().patches == r.elements == len(r.radiosity) == len(m.patch_arrays().area)
@@ -68,6 +68,7 @@ def test_a_hierarchical_solve_changes_the_patches_only_when_asked():
     g = m.gather(np.array([[0.5, 0.5, 0.0]]), np.array([[0.0, 0.0, 1.0]]), _engine.GatherOptions(rays=16))
     assert g.patch[0] >= 0
     np.testing.assert_allclose(g.irradiance[0], 2.0, rtol=0.02)
+    assert before.patch[0] == g.patch[0] and np.array_equal(before.irradiance, g.irradiance)
 
 
 def test_one_surface_field_answers_every_ray_query():

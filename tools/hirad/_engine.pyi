@@ -480,6 +480,17 @@ class Stats:
     def rays(self) -> int:
         """Rays cast against the current patches."""
 
+class LeafArrays:
+    """A hierarchical solve's leaves, published or not; row k is leaf k."""
+
+    @property
+    def mesh(self) -> NDArray[numpy.int32]:
+        """(n) input mesh index."""
+
+    @property
+    def area(self) -> NDArray[numpy.float64]:
+        """(n) m^2."""
+
 class PatchArrays:
     """The current patches as arrays; row k is patch k."""
 
@@ -1016,13 +1027,16 @@ class Engine:
         A worker's share of a distributed out-of-core bake: round `round`'s refinement of source groups [begin, end) from the link store's state, written to its spill directory (SpillLog). The scene, luminaires and options must be the driver's.
         """
 
-    def use_leaves_as_patches(self) -> None:
+    def use_leaves_as_patches(self, release_hierarchy: bool = False) -> None:
         """
-        Makes the last hierarchical solve's leaves the patches (in the order of its per-leaf arrays), for patch_arrays, display_mesh, vertex_values, gather and reference.
+        Makes the last hierarchical solve's leaves the patches, in the order of its per-leaf arrays (engine.h).
         """
 
     @property
     def leaves_are_patches(self) -> bool: ...
+
+    def leaf_arrays(self) -> LeafArrays:
+        """The last hierarchical solve's leaves' meshes and areas (LeafArrays)."""
 
     def release_hierarchy(self) -> None:
         """Lets go of the solved hierarchy (engine.h)."""
@@ -1032,6 +1046,9 @@ class Engine:
 
     def release_scene(self) -> None:
         """Lets go of the input faces (engine.h)."""
+
+    def release_patches(self) -> None:
+        """Lets go of the patches, their BVH, the display mesh."""
 
     def display_mesh(self, crease_angle: float) -> DisplayMesh:
         """

@@ -289,17 +289,31 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     gathering = {"vertex gather": values == "final_gather" and not cfg.light_groups,
                  "lightmaps": cfg.outputs.lightmaps.enabled and cfg.outputs.lightmaps.mode == "final_gather"}
 
+    def hierarchy_unneeded() -> bool:
+        return (cfg.method == "hierarchical" and not (keep_hierarchy or light_groups or day_groups)
+                and not any(gathering.values()))
+
     def done_gathering(stage: str | None = None) -> None:
         if stage:
             gathering[stage] = False
-        if (cfg.method == "hierarchical" and not (keep_hierarchy or light_groups or day_groups)
-                and not any(gathering.values()) and model.has_hierarchy):
+        if hierarchy_unneeded() and model.has_hierarchy:
             model.release_hierarchy()
             release_free_memory()
 
+    # Final-gather lightmaps are baked right after the solve, before the leaves are published as
+    # the patches and before the reconstruction: the pages need the source meshes and the
+    # hierarchy, which is held for them anyway, and the gather finds its leaves through the
+    # hierarchy's own faces and BVH. The published leaves (a second copy of the surfaces and
+    # their BVH), the patch arrays, the display mesh, the Result and the per-mesh output arrays
+    # then come after the hierarchy and its links are let go (the 1M-triangle kitchen end to
+    # end: peak 4,396 -> 3,093 MiB with the reconstruction after the pages, bench/README.md).
+    early_lightmaps = (cfg.outputs.lightmaps.enabled and not light_groups and cfg.method == "hierarchical"
+                       and cfg.outputs.lightmaps.mode == "final_gather")
+    early_pages = None
     if cfg.method == "hierarchical":
-        # (done_gathering: let go as soon as the leaves are the patches, when nothing gathers)
-        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote, done_gathering)
+        # (hierarchy_unneeded: let go as soon as the leaves are the patches, when nothing gathers)
+        solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote, hierarchy_unneeded,
+                                              publish=not early_lightmaps)
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
         glazing = solved  # the backs of glazed faces and what passes through glass
@@ -309,6 +323,17 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             # coefficients solve on, and a caller's kept hierarchy may.
             model.release_scene()
             release_free_memory()
+        if early_lightmaps:
+            with rep.stage("lightmaps"):
+                leaves = model.leaf_arrays()
+                early_pages = bake_lightmaps(cfg, scene, {"mesh": leaves.mesh, "area": leaves.area}, staging,
+                                             **lightmap_sources(cfg, model=model))
+                del leaves
+                # The pages are done: the hierarchy goes as soon as the leaves are copied out of
+                # it, before the patch arrays are made (unless another output still gathers), and
+                # within the stage, whose held memory is then without it.
+                gathering["lightmaps"] = False
+                patches = _publish_leaves(model, solved, hierarchy_unneeded)
     else:
         solved, patches, b, h, escaped, snapshot_cb = _solve_flat(cfg, model, scene, staging, rep)
         glazing = None
@@ -346,17 +371,6 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                  luminaire_flux=(np.asarray(model.luminaire_flux)[0] if not grouped else
                                                  np.sum([s.flux for s in specs], axis=0)) if luminaires else None,
                                  glazing=glazing)
-
-    # Final-gather lightmaps are baked now, before the reconstruction: their pages need the
-    # source meshes, the patches and the hierarchy, which is held for them anyway. The display
-    # mesh, the Result and the per-mesh output arrays then come after the hierarchy and its
-    # links are let go (the 1M-triangle kitchen end to end: peak 4,396 -> 3,093 MiB, bench/README.md).
-    early_pages = None
-    if (cfg.outputs.lightmaps.enabled and not grouped and cfg.method == "hierarchical"
-            and cfg.outputs.lightmaps.mode == "final_gather"):
-        with rep.stage("lightmaps"):
-            early_pages = bake_lightmaps(cfg, scene, patches, staging, **lightmap_sources(cfg, model=model))
-            done_gathering("lightmaps")  # (in the stage: its held memory is without the hierarchy)
 
     with rep.stage("reconstruct"):
         display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
@@ -411,6 +425,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         display_info = gathered
         result = make_result(vertex_radiance, vertex_irradiance)
     done_gathering("vertex gather")
+    if cfg.method == "hierarchical" and not (model.has_hierarchy or grouped or day_groups):
+        # Every output from here on reads the Result's and the per-mesh arrays, not the engine's
+        # patches: they, their BVH and the display mesh go before the layer and the preview's
+        # field are made (the 1M-triangle kitchen: 0.45 GB less at the preview).
+        model.release_patches()
+        release_free_memory()
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
@@ -927,9 +947,10 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
 
 
 def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False,
-                        remote=None, published=None):
+                        remote=None, let_go=None, publish: bool = True):
     """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
-    the leaf elements become the model's patches."""
+    the leaf elements become the model's patches (with `publish`; otherwise the caller
+    publishes them with _publish_leaves, and the patches returned are None)."""
     hc = cfg.hierarchy
     with rep.stage("hierarchical solve", total=1.0) as update:
         solve_progress = _solve_progress(cfg, update)
@@ -970,17 +991,24 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
         rep.warn(f"{solved.limited_leaves} elements have reflectance x (the sum of their link estimates) above 0.999 "
                  f"(sampled estimates can sum above the hemisphere's 1), where the solve would not converge: their "
                  f"gathered light was scaled to that limit (raise hierarchy.samples, or lower reflectances near 1)")
-    # The leaves become the engine's patches: the outputs reconstruct, gather and probe on them.
-    model.use_leaves_as_patches()
-    if published is not None:
-        published()
+    return solved, (_publish_leaves(model, solved, let_go) if publish else None)
+
+
+def _publish_leaves(model, solved, let_go=None) -> dict:
+    """The leaves become the engine's patches (the outputs reconstruct, gather and probe on
+    them); when `let_go()` says nothing gathers any more, the hierarchy goes as soon as they
+    are copied out of it. Returns the patch arrays."""
+    release = bool(let_go is not None and let_go())
+    model.use_leaves_as_patches(release_hierarchy=release)
+    if release:
+        release_free_memory()
     # per leaf, the share of its area outside other geometry: its B, H and direct light are that
     # part's, so its powers are over open x area (energy balance)
     patches = dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
     if not model.has_hierarchy:  # nothing gathers: nor will anything read the input faces again
         model.release_scene()
         release_free_memory()
-    return solved, patches
+    return patches
 
 
 def _solve_progress(cfg: Config, update):

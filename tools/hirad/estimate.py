@@ -16,12 +16,18 @@ reference machine (2 cores; bench/README.md). They are estimates, said as such:
   2.4 links for every link it keeps.
 - Hierarchical with clusters that receive (`hierarchy.cluster_receivers`): links no longer
   grow with the input faces but with the surface the lighting resolves. Per element that
-  area/min_area x 4/3 allows, the measured scenes at epsilon 1e-4 had 33 (the generated
-  family room, from 1k to 328k faces alike), 79 (the Modern Hall) and 120 (the country
-  kitchen, 1.05M faces) links; link generation made 3.2 estimates per kept link at 0.32 M a
-  second, and the streaming solve took about 1.3 times as long again (the kitchen: 153 s of
-  linking, 205 s of solving).
-- Out of core: the link store takes about 10.75 bytes per link on disk.
+  area/min_area x 4/3 allows, the measured scenes at epsilon 1e-4 had 14 (the Modern Hall,
+  min_area 0.02, spread_epsilon 0: 1.10 M links), 33 (the generated family room, from 1k to
+  328k faces alike) and 107 (the country kitchen, 1.05M faces, min_area 0.005: 14.0 M links)
+  links; link generation made 3.2 estimates per kept link at 0.34 M a second (the kitchen:
+  44.5 M estimates in 132 s). Solving in memory adds about a fifth of that (the Hall: 7.7 s of
+  linking, 1.4 s of solving); the out-of-core streaming solve (block_southwell) reads every
+  link once a round, about 7.1 us a link (the kitchen: 98 s a round at 13.7 M links), over the
+  rounds after the first (the first round's links are few).
+- Out of core: the link store takes about 13.7 bytes per link (the kitchen: 183 MiB for
+  14.0 M links), and as much again of the run's other files while it runs.
+- Final-gather lightmaps are not in the time: their cost per texel varied tenfold between the
+  measured scenes (0.19 ms on the Hall, 1.4 ms on the kitchen, wall time on 2 cores).
 """
 
 from __future__ import annotations
@@ -38,11 +44,12 @@ LINK_ESTIMATES_PER_S = 0.4e6     # hierarchical link estimates per second (0.37-
 ESTIMATES_PER_KEPT_LINK = 2.4    # cornell_hierarchical: 943,192 estimates for 399,739 links
 LINKS_PER_ELEMENT = (50.0, 160.0)
 # Clusters that receive: links per element of the area bound, and the measured rates (above).
-CLUSTER_LINKS_PER_AREA_ELEMENT = (33.0, 120.0)
+CLUSTER_LINKS_PER_AREA_ELEMENT = (14.0, 107.0)
 CLUSTER_ESTIMATES_PER_KEPT_LINK = 3.2
-CLUSTER_LINK_ESTIMATES_PER_S = 0.32e6
-CLUSTER_SOLVE_PER_LINKING = 1.3
-STORE_BYTES_PER_LINK = 10.75
+CLUSTER_LINK_ESTIMATES_PER_S = 0.34e6
+CLUSTER_SOLVE_PER_LINKING = 0.2       # in memory (Jacobi, Gauss-Seidel, Southwell)
+STREAMED_SECONDS_PER_LINK_ROUND = 7.1e-6  # block_southwell: each round after the first
+STORE_BYTES_PER_LINK = 13.7
 FLAT_LINK_BYTES = 8.0
 # Memory besides the links (bench/README.md, the country kitchen end to end, 1,050,937 input
 # faces, stop 37): the process and its libraries about 170 MB; the scene, the engine's copy, the
@@ -144,8 +151,11 @@ def estimate(scene, cfg) -> dict:
             by_area = total_area / h.min_area * 4.0 / 3.0
             lo, hi = (by_area * k for k in CLUSTER_LINKS_PER_AREA_ELEMENT)
             typical_links = by_area * math.sqrt(CLUSTER_LINKS_PER_AREA_ELEMENT[0] * CLUSTER_LINKS_PER_AREA_ELEMENT[1])
-            secs = (typical_links * CLUSTER_ESTIMATES_PER_KEPT_LINK / CLUSTER_LINK_ESTIMATES_PER_S
-                    * (1 + CLUSTER_SOLVE_PER_LINKING))
+            secs = typical_links * CLUSTER_ESTIMATES_PER_KEPT_LINK / CLUSTER_LINK_ESTIMATES_PER_S
+            if cfg.solver.method == "block_southwell":
+                secs += typical_links * STREAMED_SECONDS_PER_LINK_ROUND * max(1, h.max_rounds - 1)
+            else:
+                secs *= 1 + CLUSTER_SOLVE_PER_LINKING
         out.update(elements_at_most=bound, elements_typical=typical_elements, links_range=(lo, hi),
                    links_typical=typical_links, seconds=secs,
                    memory_bytes=typical_links * 24.0, disk_bytes=0.0)
@@ -171,6 +181,7 @@ def estimate(scene, cfg) -> dict:
     lm = getattr(getattr(cfg, "outputs", None), "lightmaps", None)
     gathered = (cfg.method == "hierarchical" and lm is not None and lm.enabled and lm.mode == "final_gather")
     scene_bytes = PROCESS_BYTES + len(area) * (FACE_BYTES_GATHERED_LIGHTMAPS if gathered else FACE_BYTES)
+    out["gathered_lightmaps"] = bool(gathered)
     out["memory_parts"] = {"links": out["memory_bytes"], "scene_and_outputs": scene_bytes}
     out["memory_bytes"] = out["memory_bytes"] + scene_bytes
     if out["seconds"] > SLOW_SECONDS:
@@ -229,6 +240,7 @@ def describe(est: dict) -> list[str]:
                      f"its hierarchy and the outputs {_bytes(parts['scene_and_outputs'])})")
         if est["disk_bytes"]:
             lines.append(f"  link store on disk: about {_bytes(est['disk_bytes'])}")
-    lines.append(f"  time on 2 cores: about {_duration(est['seconds'])}")
+    lines.append(f"  time on 2 cores: about {_duration(est['seconds'])}"
+                 + (" for the solve (final-gather lightmaps not included)" if est.get("gathered_lightmaps") else ""))
     lines += [f"warning: {w}" for w in est["warnings"]]
     return lines

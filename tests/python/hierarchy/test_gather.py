@@ -146,6 +146,49 @@ def test_gather_is_deterministic_and_needs_a_hierarchical_solve():
     assert np.array_equal(a.irradiance, b.irradiance) and a.irradiance.max() > 0
 
 
+def test_gather_before_publishing_finds_each_points_own_leaf():
+    """A bake's final-gather lightmaps gather before the leaves are published, finding a
+    point's leaf through the hierarchy's faces (Hierarchy::leaf_at) instead of the published
+    leaves' BVH. At points drawn inside leaves (quads and triangles, split several levels) it
+    must return the leaf each was drawn in, and the very bits of the gather after publishing."""
+    tri = [[0.2, 0.3, 0.2], [0.8, 0.3, 0.25], [0.4, 0.35, 0.8]]  # a slanted triangle facing up
+    polys = box_faces() + [tri]
+    n = len(polys)
+    emission = [[0.0] * 3] * n
+    emission[3] = [np.pi] * 3  # the +y wall (the ceiling) emits
+
+    def solved():
+        m = make_model(polys, 0.6, emission)
+        m.solve_hierarchical(_engine.HierarchyOptions(epsilon=1e-4, min_area=2e-3, samples=4, seed=1, max_rounds=3),
+                             _engine.SolveOptions(method="jacobi", tolerance=1e-8, max_iterations=10000))
+        return m
+
+    m, twin = solved(), solved()
+    twin.use_leaves_as_patches()
+    p = patch_dict(twin.patch_arrays())
+    area = m.leaf_arrays().area
+    np.testing.assert_array_equal(area, p["area"])  # the same leaves in the same order
+    assert (p["nv"] == 3).sum() >= 16 and len(area) > 500  # triangles split too
+    rng = np.random.default_rng(5)
+    k = rng.integers(0, len(area), 3000)
+    c = p["corners"][k]
+    s, t = rng.uniform(0.01, 0.99, (2, len(k)))  # quads: bilinear (s, t) off the edges
+    bilinear = (c[:, 0] * ((1 - s) * (1 - t))[:, None] + c[:, 1] * (s * (1 - t))[:, None]
+                + c[:, 2] * (s * t)[:, None] + c[:, 3] * ((1 - s) * t)[:, None])
+    u = np.sqrt(s)  # triangles: uniform barycentrics, drawn 2 % towards the centroid
+    w = 0.98 * np.stack([1 - u, u * (1 - t), u * t], axis=1) + 0.02 / 3
+    bary = (c[:, :3] * w[:, :, None]).sum(axis=1)
+    quad_ = p["nv"][k] == 4
+    nrm = np.ascontiguousarray(p["normal"][k])
+    pts = np.ascontiguousarray(np.where(quad_[:, None], bilinear, bary) + 1e-7 * nrm)
+    before = m.gather(pts, nrm)
+    assert not m.leaves_are_patches and np.array_equal(before.patch, k)
+    m.use_leaves_as_patches()
+    after = m.gather(pts, nrm)
+    assert np.array_equal(after.patch, k)
+    assert np.array_equal(before.irradiance, after.irradiance) and before.irradiance.max() > 0
+
+
 def test_flat_gather_matches_the_closed_form_and_the_hierarchical_gather():
     # The same one-bounce scene solved flat (4 x 4 patches a face): at points, the flat
     # gather is the closed form too, whatever the patch size.

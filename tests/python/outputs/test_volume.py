@@ -35,7 +35,7 @@ def cornell_volume(tmp_path_factory):
                        solver={"method": "jacobi", "tolerance": 1e-4},
                        outputs={"preview": {"enabled": False}, "lightmaps": {"enabled": False},
                                 "volume": {"enabled": True, "spacing": SPACING, "rays": 4096}})
-    result = bake(cfg)
+    result = bake(cfg, keep_hierarchy=True)  # (the engine's patches kept, for its reference_at below)
     return result, _engine.read_vdb(str(root / "out" / "volume.vdb")), cfg
 
 

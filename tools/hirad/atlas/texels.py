@@ -165,32 +165,40 @@ def rasterize(atlas: Atlas, page: int, supersample: int = 2) -> TexelSamples:
         bary=all_bary)
 
 
-def _closest_samples(uv, g, area, tri, lin, width):
+def _closest_samples(uv, g, area, tri, lin, width, chunk: int = 250_000):
     """For each texel in `lin`, the closest point to its centre over the candidate
-    triangles touching it: (triangle, texel, barycentrics), one per texel."""
+    triangles touching it: (triangle, texel, barycentrics), one per texel. Candidates are
+    measured `chunk` at a time, so the working arrays stay small whatever the page (a
+    1M-triangle scene's border texels: several million candidates)."""
     if len(tri) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-    centre = np.stack([lin % width + 0.5, lin // width + 0.5], axis=-1).astype(np.float64)
-    v = uv[tri]  # (n, 3, 2)
-    best = np.broadcast_to(centre, (len(tri), 2)).copy()
-    best_d = np.full(len(tri), np.inf)
-    e = (g[tri] * centre[:, None, :]).sum(-1) + (-(g[tri] * v[:, [1, 2, 0]]).sum(-1))
-    inside = (e >= 0).all(axis=1)
-    best_d[inside] = 0.0
-    for k in range(3):
-        a, b = v[:, k], v[:, (k + 1) % 3]
-        d = b - a
-        t = np.clip(((centre - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
-        pt = a + t[:, None] * d
-        dist = np.linalg.norm(pt - centre, axis=1)
-        better = (dist < best_d) & ~inside
-        best[better], best_d[better] = pt[better], dist[better]
+    best = np.empty((len(tri), 2))
+    best_d = np.empty(len(tri))
+    for lo in range(0, len(tri), chunk):
+        part = slice(lo, lo + chunk)
+        tp, lp = tri[part], lin[part]
+        centre = np.stack([lp % width + 0.5, lp // width + 0.5], axis=-1).astype(np.float64)
+        v = uv[tp]  # (n, 3, 2)
+        pb = centre.copy()
+        pd = np.full(len(tp), np.inf)
+        e = (g[tp] * centre[:, None, :]).sum(-1) + (-(g[tp] * v[:, [1, 2, 0]]).sum(-1))
+        inside = (e >= 0).all(axis=1)
+        pd[inside] = 0.0
+        for k in range(3):
+            a, b = v[:, k], v[:, (k + 1) % 3]
+            d = b - a
+            t = np.clip(((centre - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
+            pt = a + t[:, None] * d
+            dist = np.linalg.norm(pt - centre, axis=1)
+            better = (dist < pd) & ~inside
+            pb[better], pd[better] = pt[better], dist[better]
+        best[part], best_d[part] = pb, pd
     order = np.lexsort((best_d, lin))
     lin_s = lin[order]
     keep = order[np.r_[True, lin_s[1:] != lin_s[:-1]]]
     pts = best[keep]
     tk = tri[keep]
-    c = -(g[tk] * v[keep][:, [1, 2, 0]]).sum(-1)
+    c = -(g[tk] * uv[tk][:, [1, 2, 0]]).sum(-1)
     bary = ((g[tk] * pts[:, None, :]).sum(-1) + c) / area[tk, None]
     return tk, lin[keep], bary
 

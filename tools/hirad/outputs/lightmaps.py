@@ -194,7 +194,8 @@ def _uv_overlap(uv: np.ndarray, cells: int = 0) -> float:
         n //= 2
     count = np.zeros(n * n, dtype=np.int32)
     inside_total = 0
-    for chunk in np.array_split(np.arange(len(t)), max(1, int((nx * ny).sum()) // 4_000_000 + 1)):
+    # (a million cells a chunk: some fifteen arrays of that many, about 120 MB at once)
+    for chunk in np.array_split(np.arange(len(t)), max(1, int((nx * ny).sum()) // 1_000_000 + 1)):
         k = nx[chunk] * ny[chunk]
         tri = np.repeat(chunk, k)
         off = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
