@@ -77,6 +77,9 @@ void bind_options(nb::module_& m) {
         .def_rw("spread", &HierarchyOptions::spread,
                 "Close or partly visible links whose source's radiosity range could bias them by more than "
                 "spread x epsilon's power are split at the source (0: off).")
+        .def_rw("release_scene", &HierarchyOptions::release_scene,
+                "Let the input faces go once the hierarchy holds its copy (a bake that will not mesh or solve "
+                "again); what the patch arrays and light groups read of them is kept.")
         .def_rw("closure_reflectance", &HierarchyOptions::closure_reflectance,
                 "Leaves of at least this reflectance have their form factors (what they inherit from their "
                 "ancestors' links) normalised to their closure, the share of their hemisphere that meets a "

@@ -211,7 +211,7 @@ void Engine::set_light_groups(std::vector<LightGroup> groups) {
 
 RGB Engine::group_emission(const LightGroup& g, uint32_t face) const {
     const size_t k = static_cast<size_t>(&g - groups_.data());
-    const Face& f = scene_.faces[face];
+    const FaceRecord f = face_record(face);
     return (f.mesh < group_mesh_[k].size() && group_mesh_[k][f.mesh]) ? f.emission : RGB{};
 }
 
@@ -319,7 +319,7 @@ void Engine::light_patches(std::vector<Patch*>& patches, const Visibility& vis, 
     for (size_t k = 0; k < patches.size(); ++k) {
         Patch& p = *patches[k];
         p.direct = mean[k];
-        p.emission = (p.back ? RGB{} : scene_.faces[p.face].emission) + mul(p.reflectance, mean[k]);
+        p.emission = (p.back ? RGB{} : face_record(p.face).emission) + mul(p.reflectance, mean[k]);
     }
     if (spread) *spread = std::move(sp);
 }
@@ -385,7 +385,7 @@ double Engine::distant_power(const std::vector<Patch>& faces, const Visibility& 
     double power = 0;
     for (size_t k = 0; k < faces.size(); ++k) {
         // glass: only what it reflects enters the exchange (what it lets through lands elsewhere)
-        const bool glass = scene_.faces[faces[k].face].transmittance > 0;
+        const bool glass = face_record(faces[k].face).transmittance > 0;
         power += luminance(glass ? mul(faces[k].reflectance, mean[k]) : mean[k]) * faces[k].area;
     }
     return power;
@@ -402,11 +402,6 @@ std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::
 PatchArrays Engine::patch_arrays() const {
     if (patches_released_) require_mesh();  // says they were let go
     const auto& P = patches_.patches;
-    auto record = [&](uint32_t f) {
-        if (!scene_released_) return FaceRecord{scene_.faces[f].emission, scene_.faces[f].transmittance,
-                                                scene_.faces[f].source_face};
-        return face_records_[f];
-    };
     const size_t n = P.size();
     PatchArrays a;
     a.count = n;
@@ -425,7 +420,7 @@ PatchArrays Engine::patch_arrays() const {
     a.transmittance.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Patch& p = P[i];
-        const FaceRecord r = record(p.face);
+        const FaceRecord r = face_record(p.face);
         for (int k = 0; k < 4; ++k) {
             for (int c = 0; c < 3; ++c) a.corners[i * 12 + k * 3 + c] = p.p[k][c];
             a.uv[i * 8 + k * 2] = p.uv[k].u;
@@ -668,6 +663,7 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
                                                              "southwell, not '" + s.method + "'");
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
+    if (o.release_scene) release_scene();  // the hierarchy has its copy
     const RefineOptions ropt = refine_options(o, emitted);
     SolverOptions so;
     so.tolerance = s.tolerance;
@@ -737,6 +733,7 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     so.checkpoint_seconds = c.checkpoint_seconds;
     const SourceGroups groups = SourceGroups::cut(h, c.group_faces);
     RunStore store = run_store(o, c, groups.count());
+    if (o.release_scene) release_scene();  // the hierarchy has its copy, the store its fingerprints
     Solved* st = state.get();
     RoundsRun run = run_streamed(h, *state->visibility, ropt, o.max_rounds, groups, so, store, c.resume,
                                  c.reuse_links, progress,
@@ -971,8 +968,7 @@ void Engine::release_scene() {
     if (scene_released_) return;
     scene_faces_ = scene_.faces.size();
     face_records_.resize(scene_faces_);
-    for (size_t f = 0; f < scene_faces_; ++f)
-        face_records_[f] = {scene_.faces[f].emission, scene_.faces[f].transmittance, scene_.faces[f].source_face};
+    for (size_t f = 0; f < scene_faces_; ++f) face_records_[f] = face_record(uint32_t(f));
     std::vector<Face>().swap(scene_.faces);
     scene_released_ = true;
 }

@@ -159,3 +159,26 @@ def test_a_bake_expected_not_to_fit_says_so_before_it_starts(tmp_path):
     # within what the machine has, nothing is said
     _, warnings = baked("small", "64MB")
     assert not [w for w in warnings if w.startswith("expected to need")], warnings
+
+
+def test_the_links_of_a_real_bake_fall_in_the_estimated_range(tmp_path):
+    """The estimate's range of links (per element of the area bound, from the measured scenes)
+    against a real bake of the bundled box with clusters that receive, and its store's bytes
+    per link against the estimate's."""
+    from pathlib import Path
+
+    from hirad import usd
+    from hirad.bake import bake
+    from hirad.config import load_config
+
+    repo = Path(__file__).resolve().parents[2]
+    cfg = load_config(repo / "configs" / "cornell_outofcore.yaml")
+    cfg.output = tmp_path / "out"
+    cfg.links.store = tmp_path / "out.links"
+    cfg.hierarchy.cluster_receivers = True
+    cfg.outputs.lightmaps.enabled = cfg.outputs.volume.enabled = cfg.outputs.preview.enabled = False
+    est = estimate(usd.read_scene(cfg.scene), cfg)
+    links = bake(cfg).report["counts"]["links"]
+    lo, hi = est["links_range"]
+    assert lo <= links <= hi, (lo, links, hi)
+    assert est["links_typical"] / 3 <= links <= 3 * est["links_typical"], (est["links_typical"], links)

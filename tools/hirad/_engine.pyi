@@ -284,6 +284,15 @@ class HierarchyOptions:
     def spread(self, arg: float, /) -> None: ...
 
     @property
+    def release_scene(self) -> bool:
+        """
+        Let the input faces go once the hierarchy holds its copy (a bake that will not mesh or solve again); what the patch arrays and light groups read of them is kept.
+        """
+
+    @release_scene.setter
+    def release_scene(self, arg: bool, /) -> None: ...
+
+    @property
     def closure_reflectance(self) -> float:
         """
         Leaves of at least this reflectance have their form factors (what they inherit from their ancestors' links) normalised to their closure, the share of their hemisphere that meets a surface (Hierarchy::closure); 1: none.

@@ -311,9 +311,11 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                        and cfg.outputs.lightmaps.mode == "final_gather")
     early_pages = None
     if cfg.method == "hierarchical":
-        # (hierarchy_unneeded: let go as soon as the leaves are the patches, when nothing gathers)
+        # (hierarchy_unneeded: let go as soon as the leaves are the patches, when nothing gathers;
+        # the input faces as soon as the hierarchy holds its copy, when nothing solves again)
         solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote, hierarchy_unneeded,
-                                              publish=not early_lightmaps)
+                                              publish=not early_lightmaps,
+                                              release_scene=not (keep_hierarchy or light_groups or day_groups))
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
         glazing = solved  # the backs of glazed faces and what passes through glass
@@ -947,7 +949,7 @@ def _solve_flat(cfg: Config, model, scene, staging: Path, rep: Reporter):
 
 
 def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False, reuse_links: bool = False,
-                        remote=None, let_go=None, publish: bool = True):
+                        remote=None, let_go=None, publish: bool = True, release_scene: bool = False):
     """Hierarchical radiosity with clustering: refine, solve with push-pull, refine again;
     the leaf elements become the model's patches (with `publish`; otherwise the caller
     publishes them with _publish_leaves, and the patches returned are None)."""
@@ -967,6 +969,7 @@ def _solve_hierarchical(cfg: Config, model, rep: Reporter, resume: bool = False,
                 solve_progress(iteration, residual, f"round {round_}, {links:,} links, ")
 
         hierarchy = hierarchy_options(cfg)
+        hierarchy.release_scene = release_scene
         solve = _engine.SolveOptions(method=cfg.solver.method, tolerance=cfg.solver.tolerance,
                                      max_iterations=cfg.solver.max_iterations)
         if cfg.solver.method == "block_southwell":
