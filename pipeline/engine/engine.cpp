@@ -939,15 +939,12 @@ void Engine::use_leaves_as_patches(bool release_hierarchy) {
     std::vector<Patch> shapes;
     shapes.reserve(solved_->leaves.size());
     for (uint32_t leaf : solved_->leaves) shapes.push_back(solved_->hierarchy.shape(leaf));
-    if (release_hierarchy) {
-        rays_let_go_ += solved_->visibility->rays_cast() - solved_->rays_at_solve;
-        solved_.reset();
-        hierarchy_released_ = true;
-    } else {
-        std::vector<uint32_t>().swap(solved_->leaf_index);  // the published patches' BVH finds leaves now
-    }
-    replace_patches(weld_patches(std::move(shapes)));
     leaves_published_ = true;
+    if (release_hierarchy)
+        this->release_hierarchy();  // before the copy's BVH is built
+    else
+        std::vector<uint32_t>().swap(solved_->leaf_index);  // the published patches' BVH finds leaves now
+    replace_patches(weld_patches(std::move(shapes)));
 }
 
 LeafArrays Engine::leaf_arrays() const {

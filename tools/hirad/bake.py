@@ -289,9 +289,12 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     gathering = {"vertex gather": values == "final_gather" and not cfg.light_groups,
                  "lightmaps": cfg.outputs.lightmaps.enabled and cfg.outputs.lightmaps.mode == "final_gather"}
 
+    # Light groups and daylight coefficients solve on after the bake's solve, and a caller's kept
+    # hierarchy may: then the input faces and the hierarchy stay.
+    solves_again = bool(keep_hierarchy or light_groups or day_groups)
+
     def hierarchy_unneeded() -> bool:
-        return (cfg.method == "hierarchical" and not (keep_hierarchy or light_groups or day_groups)
-                and not any(gathering.values()))
+        return cfg.method == "hierarchical" and not solves_again and not any(gathering.values())
 
     def done_gathering(stage: str | None = None) -> None:
         if stage:
@@ -314,17 +317,10 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         # (hierarchy_unneeded: let go as soon as the leaves are the patches, when nothing gathers;
         # the input faces as soon as the hierarchy holds its copy, when nothing solves again)
         solved, patches = _solve_hierarchical(cfg, model, rep, resume, reuse_links, remote, hierarchy_unneeded,
-                                              publish=not early_lightmaps,
-                                              release_scene=not (keep_hierarchy or light_groups or day_groups))
+                                              publish=not early_lightmaps, release_scene=not solves_again)
         b, h, escaped = solved.radiosity, solved.irradiance, solved.escaped
         snapshot_cb = None
         glazing = solved  # the backs of glazed faces and what passes through glass
-        if model.has_hierarchy and not (keep_hierarchy or light_groups or day_groups):
-            # Kept for this bake's own gathers only, which read the hierarchy's copy of the
-            # faces: the input faces go (the kitchen: 244 MB). Light groups and daylight
-            # coefficients solve on, and a caller's kept hierarchy may.
-            model.release_scene()
-            release_free_memory()
         if early_lightmaps:
             with rep.stage("lightmaps"):
                 leaves = model.leaf_arrays()
@@ -1007,11 +1003,7 @@ def _publish_leaves(model, solved, let_go=None) -> dict:
         release_free_memory()
     # per leaf, the share of its area outside other geometry: its B, H and direct light are that
     # part's, so its powers are over open x area (energy balance)
-    patches = dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
-    if not model.has_hierarchy:  # nothing gathers: nor will anything read the input faces again
-        model.release_scene()
-        release_free_memory()
-    return patches
+    return dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
 
 
 def _solve_progress(cfg: Config, update):
