@@ -58,8 +58,7 @@ LinkMatrix symmetric_hemicube_links(const std::vector<Patch>& patches, const Hem
 
 // Exitant radiance of a surface with irradiance e (from the surfaces and the luminaires):
 // (E_self + rho H) / pi, E_self its emission without the luminaires' part rho x direct.
-RGB self_emission(const Patch& s) { return s.emission - mul(s.reflectance, s.direct); }
-RGB exitant(const Patch& s, const RGB& e) { return (self_emission(s) + mul(s.reflectance, e)) / kPi; }
+RGB exitant(const Patch& s, const RGB& e) { return (s.self_emission() + mul(s.reflectance, e)) / kPi; }
 
 // Element samples per side for the luminaires' light over a patch or element (g x g points).
 constexpr int kLuminaireSamples = 3;
@@ -341,7 +340,7 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
         const double open = h.open_share(i);
         if (open > 0 && open < 1) {  // the emission the solve starts from holds rho x direct too
             Patch& p = h.shape(i);
-            const RGB own = self_emission(p);
+            const RGB own = p.self_emission();
             p.direct = p.direct / open;
             p.emission = own + mul(p.reflectance, p.direct);
         }

@@ -34,6 +34,9 @@ struct Patch {
     bool back = false;       // the back of a glazed face (Hierarchy::glass): receives from behind it
     std::array<uint32_t, 4> vertex;  // indices into PatchSet::vertices (welded per mesh)
 
+    // Its own emission, without the luminaires' share rho x direct that `emission` holds.
+    RGB self_emission() const { return emission - mul(reflectance, direct); }
+
     // A point on the patch from coordinates in the unit square (quads: bilinear; triangles:
     // the square folded onto the triangle so stratified squares stay stratified).
     Vec3 point(double s, double t) const;

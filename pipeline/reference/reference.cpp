@@ -19,16 +19,16 @@ struct Emitters {
     double total = 0;
 };
 
-// The patch's own emission, without the luminaires' share rho x direct (evaluated exactly).
-RGB self_emission(const Patch& p) {
-    RGB e = p.emission - mul(p.reflectance, p.direct);
+// The patch's own emission (Patch::self_emission), clamped at 0 (the path tracer draws from it).
+RGB own_emission(const Patch& p) {
+    RGB e = p.self_emission();
     return {std::max(e.x, 0.0), std::max(e.y, 0.0), std::max(e.z, 0.0)};
 }
 
 Emitters collect_emitters(const std::vector<Patch>& patches) {
     Emitters e;
     for (uint32_t i = 0; i < patches.size(); ++i) {
-        const RGB s = self_emission(patches[i]);
+        const RGB s = own_emission(patches[i]);
         double power = (s.x + s.y + s.z) * patches[i].area;
         if (power <= 0) continue;
         e.total += power;
@@ -49,7 +49,7 @@ RGB direct(const std::vector<Patch>& patches, const Visibility& vis, const Emitt
     const double u = rng.uniform() * em.total;
     const size_t k = std::min<size_t>(std::upper_bound(em.cdf.begin(), em.cdf.end(), u) - em.cdf.begin(), em.patch.size() - 1);
     const Patch& q = patches[em.patch[k]];
-    const RGB qe = self_emission(q);
+    const RGB qe = own_emission(q);
     const double pick = ((qe.x + qe.y + qe.z) * q.area) / em.total;
     Vec3 y = q.point(rng.uniform(), rng.uniform());
     Vec3 d = y - x;
@@ -151,7 +151,7 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
                 x = origin + dir * hit.t;
                 n = side;
             }
-            RGB value = self_emission(p0) / kPi + l;
+            RGB value = own_emission(p0) / kPi + l;
             sum += value;
             sum2 += mul(value, value);
         }

@@ -108,6 +108,41 @@ def test_gather_in_an_umbra_is_zero_and_beside_it_the_closed_form():
     np.testing.assert_allclose(g.irradiance[1], far, rtol=5e-3)
 
 
+def test_gather_finds_an_umbra_that_the_links_estimate_missed():
+    # A small black blocker [0.9, 1.1]^2 at z = 0.5 (facing down) under a black emitter
+    # [0.75, 1.25]^2 at z = 2 (E = pi), over a white floor [-1, 3]^2, with elements too large to
+    # split (min_area above a quarter of the floor): the floor is one element whose link to the
+    # emitter was estimated from 8 point pairs, and the shadow covers about 1 % of it, so the
+    # link's estimate sees no shadow at all. Rays from (1 + u, 1 + v, 0) to the emitter cross
+    # z = 0.5 at 0.75 (u, v) + (1, 1) +- 0.0625: for |u|, |v| <= 0.05 the blocker hides all of
+    # the emitter (H = 0 exactly), which only rays traced from the point itself can find.
+    emitter = quad([0.75, 0.75, 2], [0, 0.5, 0], [0.5, 0, 0])
+    blocker = quad([0.9, 0.9, 0.5], [0, 0.2, 0], [0.2, 0, 0])
+    floor = quad([-1, -1, 0], [4, 0, 0], [0, 4, 0])
+    m = make_model([floor, blocker, emitter], reflectance=[[0.5] * 3, [0.0] * 3, [0.0] * 3],
+                   emission=[[0.0] * 3, [0.0] * 3, [np.pi] * 3])
+    solve(m, 1e-2, 5.0, samples=8)
+    assert len(patch_dict(m.patch_arrays())["area"]) == 3   # nothing split: one link reaches the floor
+    umbra = np.array([[1.0, 1.0], [1.04, 0.96], [0.955, 1.045], [1.02, 1.0]])
+    # Lit: from (1.5, 1.0) the rays cross z = 0.5 at x >= 1.3125, beside the blocker; the
+    # emitter is then two a x 0.25 rectangles at height 2 from the point's foot (x from -0.75
+    # to -0.25), differences of corner rectangles.
+    # Penumbra: from (1.1, 1.0) the blocker hides the emitter's x < 1.1 (the crossing is at
+    # 0.825 + 0.25 x_l) and every y (0.75 + 0.25 y_l stays within [0.9, 1.1]): the visible part
+    # is x in [1.1, 1.25] beside the foot, two 0.15 x 0.25 corner rectangles.
+    pts = np.c_[np.r_[umbra, [[1.5, 1.0], [1.1, 1.0]]], np.zeros(len(umbra) + 2)]
+    nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    g = m.gather(np.ascontiguousarray(pts), np.ascontiguousarray(nrm), _engine.GatherOptions(rays=16))
+    assert np.all(g.irradiance[:len(umbra)] == 0.0)
+    lit = np.pi * 2 * (corner_form_factor(0.75, 0.25, 2.0) - corner_form_factor(0.25, 0.25, 2.0))
+    np.testing.assert_allclose(g.irradiance[len(umbra)], lit, rtol=5e-3)
+    half = np.pi * 2 * corner_form_factor(0.15, 0.25, 2.0)
+    # The visible share by 16 stratified rays (4 columns of 0.125: the 0.15 covers one and a
+    # fifth): within one ray's share of the emitter's light, 1/16.
+    full = np.pi * 2 * (corner_form_factor(0.15, 0.25, 2.0) + corner_form_factor(0.35, 0.25, 2.0))
+    assert abs(g.irradiance[-1][0] - half) <= full / 16
+
+
 def test_gather_agrees_with_the_monte_carlo_reference_in_an_open_room():
     # An open box (no ceiling) lit by a square emitter above it: several bounces, occlusion by
     # the walls; the reference path-traces the same polygons independently of any links.
