@@ -228,7 +228,13 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
          keep_hierarchy: bool = False) -> Result:
     wall = time.perf_counter()
     with rep.stage("read scene"):
+        # The scene's layers are held until its content key and calculation surfaces are read
+        # as well, so that each layer is parsed once, not three times (the scene family's 1.3 M
+        # faces in one .usda: 1.7 GB more at the content key, after the solve, than the bake's
+        # own peak).
+        _, scene_layers = files.scene_files(cfg.scene)
         scene, specs = read_inputs(cfg)
+        content_key = cfg.content_key()
         day_lights, day_groups = daylight_inputs(cfg, scene, source)  # its warnings join the scene's
     for w in scene.warnings:
         rep.warn(w)
@@ -238,6 +244,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
     if est.get("machine_bytes") and est["memory_bytes"] > est["machine_bytes"]:
         rep.warn(memory_warning(est))
     grids = _build_config_grids(cfg, scene, source)
+    del scene_layers
 
     with rep.stage("build scene"):
         model = build_engine(scene)
@@ -544,7 +551,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         "config_fingerprint": cfg.fingerprint(),
         # what determines the result (scene files' contents, the settings but not the output
         # path nor the thread count): hirad.config.content
-        "content_key": cfg.content_key(),
+        "content_key": content_key,
         "overrides": list(overrides),
         "scene": str(cfg.scene),
         "threads": cfg.thread_count(),
