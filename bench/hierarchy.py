@@ -279,22 +279,32 @@ def cmd_receivers(args) -> None:
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     if args.plot:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(6, 4.2))
+        plot_family(rows, args.plot)
+
+
+def plot_family(rows: list, path: str) -> None:
+    """Links, elements, wall time and peak RSS against input faces, log-log, one line per kind
+    of receiver (the rows of cmd_receivers)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, 2, figsize=(9, 6.6))
+    panels = (("links", "links"), ("elements", "elements (leaves)"), ("wall_s", "wall time of the bake, s"),
+              ("rss_mib", "peak RSS, MiB"))
+    for ax, (key, label) in zip(axes.reshape(-1), panels):
         for on, mark in ((False, "o-"), (True, "s-")):
-            pts = [(r["faces"], r["links"]) for r in rows if r["cluster_receivers"] == on]
-            ax.loglog([p[0] for p in pts], [p[1] for p in pts], mark,
-                      label="clusters receive" if on else "elements receive")
+            pts = [(r["faces"], r[key]) for r in rows if r["cluster_receivers"] == on]
+            if pts:
+                ax.loglog([p[0] for p in pts], [p[1] for p in pts], mark,
+                          label="clusters receive" if on else "elements receive")
         ax.set_xlabel("input faces")
-        ax.set_ylabel("links")
-        ax.set_title("Same room, same light, finer boxes")
+        ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(args.plot, dpi=120)
-        print(f"plot: {args.plot}")
+        ax.legend(fontsize=8)
+    fig.suptitle("Same room, same light, the boxes cut finer (bench/hierarchy.py receivers)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"plot: {path}")
 
 
 def cmd_receivers_accuracy(args) -> None:

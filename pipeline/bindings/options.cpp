@@ -118,7 +118,9 @@ void bind_options(nb::module_& m) {
              },
              "rays"_a = go.rays, "cluster_samples"_a = go.cluster_samples, "seed"_a = go.seed,
              "directional"_a = go.directional, "importance"_a = go.importance, "second_bounce"_a = go.second_bounce)
-        .def_rw("rays", &GatherOptions::rays, "Visibility rays per partly visible element source.")
+        .def_rw("rays", &GatherOptions::rays,
+                "Visibility rays per partly visible element source (an emitting one: always 16, traced "
+                "whatever its estimate saw).")
         .def_rw("cluster_samples", &GatherOptions::cluster_samples, "Faces drawn per cluster source.")
         .def_rw("seed", &GatherOptions::seed, "Seeds each point's samples with its index.")
         .def_rw("directional", &GatherOptions::directional,

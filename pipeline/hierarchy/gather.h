@@ -66,7 +66,8 @@
 namespace hirad {
 
 struct GatherOptions {
-    int rays = 4;              // visibility rays per partly visible element source
+    int rays = 4;              // visibility rays per partly visible element source (an emitting
+                               // one always takes 16 and is traced whatever its estimate saw)
     int cluster_samples = 8;   // faces drawn per cluster source (each with its own ray)
     uint64_t seed = 1;
     bool directional = false;  // also the radiance moments l0, l1 (see above); E unchanged

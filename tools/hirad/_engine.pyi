@@ -368,7 +368,9 @@ class GatherOptions:
 
     @property
     def rays(self) -> int:
-        """Visibility rays per partly visible element source."""
+        """
+        Visibility rays per partly visible element source (an emitting one: always 16, traced whatever its estimate saw).
+        """
 
     @rays.setter
     def rays(self, arg: int, /) -> None: ...
