@@ -15,6 +15,10 @@ namespace {
 // Redraws of a source point that fell below the receiving point's horizon.
 constexpr int kHorizonRedraws = 8;
 
+// Whether a source emits light of its own (not only its luminaires' share rho x direct): its
+// links are traced from every point, 4 x 4 rays (element_transfer).
+bool emits(const Patch& s) { return luminance(s.self_emission()) > 0; }
+
 // The part of the polygon strictly above the plane through x with normal n (as the form
 // factor clips it, so that n . w1 = pi F to rounding).
 int clip_to_hemisphere(const Vec3& x, const Vec3& n, const Vec3* in, int count, Vec3* out) {
@@ -200,7 +204,7 @@ RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3
     const Patch& s = h_.shape(link.source);
     // Self-emitting sources exactly (the direct light); others far from x compared with their
     // size by quadrature (formfactors.h: within about 1e-3, at a fraction of the cost).
-    const bool emitter = luminance(s.self_emission()) > 0;
+    const bool emitter = emits(s);
     const bool quadrature = !emitter && node.diagonal() <= kQuadratureFar * box_gap(node.lo, node.hi, x);
     const double f = quadrature ? point_polygon_form_factor_by_quadrature(x, n, s.p.data(), s.nv, s.normal, s.area)
                                 : point_polygon_form_factor(x, n, s.p.data(), s.nv, s.normal);
@@ -357,7 +361,7 @@ RGB Gatherer::cell_transfer(const GatherLink& link, uint32_t source, const Patch
     const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth));
     // One ray to the cell, above x's horizon, where the link's estimate saw a shadow or the
     // source emits (element_transfer: an emitter's estimate can miss a small shadow).
-    if (link.visibility < 1.0f || luminance(h_.shape(source).self_emission()) > 0) {
+    if (link.visibility < 1.0f || emits(h_.shape(source))) {
         Vec3 y = cell.point(rng.uniform(), rng.uniform());
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
         const double lift = 1e-5 * vis_.scene_size();
