@@ -33,6 +33,15 @@ Two things then keep that interpolation honest:
   children are tested the same way, `refine_levels` times. A face left whole beside split
   ones has vertices on its edges (T-vertices); it is drawn as a fan of triangles around its
   gathered centre, so the written mesh has no T-junctions and shows every gathered value.
+
+Where the faces on both sides of an edge lie in one plane, their samples at its midpoint differ
+only by the inset, a hundredth of the way to each face's centre, so one of them is gathered
+and stands for both (`_one_per_plane`): on the Cornell box at epsilon 1e-4 the vertex gather
+took 0.75-0.81 s instead of 1.12 s, and the written values' mean error against the path
+tracer moved from 1.58 to 1.59 % (bench/README.md). Corners are still gathered one per face:
+gathering one corner per vertex where its faces are coplanar cut the gather further (0.59 s)
+but took the bundled-like setting from 1.00 to 1.08 %: the four corners' mean halves the
+noise of the gather's 16 rays to each emitter.
 """
 
 from __future__ import annotations
@@ -92,6 +101,19 @@ class _Sampler:
         self.unfound += int((~found).sum())
         self.enclosed += int((found & inside).sum())
         return (np.asarray(g["radiance"], dtype=np.float64), np.asarray(g["irradiance"], dtype=np.float64), ok)
+
+
+def _one_per_plane(group: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Which samples to gather: in a group (a vertex's corners, an edge's two sides) whose
+    normals all equal its first's, only that first; in any other group, all of them."""
+    if len(group) == 0:
+        return np.zeros(0, bool)
+    _, first, inv = np.unique(group, return_index=True, return_inverse=True)
+    same = np.einsum("ij,ij->i", normals, normals[first][inv]) > 1 - 1e-9
+    planar = np.bincount(inv, ~same, minlength=len(first)) == 0
+    keep = ~planar[inv]
+    keep[first[planar]] = True
+    return keep
 
 
 def _mean_by(index: np.ndarray, values: np.ndarray, ok: np.ndarray, n: int):
@@ -201,15 +223,17 @@ def _refine_level(mesh: _Mesh, candidates: np.ndarray, sampler, tol: float, floo
     ea, eb = C[has], nxt[has]
     e_cell = np.nonzero(has)[0]
     cen = _centroids(mesh.P, C, has, n_c)
-    mid = 0.5 * (mesh.P[ea] + mesh.P[eb])
-    pts = np.concatenate([mid + INSET * (cen[e_cell] - mid), cen])
-    s_rad, s_irr, s_ok = sampler(pts, np.concatenate([p_c[e_cell], p_c]),
-                                 np.concatenate([e_cell, np.arange(len(C))]))
-    ne = len(ea)
     keys = _edge_keys(ea, eb)
     ukeys, inv = np.unique(keys, return_inverse=True)
-    e_rad = _mean_by(inv, s_rad[:ne], s_ok[:ne], len(ukeys))   # both sides of an edge
-    e_irr = _mean_by(inv, s_irr[:ne], s_ok[:ne], len(ukeys))
+    side = _one_per_plane(keys, sampler.normal_of_patch[p_c[e_cell]])   # both sides of an edge, or one
+    s_ea, s_eb, s_cell = ea[side], eb[side], e_cell[side]
+    mid = 0.5 * (mesh.P[s_ea] + mesh.P[s_eb])
+    pts = np.concatenate([mid + INSET * (cen[s_cell] - mid), cen])
+    s_rad, s_irr, s_ok = sampler(pts, np.concatenate([p_c[s_cell], p_c]),
+                                 np.concatenate([s_cell, np.arange(len(C))]))
+    ne = len(s_ea)
+    e_rad = _mean_by(inv[side], s_rad[:ne], s_ok[:ne], len(ukeys))
+    e_irr = _mean_by(inv[side], s_irr[:ne], s_ok[:ne], len(ukeys))
     c_rad, c_irr, c_ok = s_rad[ne:], s_irr[ne:], s_ok[ne:]
     mesh.centre[candidates] = np.concatenate([c_rad, c_irr, c_ok[:, None]], axis=1)
     # against what a renderer interpolates there
