@@ -342,3 +342,67 @@ def test_the_vertex_gather_builds_no_ray_tracing_scene_of_its_own(tmp_path, monk
     assert not built
     result.field  # the count sees a SurfaceField when one is made
     assert built == [1]
+
+
+def _grid_mesh(k: int):
+    """A unit square of k x k quads, as the vertex gather's _Mesh, with every edge and face
+    tested (as one refinement level that split nothing leaves them)."""
+    from hirad.outputs import vertex_values as vv
+
+    xs = np.linspace(0.0, 1.0, k + 1)
+    P = np.array([[x, y, 0.0] for y in xs for x in xs])
+    quads = np.array([[j * (k + 1) + i, j * (k + 1) + i + 1, (j + 1) * (k + 1) + i + 1, (j + 1) * (k + 1) + i]
+                      for j in range(k) for i in range(k)])
+    mesh = vv._Mesh({"points": P, "faces": quads.reshape(-1), "face_nv": np.full(len(quads), 4),
+                     "face_patch": np.zeros(len(quads), np.int64)})
+    return mesh, quads
+
+
+def _bilinear(quads, values, s, t, cell):
+    """Bilinear interpolation of per-vertex `values` (1-D) at (s, t) of quads[cell]."""
+    v = values[quads[cell]]
+    return (1 - s) * (1 - t) * v[:, 0] + s * (1 - t) * v[:, 1] + s * t * v[:, 2] + (1 - s) * t * v[:, 3]
+
+
+@pytest.mark.parametrize("field", ["linear", "curved"])
+def test_least_squares_vertex_values(field):
+    """The fit of the vertex values to the gathered samples (vertex_values._fit): a field that
+    bilinear interpolation represents exactly keeps its exact vertex values; a curved one
+    (brightest mid-way, as a wall under a ceiling light) is read, between the vertices, closer
+    to its closed form than with the exact vertex values, and without their one-sided bias."""
+    from hirad.outputs import vertex_values as vv
+
+    k = 4
+    mesh, quads = _grid_mesh(k)
+    if field == "linear":
+        f = lambda p: 2.0 + p[..., 0] + 3.0 * p[..., 1] + 0.5 * p[..., 0] * p[..., 1]  # noqa: E731
+    else:
+        f = lambda p: 1.0 + 0.5 * np.sin(np.pi * p[..., 0]) * np.sin(np.pi * p[..., 1])  # noqa: E731
+    rgb = lambda p: np.stack([f(p), 2 * f(p), 0.5 * f(p)], axis=-1)  # noqa: E731
+    exact = rgb(mesh.P)
+    mesh.R, mesh.H = exact.copy(), 3 * exact.copy()
+    mesh.valid = np.ones(len(mesh.P), bool)
+    has, nxt = vv._edges(mesh.cells, mesh.nv)
+    keys = np.unique(vv._edge_keys(mesh.cells[has], nxt[has]))
+    mid = 0.5 * (mesh.P[keys // vv.KEY] + mesh.P[keys % vv.KEY])
+    mesh.edge_samples.append((keys, rgb(mid), 3 * rgb(mid)))
+    cen = mesh.P[quads].mean(axis=1)
+    mesh.centre[:] = np.concatenate([rgb(cen), 3 * rgb(cen), np.ones((len(quads), 1))], axis=1)
+    vv._fit(mesh, mesh.cells, mesh.nv, np.arange(len(quads)))
+    assert np.allclose(mesh.H, 3 * mesh.R, rtol=1e-8)
+    if field == "linear":
+        assert np.allclose(mesh.R, exact, rtol=1e-8, atol=0)
+        return
+    rng = np.random.default_rng(3)
+    cell = rng.integers(0, len(quads), 20000)
+    s, t = rng.random(20000), rng.random(20000)
+    corner = mesh.P[quads[cell, 0]]
+    p = corner + np.stack([s / k, t / k, 0 * s], axis=1)
+    truth = f(p)
+    fitted = _bilinear(quads, mesh.R[:, 0], s, t, cell) / truth - 1
+    at_vertices = _bilinear(quads, exact[:, 0], s, t, cell) / truth - 1
+    # Exact vertex values under-read a field brightest mid-way (sin is concave): by 1.6 % on
+    # average here (mean |e| 1.6 %); the fit at least halves both (measured: -0.44 % and 0.58 %).
+    assert np.mean(at_vertices) < -0.01
+    assert np.mean(np.abs(fitted)) < 0.5 * np.mean(np.abs(at_vertices))
+    assert abs(np.mean(fitted)) < 0.5 * abs(np.mean(at_vertices))

@@ -48,6 +48,9 @@ from __future__ import annotations
 
 import numpy as np
 
+
+
+
 INSET = 0.01   # of the way from a corner (or an edge's midpoint) to its face's centroid
 FLOOR = 0.01   # of the median vertex luminance: below it, differences do not split a face
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -193,6 +196,11 @@ class _Mesh:
         self.centre = np.full((len(self.nv), 7), np.nan)   # gathered at the centroid: R, H, ok
         self.mid_key = np.zeros(0, np.int64)                # split edges, sorted, and their midpoints
         self.mid_vertex = np.zeros(0, np.int64)
+        # Gathered samples that no vertex holds, for the least-squares fit (_fit): edges tested
+        # and left whole (keys, R, H), and split triangles' centres, which lie in their middle
+        # child (its three vertices, R, H).
+        self.edge_samples: list = []
+        self.middle_samples: list = []
 
     def add_points(self, p, r, h, ok) -> np.ndarray:
         first = len(self.P)
@@ -244,6 +252,8 @@ def _refine_level(mesh: _Mesh, candidates: np.ndarray, sampler, tol: float, floo
     i_cen = np.einsum("ij,ijk->ik", has.astype(np.float64), np.nan_to_num(R[C])) / n_c[:, None]
     c_off = _off(c_rad @ LUM, i_cen @ LUM, corners_valid & c_ok, tol, floor)
     split = c_off | (np.bincount(e_cell, e_off, minlength=len(C)) > 0)
+    whole = ~np.isin(ukeys, keys[split[e_cell]]) & ~np.isin(ukeys, mesh.mid_key) & np.isfinite(e_rad).all(axis=1)
+    mesh.edge_samples.append((ukeys[whole], e_rad[whole], e_irr[whole]))
     if not split.any():
         return np.zeros(0, np.int64)
     # new vertices: the split cells' edge midpoints (shared with neighbours) and quads' centres
@@ -268,6 +278,8 @@ def _refine_level(mesh: _Mesh, candidates: np.ndarray, sampler, tol: float, floo
     m_da = m_cd.copy()
     m_da[quad] = mesh.midpoint(d[quad], a[quad])
     o = centre_id
+    mid_tri = ~quad & c_ok[sc]
+    mesh.middle_samples.append((np.stack([m_ab, m_bc, m_cd], 1)[mid_tri], c_rad[sc][mid_tri], c_irr[sc][mid_tri]))
     tri = np.stack([np.stack([a, m_ab, m_cd, m_cd], 1), np.stack([m_ab, b, m_bc, m_bc], 1),
                     np.stack([m_cd, m_bc, c, c], 1), np.stack([m_ab, m_bc, m_cd, m_cd], 1)], 1)
     qd = np.stack([np.stack([a, m_ab, o, m_da], 1), np.stack([m_ab, b, m_bc, o], 1),
@@ -320,10 +332,75 @@ def _conforming(mesh: _Mesh, sampler) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return np.concatenate(faces), np.concatenate(nv), np.concatenate(patch), int(fi.size)
 
 
+def _fit(mesh: _Mesh, faces: np.ndarray, nv: np.ndarray, leaf_cells: np.ndarray) -> None:
+    """Least-squares vertex values (Kavan, Bargteil and Sloan 2011, "Least squares vertex
+    baking"), in place on mesh.R and mesh.H. A renderer interpolates the vertex values
+    linearly (bilinearly on quads); where the light is curved across a face, values that are
+    exact at the vertices leave the face's inside off by the curvature, one way: in the
+    Cornell box, whose walls and floor are brightest mid-way, the written primvars read
+    0.4 % darker on average than the gather at the same points. Refinement gathered every
+    tested face at its edge midpoints and centre; where the face stayed whole those samples
+    are not vertices, and here they join the vertices' own: the values x minimise
+    sum over samples (interpolation of x at the sample - gathered)^2, each vertex's gather one
+    sample, each whole edge's midpoint, each whole face's centre and each split triangle's
+    centre one each. Vertices without a valid value (inside geometry) are left out, as are the
+    samples that would interpolate them; they are filled from their neighbours afterwards."""
+    n = len(mesh.P)
+    valid = mesh.valid.copy()
+    if not mesh.edge_samples or not valid.any():
+        return
+    rows, cols, vals, rhs = [], [], [], []
+    count = 0
+
+    def add(verts: np.ndarray, weight: float, r: np.ndarray, h: np.ndarray, scale: float = 1.0) -> None:
+        nonlocal count
+        if len(verts) == 0:
+            return
+        ok = valid[verts].all(axis=1)
+        verts, r, h = verts[ok], r[ok], h[ok]
+        k = len(verts)
+        rows.append(np.repeat(count + np.arange(k), verts.shape[1]))
+        cols.append(verts.reshape(-1))
+        vals.append(np.full(verts.size, weight * scale))
+        rhs.append(np.concatenate([r, h], axis=1) * scale)
+        count += k
+
+    vv = np.nonzero(valid)[0]
+    add(vv[:, None], 1.0, mesh.R[vv], mesh.H[vv])
+    for keys, r, h in mesh.edge_samples:
+        add(np.stack([keys // KEY, keys % KEY], 1), 0.5, r, h)
+    for verts, r, h in mesh.middle_samples:
+        add(verts, 1.0 / 3.0, r, h)
+    C, n_c = mesh.cells[leaf_cells], mesh.nv[leaf_cells]
+    has, nxt = _edges(C, n_c)
+    whole = ~(np.isin(_edge_keys(C, nxt), mesh.mid_key) & has).any(axis=1)   # not drawn as a fan
+    ctr = mesh.centre[leaf_cells]
+    tested = whole & (ctr[:, 6] > 0)
+    for k in (3, 4):
+        sel = tested & (n_c == k)
+        add(C[sel][:, :k], 1.0 / k, ctr[sel, :3], ctr[sel, 3:6])
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import cg
+
+    A = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, n)).tocsr()
+    A = A[:, vv]
+    M = (A.T @ A).tocsr()
+    g = np.concatenate(rhs)
+    inv_diag = 1.0 / M.diagonal()
+    from scipy.sparse.linalg import LinearOperator
+    pre = LinearOperator(M.shape, matvec=lambda x: inv_diag * x)
+    out = np.empty((len(vv), 6))
+    for c in range(6):
+        b = A.T @ g[:, c]
+        x, info = cg(M, b, x0=g[: len(vv), c].copy(), rtol=1e-10, atol=0.0, maxiter=1000, M=pre)
+        out[:, c] = np.maximum(x, 0.0)
+    mesh.R[vv], mesh.H[vv] = out[:, :3], out[:, 3:]
+
+
 def gathered_vertex_values(result, display: dict, patches: dict, *, rays: int, importance: float,
                            sample_offset: float, refine_levels: int = 0,
                            refine_tolerance: float = 0.02,
-                           second_bounce: float = 1.0) -> tuple[dict, np.ndarray, np.ndarray, dict]:
+                           second_bounce: float = 1.0, fit: bool = True) -> tuple[dict, np.ndarray, np.ndarray, dict]:
     """The display mesh (refined up to `refine_levels` times where its gathered values need it)
     and its vertex radiance W/(m^2 sr) and irradiance W/m^2 from the final gather, with counts:
     `samples` (points gathered), `unfound` (samples that found no surface to gather on),
@@ -358,6 +435,8 @@ def gathered_vertex_values(result, display: dict, patches: dict, *, rays: int, i
             stats["split"] += int((~mesh.leaf).sum()) - n_before
         if stats["split"]:
             faces, nv, face_patch, stats["fans"] = _conforming(mesh, sampler)
+        if fit:
+            _fit(mesh, faces, nv, np.nonzero(mesh.leaf)[0])
     # vertices inside geometry (or that found no surface): from their neighbours along edges
     has, nxt = _edges(faces, nv)
     mesh.valid = mesh.valid & np.isfinite(mesh.R).all(axis=1)
