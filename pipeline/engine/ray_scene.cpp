@@ -139,7 +139,7 @@ Illuminance RayScene::illuminance(const std::vector<Vec3>& points, const std::ve
         std::vector<Vec3> unit(normals.size());
         for (size_t q = 0; q < unit.size(); ++q) unit[q] = normalize(normals[q]);
         luminaire_irradiance(luminaires_, visibility_.get(), points.data(), unit.data(), points.size(), d.data(),
-                             1e-7 * visibility_->scene_size());
+                             kSensorLift * visibility_->scene_size());
         for (size_t q = 0; q < d.size(); ++q) e.direct[q] += d[q];
     }
     return e;

@@ -139,7 +139,8 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
     struct Piece { Patch shape; Vec3 target; };
     struct Emitter { Piece whole; std::vector<Piece> pieces; RGB le; double diameter; };
     std::vector<Emitter> emitters;
-    const double lift = 1e-7 * visibility.scene_size();
+    const double lift = 1e-7 * visibility.scene_size();       // the emitters' side of a shadow ray
+    const double sensor_lift = kSensorLift * visibility.scene_size();
     for (size_t i = 0; i < patches.size(); ++i) {
         if (max_component(emitted[i]) <= 0) continue;
         const Patch& w = patches[i];
@@ -169,7 +170,7 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
             if (!(ff > 0)) return;
             f.push_back(ff);
             le.push_back(l);
-            from.push_back(x);
+            from.push_back(x + nx * sensor_lift);
             to.push_back(piece.target);
         };
         for (const Emitter& e : emitters) {

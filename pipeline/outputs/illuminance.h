@@ -18,7 +18,12 @@
 //             hits a back face or escapes brings nothing; E_ind = pi x the mean.
 // So the self-emission of an emitter is counted once, in the exact part, and its reflected
 // light (an emitter with a reflectance) in the sampled one. The sensor is never snapped to a
-// surface: its value is that of the point itself.
+// surface: its value is that of the point itself. A sensor may lie on a surface (a corridor's
+// grid at floor level, height 0): its shadow rays, to the emitters and to the luminaires,
+// start kSensorLift x the scene's size off it along n, so that the surface under it does not
+// block them (a shadow ray from the point itself met the floor at t = 0, and a floor-level
+// grid read no direct light from emitting surfaces at all); its hemisphere rays leave it
+// along their own directions past a tnear of 1e-7 x the scene's size.
 //
 // Units: metres; radiance W/(m^2 sr); illuminance W/m^2 per RGB channel (lux when the scene's
 // quantities are photometric). Deterministic: each point draws from its own seed.
@@ -31,6 +36,9 @@
 #include "pipeline/geometry/visibility.h"
 
 namespace hirad {
+
+// Where a sensor's rays start: this fraction of the scene's size off it along its normal.
+constexpr double kSensorLift = 1e-5;
 
 struct IlluminanceOptions {
     int rays = 512;            // hemisphere rays for the indirect part (0: direct only)

@@ -93,5 +93,31 @@ TEST(Illuminance, LitCeilingIsExactAndShadowed) {
     EXPECT_EQ(e.direct[0].x, 0.0);
 }
 
+TEST(Illuminance, SensorOnTheFloorReadsTheCeiling) {
+    // A calculation grid at floor level (a corridor's, height 0) puts its sensors on the floor
+    // itself. Each reads the lit ceiling's pi L F whole: the floor under it blocks no shadow ray
+    // (they start kSensorLift off it; from the point itself they met the floor at t = 0 and the
+    // direct light read 0). Sensors at the floor's middle and off it, by the corner formula.
+    std::vector<Patch> patches = test::unit_cube_patches(3);
+    const double le = 100;
+    std::vector<RGB> emitted(patches.size(), RGB{});
+    CornerValues radiance(patches.size());
+    for (size_t i = 0; i < patches.size(); ++i)
+        if (patches[i].normal.z < -0.5) {
+            emitted[i] = test::grey(le);
+            radiance[i] = {emitted[i], emitted[i], emitted[i], emitted[i]};
+        }
+    Visibility vis(patches);
+    const std::vector<Vec3> points = {{0.5, 0.5, 0.0}, {0.2, 0.7, 0.0}, {1.0 / 3, 1.0 / 3, 0.0}};
+    const Illuminance e = illuminance_at(patches, vis, radiance, emitted, points,
+                                         std::vector<Vec3>(points.size(), Vec3{0, 0, 1}), {16, 3, 1});
+    for (size_t q = 0; q < points.size(); ++q) {
+        const double x = points[q].x, y = points[q].y;
+        const double f = corner_rectangle(x, y, 1) + corner_rectangle(1 - x, y, 1) + corner_rectangle(x, 1 - y, 1) +
+                         corner_rectangle(1 - x, 1 - y, 1);
+        EXPECT_NEAR(e.direct[q].x, kPi * le * f, 1e-9 * kPi * le * f) << q;
+    }
+}
+
 }  // namespace
 }  // namespace hirad
