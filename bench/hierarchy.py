@@ -12,6 +12,7 @@ Figures are printed, not asserted. Subcommands (each also runs alone):
     python bench/hierarchy.py kitchen  [--points 200]     # 8. the country kitchen end to end, out of core
     python bench/hierarchy.py cornell  [--settings E:A:S,...] # 9. the bundled Cornell box end to end, primvars' error
     python bench/hierarchy.py threads  [--hall PATH]      # 10. every stage with 1 and with 2 threads
+    python bench/hierarchy.py building [--floors 4 --building-tess 62 --triangles]  # 11. a generated building
     python bench/hierarchy.py all
 
 The Modern Hall is ../shared/data/modern_hall/usd/modern_hall.usda next to the repository
@@ -167,11 +168,15 @@ def _grids(quads: list, tess: int) -> tuple[np.ndarray, np.ndarray]:
     return pts.reshape(-1, 3), (cell[None] + base).reshape(-1, 4)
 
 
-def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_h=0.6, tess: int = 1) -> None:
+def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_h=0.6, tess: int = 1,
+               floors: int = 1, storey: float = 3.3, triangles: bool = False) -> None:
     """A closed room (W x H x D m, Y up, faces inward) with a 1.5 m square ceiling light and
     nx x nz boxes (5 sides each, each side tess x tess quads sharing their vertices) spread over
     the floor. A path ending .usdc is written as binary crate (the larger family members: a
-    text .usda of 1.3 M faces took 2 GB and 5 s to parse at each open)."""
+    text .usda of 1.3 M faces took 2 GB and 5 s to parse at each open). `floors` > 1: a building
+    of that many such rooms stacked `storey` m apart (the slab between them 0.3 m), each room
+    three meshes of its own (room_f<k>, boxes_f<k>, light_f<k>) sharing the three materials.
+    `triangles`: every quad written as two triangles (a triangle mesh of twice the faces)."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
     W, H, D = room
@@ -179,20 +184,28 @@ def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.Xform.Define(stage, "/World")
+    looks = {}
 
-    def mesh(name, points, cells, color, emission=None):
+    def material(kind, color, emission):
+        if kind not in looks:
+            mat = UsdShade.Material.Define(stage, f"/World/Looks/{kind}")
+            sh = UsdShade.Shader.Define(stage, f"/World/Looks/{kind}/PreviewSurface")
+            sh.CreateIdAttr("UsdPreviewSurface")
+            sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+            if emission is not None:
+                sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
+            mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+            looks[kind] = mat
+        return looks[kind]
+
+    def mesh(name, points, cells, color, emission=None, kind=None):
+        if triangles:
+            cells = np.concatenate([cells[:, [0, 1, 2]], cells[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
         m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
         m.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32)))
-        m.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(cells), 4, dtype=np.int32)))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(cells), cells.shape[1], dtype=np.int32)))
         m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(cells, dtype=np.int32).reshape(-1)))
-        mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
-        sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/PreviewSurface")
-        sh.CreateIdAttr("UsdPreviewSurface")
-        sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-        if emission is not None:
-            sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
-        mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
-        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material(kind or name, color, emission))
         if emission is not None:
             UsdLux.MeshLightAPI.Apply(m.GetPrim())
 
@@ -204,7 +217,6 @@ def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_
         _quad((0, 0, 0), (0, 0, D), (0, H, D), (0, H, 0), (1, 0, 0)),
         _quad((W, 0, 0), (W, 0, D), (W, H, D), (W, H, 0), (-1, 0, 0)),
     ]
-    mesh("room", *_grids(walls, 1), (0.7, 0.7, 0.7))
     sides = []
     margin = 0.6
     for i in range(nx):
@@ -212,12 +224,17 @@ def write_room(path: Path, nx: int, nz: int, room=(8.0, 3.0, 8.0), box=0.3, box_
             x = margin + (W - 2 * margin - box) * (i + 0.5) / nx
             z = margin + (D - 2 * margin - box) * (k + 0.5) / nz
             sides += _box_faces(x, z, box, box_h)
-    if sides:
-        mesh("boxes", *_grids(sides, max(1, tess)), (0.5, 0.45, 0.35))
     c, s, y = (W / 2, D / 2), 0.75, H - 0.005
     light = [_quad((c[0] - s, y, c[1] - s), (c[0] + s, y, c[1] - s), (c[0] + s, y, c[1] + s),
                    (c[0] - s, y, c[1] + s), (0, -1, 0))]
-    mesh("light", *_grids(light, 1), (0.8, 0.8, 0.8), emission=(5.0, 5.0, 5.0))
+    parts = [("room", _grids(walls, 1), (0.7, 0.7, 0.7), None)]
+    if sides:
+        parts.append(("boxes", _grids(sides, max(1, tess)), (0.5, 0.45, 0.35), None))
+    parts.append(("light", _grids(light, 1), (0.8, 0.8, 0.8), (5.0, 5.0, 5.0)))
+    for f in range(floors):
+        up = np.array([0.0, f * storey, 0.0])
+        for kind, (points, cells), color, emission in parts:
+            mesh(kind if floors == 1 else f"{kind}_f{f}", points + up, cells, color, emission, kind)
     stage.GetRootLayer().Save()
 
 
@@ -819,6 +836,80 @@ def cmd_kitchen(args) -> None:
 
 
 # --------------------------------------------------------------------------------------------
+# 11. A generated building (issue 12: "a 10M-triangle building, several floors of the family's
+# rooms, end to end with a 4 GB budget; target <= 4 hours, peak RSS <= 5 GB").
+
+def cmd_building(args) -> None:
+    floors, t = args.floors, args.building_tess
+    print(f"# 11. building: {floors} floors of the family's room (8 x 3 x 8 m, 8 x 8 boxes whose 5 sides are "
+          f"{t} x {t} quads{', each split in two triangles' if args.triangles else ''}), rooms 3.3 m apart; "
+          f"hierarchical, clusters that receive, block_southwell, memory_budget {args.building_budget}, epsilon "
+          f"{args.epsilon:g}, min_area {args.min_area:g}, samples {args.samples}, max_rounds {args.max_rounds}; "
+          f"USD (vertex-rule values), preview and report written; a child process, stopped if its RSS passes "
+          f"{args.kill_above_gib:g} GiB")
+    with tempfile.TemporaryDirectory(dir=args.work) as tmp:
+        scene = Path(tmp) / "building.usdc"
+        t0 = time.perf_counter()
+        write_room(scene, 8, 8, tess=t, floors=floors, triangles=args.triangles)
+        print(f"scene written in {time.perf_counter() - t0:.1f} s: {scene.stat().st_size / 2**20:,.0f} MiB")
+        cfg = {"scene": str(scene), "output": str(Path(tmp) / "out"), "method": "hierarchical",
+               "hierarchy": {"epsilon": args.epsilon, "min_area": args.min_area, "samples": args.samples,
+                             "max_rounds": args.max_rounds, "cluster_receivers": True},
+               "solver": {"method": "block_southwell", "tolerance": 1e-4},
+               "links": {"memory_budget": args.building_budget, "store": str(Path(tmp) / "out.links")},
+               "outputs": {"usd": True, "report": True, "lightmaps": {"enabled": False},
+                           "volume": {"enabled": False}, "preview": {"enabled": True}}}
+        path = Path(tmp) / "config.yaml"
+        path.write_text(yaml.safe_dump(cfg))
+        ld = load()
+        cmd = [sys.executable, "-m", "hirad.cli", "bake", str(path), "--json", "--quiet"]
+        limit = args.kill_above_gib * 2**30
+        samples, killed = [], False
+        t0 = time.perf_counter()
+        with open(Path(tmp) / "report.json", "w") as f:
+            proc = subprocess.Popen(cmd, stdout=f)
+            while True:  # (not proc.poll(): it would reap the child before wait4 reads its rusage)
+                pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+                if pid == proc.pid:
+                    break
+                try:
+                    rss = next(int(x.split()[1]) for x in open(f"/proc/{proc.pid}/status") if x.startswith("VmRSS:")) * 1024
+                except (OSError, StopIteration):
+                    rss = 0
+                samples.append((time.perf_counter() - t0, rss))
+                if rss > limit and not killed:
+                    proc.kill()
+                    killed = True
+                time.sleep(1.0)
+        wall = time.perf_counter() - t0
+        peak = max((r for _, r in samples), default=0) / 2**20
+        if killed or status != 0:
+            last = samples[-1][0] if samples else 0
+            print(f"bake {'stopped at the RSS limit' if killed else f'failed (status {status})'} after {wall:.0f} s "
+                  f"({ld} at start); RSS sampled every second, highest {peak:,.0f} MiB (at {last:.0f} s)")
+            return
+        r = json.loads((Path(tmp) / "report.json").read_text())
+        store = Path(tmp) / "out.links"
+        disk = sum(x.stat().st_size for x in store.rglob("*") if x.is_file()) if store.exists() else 0
+    h, c, tm = r["hierarchy"], r["counts"], r["timings_s"]
+    print(f"bake ({ld} at start): {wall:.1f} s wall in the child ({wall / 60:.1f} min); peak RSS "
+          f"{usage.ru_maxrss / 1024:,.0f} MiB (getrusage; sampled {peak:,.0f} MiB)")
+    print(f"stages (s): {json.dumps(tm)}")
+    print(f"peak RSS at each stage's end (MiB): {json.dumps(r.get('peak_rss_mib'))}")
+    print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
+          f"{c['links']:,} links ({h.get('links_on_clusters') or 0:,} on clusters), {h['rounds']} rounds, "
+          f"link estimates {h['link_estimates']:,}; energy balance {r['energy_balance']['max_relative_error']:.2e}")
+    for i, lk in enumerate(h["links_per_round"]):
+        print(f"  round {i + 1}: {lk:>13,} links, refine {h['refine_seconds'][i]:.1f} s, solve "
+              f"{h['solve_seconds'][i]:.1f} s")
+    lk = r.get("links") or {}
+    print(f"link store: {lk.get('store_bytes', 0) / 2**20:,.0f} MiB of links, {disk / 2**20:,.0f} MiB on disk at the end")
+    print(f"per input face: {usage.ru_maxrss * 1024 / c['input_faces']:,.0f} bytes of peak RSS, "
+          f"{wall / c['input_faces'] * 1e6:.1f} us of wall")
+    print(f"targets: <= 4 hours ({wall / 3600:.2f} h), peak RSS <= 5 GB ({usage.ru_maxrss / 2**20:.2f} GiB)")
+
+
+# --------------------------------------------------------------------------------------------
 # 9. The bundled Cornell box end to end: what a user waits for and what the written layer says.
 
 CORNELL_E2E = [(1e-4, 1e-3, 4), (1e-4, 1e-3, 8), (3e-5, 1e-3, 8), (1e-5, 1e-3, 8), (1e-5, 2e-4, 16),
@@ -918,7 +1009,7 @@ def cmd_threads(args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("part", choices=["counts", "family", "accuracy", "hall", "spread", "receivers",
-                                     "receivers-accuracy", "kitchen", "cornell", "threads", "all"])
+                                     "receivers-accuracy", "kitchen", "cornell", "threads", "building", "all"])
     ap.add_argument("--hall", type=Path, default=HALL)
     ap.add_argument("--epsilon", type=float, default=1e-5, help="counts, family, hall")
     ap.add_argument("--min-area", type=float, default=None,
@@ -947,6 +1038,11 @@ def main() -> None:
                     help="cornell: epsilon:min_area:samples triples, comma-separated (default: a ladder)")
     ap.add_argument("--values", default="patches,final_gather",
                     help="cornell: reconstruction.values to run, comma-separated")
+    ap.add_argument("--floors", type=int, default=4, help="building: floors (rooms stacked)")
+    ap.add_argument("--building-tess", type=int, default=62, help="building: quads per box side edge")
+    ap.add_argument("--triangles", action="store_true", help="building: every quad as two triangles")
+    ap.add_argument("--building-budget", default="4GB", help="building: links.memory_budget")
+    ap.add_argument("--kill-above-gib", type=float, default=21.0, help="building: stop the bake above this RSS")
     ap.add_argument("--save", default=None, help="kitchen: an .npz of the points, reference and read-outs")
     ap.add_argument("--work", default=None, help="kitchen: where the bake's temporary folder goes (default $TMPDIR)")
     args = ap.parse_args()
@@ -958,7 +1054,7 @@ def main() -> None:
         print(f"[{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, {load()}]")
         {"counts": cmd_counts, "family": cmd_family, "accuracy": cmd_accuracy, "hall": cmd_hall,
          "spread": cmd_spread, "receivers": cmd_receivers, "receivers-accuracy": cmd_receivers_accuracy,
-         "kitchen": cmd_kitchen, "cornell": cmd_cornell, "threads": cmd_threads}[part](a)
+         "kitchen": cmd_kitchen, "cornell": cmd_cornell, "threads": cmd_threads, "building": cmd_building}[part](a)
         print()
 
 

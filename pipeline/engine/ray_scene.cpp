@@ -155,7 +155,7 @@ std::vector<float> RayScene::direct_transmittance(const std::vector<Vec3>& point
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
     std::vector<float> out(points.size() * directions.size());
     distant_transmittance(*visibility_, points.data(), normals.data(), points.size(), unit_directions(directions),
-                          1e-7 * visibility_->scene_size(), out.data());
+                          kSensorLift * visibility_->scene_size(), out.data());
     return out;
 }
 

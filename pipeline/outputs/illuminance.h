@@ -19,7 +19,8 @@
 // So the self-emission of an emitter is counted once, in the exact part, and its reflected
 // light (an emitter with a reflectance) in the sampled one. The sensor is never snapped to a
 // surface: its value is that of the point itself. A sensor may lie on a surface (a corridor's
-// grid at floor level, height 0): its shadow rays, to the emitters and to the luminaires,
+// grid at floor level, height 0): its shadow rays, to the emitters, the luminaires and the
+// distant lights (RayScene::direct_transmittance, which daylight coefficients read),
 // start kSensorLift x the scene's size off it along n, so that the surface under it does not
 // block them (a shadow ray from the point itself met the floor at t = 0, and a floor-level
 // grid read no direct light from emitting surfaces at all); its hemisphere rays leave it
