@@ -159,10 +159,13 @@ uint64_t LeafTerms::normalised() const {
 }
 
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters) {
+               std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters,
+               std::vector<VectorIrradiance>* scratch) {
     const size_t n = h.nodes.size();
     // Vectors down the clusters (parents first), n_f . E into each face root.
-    std::vector<VectorIrradiance> pushed(clusters);
+    std::vector<VectorIrradiance> own;
+    std::vector<VectorIrradiance>& pushed = scratch ? *scratch : own;
+    pushed.assign(clusters.begin(), clusters.end());
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h.nodes[i];
         RGB above = node.parent == kNoNode ? RGB{} : irradiance[node.parent];

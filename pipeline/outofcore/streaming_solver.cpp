@@ -220,14 +220,15 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         terms = gather_terms(h, std::move(in), std::move(in_clusters));
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
-    stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
+    stats.state_bytes += 2 * received_clusters.size() * sizeof(VectorIrradiance);  // and push_pull's sums
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
     // before it is written).
+    std::vector<VectorIrradiance> pushed;  // push_pull's sums, kept from round to round
     auto gather_and_push_pull = [&] {
         for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b, terms, received_clusters);
+        push_pull(h, irradiance, irradiance, b, terms, received_clusters, &pushed);
     };
 
     HierarchicalSolution sol;
