@@ -21,6 +21,21 @@ double corner_rectangle(double a, double b, double c) {
             y / std::sqrt(1 + y * y) * std::atan(x / std::sqrt(1 + y * y))) / (2 * kPi);
 }
 
+// The unit cube of 3 x 3 patches a side whose ceiling (z = 1) emits radiance le; the rest black.
+struct LitCeiling {
+    double le = 100;
+    std::vector<Patch> patches = test::unit_cube_patches(3);
+    std::vector<RGB> emitted;
+    CornerValues radiance;
+    LitCeiling() : emitted(patches.size(), RGB{}), radiance(patches.size()) {
+        for (size_t i = 0; i < patches.size(); ++i)
+            if (patches[i].normal.z < -0.5) {
+                emitted[i] = test::grey(le);
+                radiance[i] = {emitted[i], emitted[i], emitted[i], emitted[i]};
+            }
+    }
+};
+
 TEST(Illuminance, PiecesTileThePatch) {
     const std::vector<Patch> quads = test::unit_cube_patches(1);
     for (int g : {1, 2, 5}) {
@@ -60,15 +75,11 @@ TEST(Illuminance, UniformBoxReadsPiLEverywhere) {
 
 TEST(Illuminance, LitCeilingIsExactAndShadowed) {
     // The ceiling (z = 1, 3 x 3 patches) emits L; everything else is black.
-    std::vector<Patch> patches = test::unit_cube_patches(3);
-    const double le = 100;
-    std::vector<RGB> emitted(patches.size(), RGB{});
-    CornerValues radiance(patches.size());
-    for (size_t i = 0; i < patches.size(); ++i)
-        if (patches[i].normal.z < -0.5) {
-            emitted[i] = test::grey(le);
-            radiance[i] = {emitted[i], emitted[i], emitted[i], emitted[i]};
-        }
+    LitCeiling box;
+    std::vector<Patch>& patches = box.patches;
+    std::vector<RGB>& emitted = box.emitted;
+    CornerValues& radiance = box.radiance;
+    const double le = box.le;
     {
         Visibility vis(patches);
         const Vec3 x{0.5, 0.5, 0.3};
@@ -98,18 +109,12 @@ TEST(Illuminance, SensorOnTheFloorReadsTheCeiling) {
     // itself. Each reads the lit ceiling's pi L F whole: the floor under it blocks no shadow ray
     // (they start kSensorLift off it; from the point itself they met the floor at t = 0 and the
     // direct light read 0). Sensors at the floor's middle and off it, by the corner formula.
-    std::vector<Patch> patches = test::unit_cube_patches(3);
-    const double le = 100;
-    std::vector<RGB> emitted(patches.size(), RGB{});
-    CornerValues radiance(patches.size());
-    for (size_t i = 0; i < patches.size(); ++i)
-        if (patches[i].normal.z < -0.5) {
-            emitted[i] = test::grey(le);
-            radiance[i] = {emitted[i], emitted[i], emitted[i], emitted[i]};
-        }
+    LitCeiling box;
+    const std::vector<Patch>& patches = box.patches;
+    const double le = box.le;
     Visibility vis(patches);
     const std::vector<Vec3> points = {{0.5, 0.5, 0.0}, {0.2, 0.7, 0.0}, {1.0 / 3, 1.0 / 3, 0.0}};
-    const Illuminance e = illuminance_at(patches, vis, radiance, emitted, points,
+    const Illuminance e = illuminance_at(patches, vis, box.radiance, box.emitted, points,
                                          std::vector<Vec3>(points.size(), Vec3{0, 0, 1}), {16, 3, 1});
     for (size_t q = 0; q < points.size(); ++q) {
         const double x = points[q].x, y = points[q].y;
