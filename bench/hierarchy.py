@@ -896,8 +896,10 @@ def cmd_building(args) -> None:
           f"{usage.ru_maxrss / 1024:,.0f} MiB (getrusage; sampled {peak:,.0f} MiB)")
     print(f"stages (s): {json.dumps(tm)}")
     print(f"peak RSS at each stage's end (MiB): {json.dumps(r.get('peak_rss_mib'))}")
+    on = h.get("links_on_clusters")
+    on = f"{on:,} on clusters" if on is not None else "those on clusters not counted out of core"
     print(f"{c['input_faces']:,} input faces, {h['elements']:,} elements, {h['clusters']:,} clusters, "
-          f"{c['links']:,} links ({h.get('links_on_clusters') or 0:,} on clusters), {h['rounds']} rounds, "
+          f"{c['links']:,} links ({on}), {h['rounds']} rounds, "
           f"link estimates {h['link_estimates']:,}; energy balance {r['energy_balance']['max_relative_error']:.2e}")
     for i, lk in enumerate(h["links_per_round"]):
         print(f"  round {i + 1}: {lk:>13,} links, refine {h['refine_seconds'][i]:.1f} s, solve "
