@@ -71,18 +71,39 @@ def flat_config(scene: Path, max_area: float, max_edge: float, samples: int = 16
 # --------------------------------------------------------------------------------------------
 # Child-process bakes (as bench/run.py): wall time, report.json, peak RSS from wait4.
 
+def run_bake(config_path: Path, report_path: Path, kill_above: float | None = None):
+    """`hirad bake CONFIG --json --quiet` in a child process, its report into report_path.
+    With kill_above (bytes), its RSS is sampled every second and the child stopped above it.
+    Returns (exit status, rusage, wall seconds, highest sampled RSS in bytes, killed)."""
+    cmd = [sys.executable, "-m", "hirad.cli", "bake", str(config_path), "--json", "--quiet"]
+    highest, killed = 0, False
+    t0 = time.perf_counter()
+    with open(report_path, "w") as f:
+        proc = subprocess.Popen(cmd, stdout=f)
+        while kill_above is not None:  # (not proc.poll(): it would reap the child before wait4 reads its rusage)
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid == proc.pid:
+                return status, usage, time.perf_counter() - t0, highest, killed
+            try:
+                rss = next(int(x.split()[1]) for x in open(f"/proc/{proc.pid}/status") if x.startswith("VmRSS:")) * 1024
+            except (OSError, StopIteration):
+                rss = 0
+            highest = max(highest, rss)
+            if rss > kill_above and not killed:
+                proc.kill()
+                killed = True
+            time.sleep(1.0)
+        _, status, usage = os.wait4(proc.pid, 0)
+    return status, usage, time.perf_counter() - t0, highest, killed
+
+
 def child_bake(cfg: dict) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         cfg = dict(cfg, output=str(Path(tmp) / "out"))
         path = Path(tmp) / "config.yaml"
         path.write_text(yaml.safe_dump(cfg))
         out = Path(tmp) / "report.json"
-        cmd = [sys.executable, "-m", "hirad.cli", "bake", str(path), "--json", "--quiet"]
-        t0 = time.perf_counter()
-        with open(out, "w") as f:
-            proc = subprocess.Popen(cmd, stdout=f)
-            _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
+        status, usage, wall, _, _ = run_bake(path, out)
         if status != 0:
             raise SystemExit(f"bake of {cfg['scene']} failed (status {status})")
         report = json.loads(out.read_text())
@@ -862,31 +883,12 @@ def cmd_building(args) -> None:
         path = Path(tmp) / "config.yaml"
         path.write_text(yaml.safe_dump(cfg))
         ld = load()
-        cmd = [sys.executable, "-m", "hirad.cli", "bake", str(path), "--json", "--quiet"]
-        limit = args.kill_above_gib * 2**30
-        samples, killed = [], False
-        t0 = time.perf_counter()
-        with open(Path(tmp) / "report.json", "w") as f:
-            proc = subprocess.Popen(cmd, stdout=f)
-            while True:  # (not proc.poll(): it would reap the child before wait4 reads its rusage)
-                pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-                if pid == proc.pid:
-                    break
-                try:
-                    rss = next(int(x.split()[1]) for x in open(f"/proc/{proc.pid}/status") if x.startswith("VmRSS:")) * 1024
-                except (OSError, StopIteration):
-                    rss = 0
-                samples.append((time.perf_counter() - t0, rss))
-                if rss > limit and not killed:
-                    proc.kill()
-                    killed = True
-                time.sleep(1.0)
-        wall = time.perf_counter() - t0
-        peak = max((r for _, r in samples), default=0) / 2**20
+        status, usage, wall, highest, killed = run_bake(path, Path(tmp) / "report.json",
+                                                        kill_above=args.kill_above_gib * 2**30)
+        peak = highest / 2**20
         if killed or status != 0:
-            last = samples[-1][0] if samples else 0
             print(f"bake {'stopped at the RSS limit' if killed else f'failed (status {status})'} after {wall:.0f} s "
-                  f"({ld} at start); RSS sampled every second, highest {peak:,.0f} MiB (at {last:.0f} s)")
+                  f"({ld} at start); RSS sampled every second, highest {peak:,.0f} MiB")
             return
         r = json.loads((Path(tmp) / "report.json").read_text())
         store = Path(tmp) / "out.links"

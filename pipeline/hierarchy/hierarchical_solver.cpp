@@ -258,6 +258,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     std::vector<Reception> reception(links.size());
     const bool clusters_receive = any_cluster_receiver(h, links);
     std::vector<VectorIrradiance> clusters(clusters_receive ? h.cluster_shapes.size() : 0);
+    std::vector<VectorIrradiance> pushed;  // push_pull's sums, kept from iteration to iteration
     if (clusters_receive)
         for (size_t k = 0; k < links.size(); ++k)
             if (h.slot_of(links[k].receiver) != kNoNode) reception[k] = h.reception(links[k].receiver, links[k].source);
@@ -278,7 +279,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
             gathered[r] = acc / h.nodes[r].area;
         });
-        push_pull(h, gathered, irradiance, next, terms, clusters);
+        push_pull(h, gathered, irradiance, next, terms, clusters, &pushed);
         double r2 = 0;
         for (uint32_t i : leaves) {
             RGB d = next[i] - b[i];

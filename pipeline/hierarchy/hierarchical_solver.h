@@ -105,9 +105,10 @@ LeafTerms gather_terms(const Hierarchy& h, std::vector<double> received, std::ve
 // push_pull with the leaves' terms (empty: B = E + rho H). `clusters`: the vector irradiance
 // gathered at receiving clusters (per cluster slot; empty: none), pushed down the clusters and
 // given to each face root below as n_f . E. `scratch`: where the pushed vectors are summed (a
-// copy of `clusters`), kept by a caller that pushes and pulls once a round: on a 10M-triangle
-// building it is about 1 GB, and a fresh one each round spent a fifth of the streaming solve
-// clearing new pages (perf, bench/README.md).
+// copy of `clusters`), kept by a caller that pushes and pulls again and again (the Jacobi
+// iterations, the streaming solver's rounds): on a 10M-triangle building it is about 1 GB, and
+// a fresh one each round spent a fifth of the streaming solve clearing new pages (perf,
+// bench/README.md).
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity, const LeafTerms& terms = {},
                const std::vector<VectorIrradiance>& clusters = {},

@@ -108,8 +108,8 @@ class _Sampler:
 
 
 def _one_per_plane(group: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Which samples to gather: in a group (a vertex's corners, an edge's two sides) whose
-    normals all equal its first's, only that first; in any other group, all of them."""
+    """Which samples to gather: in a group (an edge's two sides) whose normals all equal its
+    first's, only that first; in any other group, all of them."""
     if len(group) == 0:
         return np.zeros(0, bool)
     _, first, inv = np.unique(group, return_index=True, return_inverse=True)
