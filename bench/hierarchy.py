@@ -908,6 +908,12 @@ def cmd_building(args) -> None:
               f"{h['solve_seconds'][i]:.1f} s")
     lk = r.get("links") or {}
     print(f"link store: {lk.get('store_bytes', 0) / 2**20:,.0f} MiB of links, {disk / 2**20:,.0f} MiB on disk at the end")
+    ls = lk.get("last_solve") or {}
+    if ls:
+        print(f"the last solve: {ls['rounds']:,} rounds of block Southwell, {ls['groups_shot']:,} groups and "
+              f"{ls['links_shot']:,} links shot ({ls['shoot_seconds']:.1f} s shooting, {ls['read_wait_seconds']:.1f} s "
+              f"waiting for chunks), {ls['checkpoints']} checkpoints; per-node state "
+              f"{ls['state_bytes'] / 2**20:,.0f} MiB, chunks resident at most {ls['resident_bytes_peak'] / 2**20:,.0f} MiB")
     print(f"per input face: {usage.ru_maxrss * 1024 / c['input_faces']:,.0f} bytes of peak RSS, "
           f"{wall / c['input_faces'] * 1e6:.1f} us of wall")
     print(f"targets: <= 4 hours ({wall / 3600:.2f} h), peak RSS <= 5 GB ({usage.ru_maxrss / 2**20:.2f} GiB)")

@@ -25,17 +25,6 @@ void append(std::vector<uint8_t>& out, const T& v) {
     std::memcpy(out.data() + at, &v, sizeof(T));  // little-endian host (x86-64, aarch64)
 }
 
-template <typename T>
-void append_array(std::vector<uint8_t>& out, const std::string& name, uint32_t type, const std::vector<T>& a) {
-    append(out, static_cast<uint32_t>(name.size()));
-    out.insert(out.end(), name.begin(), name.end());
-    append(out, type);
-    append(out, static_cast<uint64_t>(a.size()));
-    const size_t at = out.size();
-    out.resize(at + a.size() * sizeof(T));
-    if (!a.empty()) std::memcpy(out.data() + at, a.data(), a.size() * sizeof(T));
-}
-
 struct Cursor {
     const uint8_t* p;
     size_t left;
@@ -68,44 +57,51 @@ const std::vector<uint32_t>& StateFile::u32(const std::string& name) const { ret
 const std::vector<uint64_t>& StateFile::u64(const std::string& name) const { return find(u64_, name, path_); }
 const std::vector<double>& StateFile::f64(const std::string& name) const { return find(f64_, name, path_); }
 
+// Every byte of the file but the checksum, in order, to `put(data, size)`: the arrays by type
+// then name, owned and borrowed f64 arrays alike.
+template <typename Put>
+void StateFile::emit(Put&& put) const {
+    auto put_value = [&](const auto& v) { put(&v, sizeof(v)); };  // little-endian host (x86-64, aarch64)
+    std::map<std::string, std::pair<const void*, size_t>> f64;
+    for (const auto& [name, a] : f64_) f64[name] = {a.data(), a.size()};
+    for (const auto& [name, v] : f64_views_) f64[name] = v;
+    put(kMagic, 8);
+    put_value(kVersion);
+    put_value(static_cast<uint32_t>(u32_.size() + u64_.size() + f64.size()));
+    put_value(fingerprint);
+    auto put_array = [&](const std::string& name, uint32_t type, const void* data, size_t count, size_t size) {
+        put_value(static_cast<uint32_t>(name.size()));
+        put(name.data(), name.size());
+        put_value(type);
+        put_value(static_cast<uint64_t>(count));
+        if (count > 0) put(data, count * size);
+    };
+    for (const auto& [name, a] : u32_) put_array(name, kU32, a.data(), a.size(), sizeof(uint32_t));
+    for (const auto& [name, a] : u64_) put_array(name, kU64, a.data(), a.size(), sizeof(uint64_t));
+    for (const auto& [name, v] : f64) put_array(name, kF64, v.first, v.second, sizeof(double));
+}
+
 std::vector<uint8_t> StateFile::encode() const {
-    std::vector<uint8_t> out(kMagic, kMagic + 8);
-    append(out, kVersion);
-    append(out, static_cast<uint32_t>(u32_.size() + u64_.size() + f64_.size()));
-    append(out, fingerprint);
-    for (const auto& [name, a] : u32_) append_array(out, name, kU32, a);
-    for (const auto& [name, a] : u64_) append_array(out, name, kU64, a);
-    for (const auto& [name, a] : f64_) append_array(out, name, kF64, a);
+    std::vector<uint8_t> out;
+    emit([&](const void* data, size_t size) {
+        const auto* b = static_cast<const uint8_t*>(data);
+        out.insert(out.end(), b, b + size);
+    });
     append(out, static_cast<uint64_t>(XXH3_64bits(out.data(), out.size())));
     return out;
 }
 
 // The same bytes as encode(), written as they are hashed: a checkpoint of the streaming solver
-// holds the solver's state once (its arrays here), not once more as one encoded buffer (on the
-// 1M-triangle kitchen about 360 MB more at every checkpoint).
+// holds the solver's state once (its arrays here, or borrowed: put_view), not once more as one
+// encoded buffer (on the 1M-triangle kitchen about 360 MB more at every checkpoint).
 void StateFile::write(const std::string& path) const {
     AtomicFile file(path);
     std::unique_ptr<XXH3_state_t, XXH_errorcode (*)(XXH3_state_t*)> hash(XXH3_createState(), XXH3_freeState);
     if (!hash || XXH3_64bits_reset(hash.get()) != XXH_OK) throw std::runtime_error(path + ": cannot start a checksum");
-    auto put = [&](const void* data, size_t size) {
+    emit([&](const void* data, size_t size) {
         XXH3_64bits_update(hash.get(), data, size);
         file.write(data, size);
-    };
-    auto put_value = [&](const auto& v) { put(&v, sizeof(v)); };
-    put(kMagic, 8);
-    put_value(kVersion);
-    put_value(static_cast<uint32_t>(u32_.size() + u64_.size() + f64_.size()));
-    put_value(fingerprint);
-    auto put_array = [&](const std::string& name, uint32_t type, const auto& a) {
-        put_value(static_cast<uint32_t>(name.size()));
-        put(name.data(), name.size());
-        put_value(type);
-        put_value(static_cast<uint64_t>(a.size()));
-        if (!a.empty()) put(a.data(), a.size() * sizeof(a[0]));
-    };
-    for (const auto& [name, a] : u32_) put_array(name, kU32, a);
-    for (const auto& [name, a] : u64_) put_array(name, kU64, a);
-    for (const auto& [name, a] : f64_) put_array(name, kF64, a);
+    });
     const uint64_t sum = XXH3_64bits_digest(hash.get());
     file.write(&sum, sizeof(sum));
     file.commit();

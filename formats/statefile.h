@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace hirad {
@@ -19,7 +20,18 @@ public:
 
     void put(const std::string& name, std::vector<uint32_t> values) { u32_[name] = std::move(values); }
     void put(const std::string& name, std::vector<uint64_t> values) { u64_[name] = std::move(values); }
-    void put(const std::string& name, std::vector<double> values) { f64_[name] = std::move(values); }
+    void put(const std::string& name, std::vector<double> values) {
+        f64_views_.erase(name);
+        f64_[name] = std::move(values);
+    }
+    // An f64 array the caller keeps, written from where it is: `count` doubles' bytes at `data`
+    // (a vector of RGB, say), which must outlive encode() and write(). A checkpoint of a
+    // 10M-triangle solve borrows its ~2 GB of state rather than copying it. A file that is
+    // read back has the array as an owned one.
+    void put_view(const std::string& name, const void* data, size_t count) {
+        f64_.erase(name);
+        f64_views_[name] = {data, count};
+    }
 
     // The named array; throws std::runtime_error naming the file if it is absent.
     const std::vector<uint32_t>& u32(const std::string& name) const;
@@ -39,6 +51,10 @@ private:
     std::map<std::string, std::vector<uint32_t>> u32_;
     std::map<std::string, std::vector<uint64_t>> u64_;
     std::map<std::string, std::vector<double>> f64_;
+    std::map<std::string, std::pair<const void*, size_t>> f64_views_;
+
+    template <typename Put>
+    void emit(Put&& put) const;
 };
 
 }  // namespace hirad

@@ -158,37 +158,59 @@ uint64_t LeafTerms::normalised() const {
     return count;
 }
 
-void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
-               std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters,
-               std::vector<VectorIrradiance>* scratch) {
-    const size_t n = h.nodes.size();
-    // Vectors down the clusters (parents first), n_f . E into each face root.
-    std::vector<VectorIrradiance> own;
-    std::vector<VectorIrradiance>& pushed = scratch ? *scratch : own;
-    pushed.assign(clusters.begin(), clusters.end());
-    for (size_t i = 0; i < n; ++i) {
+namespace {
+
+// One push-pull over the subtree of a node, depth first: the node's irradiance from its
+// parent's (already final), its children, then its radiosity from theirs. A receiving
+// cluster's pushed vector (its own plus its ancestors') lives on the stack of the walk, not in
+// a per-cluster array, and subtrees of more than kSerialFaces faces are walked in parallel.
+// Every node's value is the same sum, in the same order, as a walk in index order would
+// make, so the bits do not depend on the threads.
+struct PushPullWalk {
+    const Hierarchy& h;
+    const std::vector<RGB>& gathered;
+    std::vector<RGB>& irradiance;
+    std::vector<RGB>& radiosity;
+    const LeafTerms& terms;
+    const std::vector<VectorIrradiance>& clusters;
+    static constexpr uint32_t kSerialFaces = 4096;
+
+    // `from_parent`: the parent's pushed vector when the parent is a receiving cluster.
+    void visit(uint32_t i, const VectorIrradiance* from_parent) const {
         const Node& node = h.nodes[i];
         RGB above = node.parent == kNoNode ? RGB{} : irradiance[node.parent];
-        if (!clusters.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
-            const VectorIrradiance& v = pushed[h.cluster_slot[node.parent]];
-            if (node.cluster) pushed[h.cluster_slot[i]].add(v);
-            else above += v.along(h.shape(uint32_t(i)).normal);
+        VectorIrradiance pushed;
+        const bool pushes = node.cluster && !clusters.empty();
+        if (pushes) {
+            pushed = clusters[h.cluster_slot[i]];
+            if (from_parent) pushed.add(*from_parent);
+        } else if (from_parent) {
+            above += from_parent->along(h.shape(i).normal);
         }
-        irradiance[i] = terms.leaf_irradiance(uint32_t(i), node.leaf(), gathered[i], above);
-    }
-    for (size_t i = n; i-- > 0;) {
-        const Node& node = h.nodes[i];
+        irradiance[i] = terms.leaf_irradiance(i, node.leaf(), gathered[i], above);
         if (node.leaf()) {
-            if (node.cluster) { radiosity[i] = RGB{}; continue; }
-            const Patch& shape = h.shape(uint32_t(i));
-            radiosity[i] = shape.emission + mul(shape.reflectance, irradiance[i]);
-            continue;
+            radiosity[i] = node.cluster ? RGB{} : h.shape(i).emission + mul(h.shape(i).reflectance, irradiance[i]);
+            return;
         }
+        const VectorIrradiance* down = pushes ? &pushed : nullptr;
+        if (node.cluster && node.face_end - node.face_begin > kSerialFaces)
+            tbb::parallel_for(uint32_t(0), uint32_t(node.child_count),
+                              [&](uint32_t c) { visit(node.first_child + c, down); });
+        else
+            for (uint32_t c = 0; c < node.child_count; ++c) visit(node.first_child + c, down);
         RGB acc;
         for (uint32_t c = 0; c < node.child_count; ++c)
             acc += radiosity[node.first_child + c] * h.nodes[node.first_child + c].area;
         radiosity[i] = acc / node.area;
     }
+};
+
+}  // namespace
+
+void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
+               std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters) {
+    if (h.nodes.empty()) return;
+    PushPullWalk{h, gathered, irradiance, radiosity, terms, clusters}.visit(h.root, nullptr);  // the one root
 }
 
 namespace {
@@ -258,7 +280,6 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
     std::vector<Reception> reception(links.size());
     const bool clusters_receive = any_cluster_receiver(h, links);
     std::vector<VectorIrradiance> clusters(clusters_receive ? h.cluster_shapes.size() : 0);
-    std::vector<VectorIrradiance> pushed;  // push_pull's sums, kept from iteration to iteration
     if (clusters_receive)
         for (size_t k = 0; k < links.size(); ++k)
             if (h.slot_of(links[k].receiver) != kNoNode) reception[k] = h.reception(links[k].receiver, links[k].source);
@@ -279,7 +300,7 @@ HierarchicalSolution solve_push_pull(const Hierarchy& h, const std::vector<Link>
             for (size_t k = groups[g]; k < groups[g + 1]; ++k) acc += b[links[k].source] * double(links[k].coupling);
             gathered[r] = acc / h.nodes[r].area;
         });
-        push_pull(h, gathered, irradiance, next, terms, clusters, &pushed);
+        push_pull(h, gathered, irradiance, next, terms, clusters);
         double r2 = 0;
         for (uint32_t i : leaves) {
             RGB d = next[i] - b[i];

@@ -104,15 +104,13 @@ LeafTerms gather_terms(const Hierarchy& h, std::vector<double> received, std::ve
 
 // push_pull with the leaves' terms (empty: B = E + rho H). `clusters`: the vector irradiance
 // gathered at receiving clusters (per cluster slot; empty: none), pushed down the clusters and
-// given to each face root below as n_f . E. `scratch`: where the pushed vectors are summed (a
-// copy of `clusters`), kept by a caller that pushes and pulls again and again (the Jacobi
-// iterations, the streaming solver's rounds): on a 10M-triangle building it is about 1 GB, and
-// a fresh one each round spent a fifth of the streaming solve clearing new pages (perf,
-// bench/README.md).
+// given to each face root below as n_f . E. The walk is depth first from the root, in
+// parallel over large subtrees; the pushed vectors are summed on its stack (a per-cluster copy
+// was about 1 GB on a 10M-triangle building, and the walk in index order one core's work:
+// bench/README.md). `gathered` may be `irradiance` itself (each node is read before written).
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity, const LeafTerms& terms = {},
-               const std::vector<VectorIrradiance>& clusters = {},
-               std::vector<VectorIrradiance>* scratch = nullptr);
+               const std::vector<VectorIrradiance>& clusters = {});
 
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);

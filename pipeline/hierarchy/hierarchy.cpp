@@ -75,7 +75,9 @@ Hierarchy::Hierarchy(const Scene& scene) {
     if (n == 0) return;
 
     // Node 0 is the root; every split reserves both child slots before recursing so that
-    // siblings are adjacent.
+    // siblings are adjacent. A binary tree over n faces has 2n - 1 nodes: reserved exactly
+    // (grown by doubling they held up to twice that: 82 MB unused on a 615k-face floor).
+    nodes.reserve(2 * size_t(n) - 1);
     nodes.emplace_back();
     struct Task { uint32_t node, begin, end; };
     std::vector<Task> stack{{0, 0, n}};
@@ -259,6 +261,18 @@ double Hierarchy::misplaced(uint32_t r, uint32_t s) const {
     return direction_error;
 }
 
+namespace {
+
+// Room for `more` items, the capacity grown by an eighth rather than doubled: a round's few
+// thousand splits of a 10M-face hierarchy would otherwise leave up to its ~2 GB of nodes
+// allocated and unused for the rest of the bake (and three times them in use while it moves).
+template <typename T>
+void grow_by_an_eighth(std::vector<T>& v, size_t more) {
+    if (v.size() + more > v.capacity()) v.reserve(v.size() + std::max(more, v.size() / 8 + 64));
+}
+
+}  // namespace
+
 bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
     const Node& node = nodes[i];
     if (node.cluster) return true;
@@ -271,6 +285,8 @@ void Hierarchy::subdivide(uint32_t i) {
     split_in_four(shape(i), kids);
     const uint32_t first = static_cast<uint32_t>(nodes.size());
     const uint16_t level = nodes[i].level + 1;
+    grow_by_an_eighth(nodes, 4);
+    grow_by_an_eighth(pieces, 4);
     for (int k = 0; k < 4; ++k) {
         Node child;
         finish_shape(kids[k]);

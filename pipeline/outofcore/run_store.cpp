@@ -48,9 +48,10 @@ void save_solution(const std::string& path, uint64_t fingerprint, int round, con
     StateFile f;
     f.fingerprint = fingerprint;
     label(f, StateKind::Solved, round);
-    f.put("radiosity", flatten_rgb(sol.radiosity));
-    f.put("irradiance", flatten_rgb(sol.irradiance));
-    f.put("outgoing", sol.outgoing);
+    static_assert(sizeof(RGB) == 3 * sizeof(double));
+    f.put_view("radiosity", sol.radiosity.data(), 3 * sol.radiosity.size());  // borrowed, not copied
+    f.put_view("irradiance", sol.irradiance.data(), 3 * sol.irradiance.size());
+    f.put_view("outgoing", sol.outgoing.data(), sol.outgoing.size());
     f.put("residual", std::vector<double>{sol.residual, sol.converged ? 1.0 : 0.0, double(sol.iterations)});
     f.write(path);
 }

@@ -113,13 +113,6 @@ void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const st
     writer.write_chunk(key, key + 1, links.data(), links.size());
 }
 
-std::vector<double> flatten_rgb(const std::vector<RGB>& v) {
-    std::vector<double> out(3 * v.size());
-    for (size_t i = 0; i < v.size(); ++i)
-        for (int c = 0; c < 3; ++c) out[3 * i + c] = v[i][c];
-    return out;
-}
-
 std::vector<RGB> unflatten_rgb(const std::vector<double>& a, size_t n, const std::string& what) {
     if (a.size() != 3 * n)
         throw std::runtime_error(what + ": values of " + std::to_string(a.size() / 3) + " nodes, the hierarchy has " +
@@ -220,15 +213,14 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         terms = gather_terms(h, std::move(in), std::move(in_clusters));
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
-    stats.state_bytes += 2 * received_clusters.size() * sizeof(VectorIrradiance);  // and push_pull's sums
+    stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
 
     // The irradiance gathered at each node is what it received over its area; push-pull reads
     // it from `irradiance` and overwrites it in place (parents before children, each node read
     // before it is written).
-    std::vector<VectorIrradiance> pushed;  // push_pull's sums, kept from round to round
     auto gather_and_push_pull = [&] {
         for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b, terms, received_clusters, &pushed);
+        push_pull(h, irradiance, irradiance, b, terms, received_clusters);
     };
 
     HierarchicalSolution sol;
@@ -264,14 +256,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     auto checkpoint = [&] {
         StateFile cp;
         cp.fingerprint = fingerprint;
-        cp.put("received", flatten_rgb(received));
-        if (clusters_receive) {
-            std::vector<RGB> rows;
-            rows.reserve(4 * received_clusters.size());
-            for (const VectorIrradiance& c : received_clusters) rows.insert(rows.end(), {c.c[0], c.c[1], c.c[2], c.uniform});
-            cp.put("received_clusters", flatten_rgb(rows));
-        }
-        cp.put("shot", flatten_rgb(shot));
+        // Borrowed, not copied: RGB is three doubles, VectorIrradiance twelve (its three
+        // vectors and its uniform part, the four RGB rows a reader unflattens).
+        static_assert(sizeof(RGB) == 3 * sizeof(double) && sizeof(VectorIrradiance) == 12 * sizeof(double));
+        cp.put_view("received", received.data(), 3 * received.size());
+        if (clusters_receive) cp.put_view("received_clusters", received_clusters.data(), 12 * received_clusters.size());
+        cp.put_view("shot", shot.data(), 3 * shot.size());
         cp.put("counters", std::vector<uint64_t>{round, stats.groups_shot, stats.links_shot});
         cp.put("history", sol.residual_history);
         cp.write(opt.checkpoint_path);

@@ -127,9 +127,9 @@ void sort_part(std::vector<Link>& links);
 // Writes part `part` of a group's links (at most kChunkLinks, sorted by sort_part) as a chunk.
 void write_part(LinkStoreWriter& writer, uint32_t group, uint32_t part, const std::vector<Link>& links);
 
-// RGB per node as a flat array of doubles (for state files), and back; `what` names the
-// file in the error when the size does not match n nodes.
-std::vector<double> flatten_rgb(const std::vector<RGB>& values);
+// RGB per node from a state file's flat array of doubles (written from the RGB arrays
+// themselves: StateFile::put_view); `what` names the file in the error when the size does not
+// match n nodes.
 std::vector<RGB> unflatten_rgb(const std::vector<double>& flat, size_t n, const std::string& what);
 
 struct StreamingOptions {

@@ -5,7 +5,11 @@
 // links that carry little staying coarse, and the gain limit counting glazing.
 #include <gtest/gtest.h>
 
+#include <tbb/task_arena.h>
+
 #include <cmath>
+#include <cstring>
+#include <random>
 #include <vector>
 
 #include "pipeline/hierarchy/hierarchical_solver.h"
@@ -298,6 +302,77 @@ TEST(ClusterReceivers, ClearGlassScattersNothingItLetsThrough) {
     EXPECT_EQ(sol.radiosity[back].x, 0.0);
     EXPECT_EQ(sol.radiosity[front].x, 0.0);
     EXPECT_NEAR(sol.radiosity[w].x, 1.54, 1e-6);
+}
+
+// push_pull walks the tree depth first, in parallel over subtrees of more than 4,096 faces,
+// with the pushed vectors on its stack. What it must compute is the definition, written here
+// in index order (parents first, then children before parents for the pull): a node's
+// irradiance is its own plus its parent's, plus n . E of the pushed vector when its parent is a
+// receiving cluster, the leaves' terms applied; a cluster's pushed vector is its own plus its
+// parent's; B = E + rho H at element leaves, area-weighted means above. Every value must be
+// that to the bit, with 1, 2 and 4 threads.
+TEST(ClusterReceivers, PushPullInParallelIsTheDefinitionToTheBit) {
+    const Scene scene = test::tiled_cube(40, test::grey(0.6), test::grey(0.1));  // 9,600 faces
+    Hierarchy h(scene);
+    for (uint32_t f = 0; f < 9600; f += 37) h.subdivide(h.face_node[f]);   // element trees too
+    for (uint32_t f = 0; f < 9600; f += 111) h.subdivide(h.nodes[h.face_node[f]].first_child + 2);
+    const size_t n = h.nodes.size();
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    auto rgb = [&] { return RGB{u(rng) + 1, u(rng) + 1, u(rng) + 1}; };
+    std::vector<RGB> gathered(n);
+    for (RGB& g : gathered) g = rgb();
+    std::vector<VectorIrradiance> clusters(h.cluster_shapes.size());
+    for (VectorIrradiance& v : clusters) {
+        for (Vec3& c : v.c) c = rgb() - RGB{1, 1, 1};
+        v.uniform = rgb();
+    }
+    LeafTerms terms;
+    terms.scale.resize(n);
+    terms.inherited.resize(n);
+    for (size_t i = 0; i < n; ++i) {
+        terms.scale[i] = 0.5 + 0.25 * (u(rng) + 1);
+        terms.inherited[i] = 0.9 + 0.05 * (u(rng) + 1);
+    }
+
+    // The definition, in index order.
+    std::vector<RGB> want_h(n), want_b(n);
+    std::vector<VectorIrradiance> pushed = clusters;
+    for (size_t i = 0; i < n; ++i) {
+        const Node& node = h.nodes[i];
+        ASSERT_TRUE(node.parent == kNoNode || node.parent < i);
+        RGB above = node.parent == kNoNode ? RGB{} : want_h[node.parent];
+        if (node.parent != kNoNode && h.nodes[node.parent].cluster) {
+            const VectorIrradiance& v = pushed[h.cluster_slot[node.parent]];
+            if (node.cluster) pushed[h.cluster_slot[i]].add(v);
+            else above += v.along(h.shape(uint32_t(i)).normal);
+        }
+        want_h[i] = terms.leaf_irradiance(uint32_t(i), node.leaf(), gathered[i], above);
+    }
+    for (size_t i = n; i-- > 0;) {
+        const Node& node = h.nodes[i];
+        if (node.leaf()) {
+            want_b[i] = node.cluster ? RGB{} : h.shape(uint32_t(i)).emission +
+                                                   mul(h.shape(uint32_t(i)).reflectance, want_h[i]);
+            continue;
+        }
+        RGB acc;
+        for (uint32_t c = 0; c < node.child_count; ++c)
+            acc += want_b[node.first_child + c] * h.nodes[node.first_child + c].area;
+        want_b[i] = acc / node.area;
+    }
+
+    for (int threads : {1, 2, 4}) {
+        std::vector<RGB> got_h(n), got_b(n);
+        tbb::task_arena arena(threads);
+        arena.execute([&] { push_pull(h, gathered, got_h, got_b, terms, clusters); });
+        EXPECT_EQ(std::memcmp(got_h.data(), want_h.data(), n * sizeof(RGB)), 0) << threads << " threads: irradiance";
+        EXPECT_EQ(std::memcmp(got_b.data(), want_b.data(), n * sizeof(RGB)), 0) << threads << " threads: radiosity";
+        // In place, as the streaming solver calls it (gathered is the irradiance it overwrites).
+        std::vector<RGB> in_place = gathered;
+        arena.execute([&] { push_pull(h, in_place, in_place, got_b, terms, clusters); });
+        EXPECT_EQ(std::memcmp(in_place.data(), want_h.data(), n * sizeof(RGB)), 0) << threads << " threads: in place";
+    }
 }
 
 }  // namespace
