@@ -52,6 +52,30 @@ TEST(StateFile, RoundTripsThroughAFile) {
     std::filesystem::remove(path);
 }
 
+// An array borrowed with put_view (a checkpoint's RGB arrays, written where they are) is the
+// same file, byte for byte, as the array copied in, among the owned arrays in name order; read
+// back it is an owned array; put and put_view of one name replace each other.
+TEST(StateFile, BorrowedArraysWriteTheSameBytesAsCopiedOnes) {
+    struct Three { double x, y, z; };  // as RGB is laid out
+    const std::vector<Three> rgb{{0.5, -1e-300, 3.25}};
+    StateFile f;
+    f.fingerprint = 0x1234ABCDull;
+    f.put("log", std::vector<uint32_t>{3, 1, 4, 1, 5});
+    f.put("counters", std::vector<uint64_t>{uint64_t(1) << 40, 7});
+    f.put("radiosity", std::vector<double>{9.0});   // replaced by the view below
+    f.put_view("radiosity", rgb.data(), 3);
+    f.put_view("empty", nullptr, 0);
+    f.put("empty", std::vector<double>{});          // and this replaces the empty view
+    EXPECT_EQ(f.encode(), sample().encode());
+    const std::string path = (std::filesystem::temp_directory_path() / "hirad_statefile_view_test").string();
+    f.write(path);
+    std::ifstream in(path, std::ios::binary);
+    const std::vector<uint8_t> written((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(written, sample().encode());
+    EXPECT_EQ(StateFile::read(path).f64("radiosity"), (std::vector<double>{0.5, -1e-300, 3.25}));
+    std::filesystem::remove(path);
+}
+
 TEST(StateFile, EveryFlippedByteAndEveryTruncationIsDetected) {
     const std::vector<uint8_t> good = sample().encode();
     for (size_t i = 0; i < good.size(); ++i) {
