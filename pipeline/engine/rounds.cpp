@@ -66,7 +66,7 @@ public:
         run_.links_per_round.push_back(run_.links.size());
     }
     void discard(int) override { pending_ = {}; }
-    HierarchicalSolution solve(int round, const std::vector<RGB>& start) override {
+    HierarchicalSolution solve(int round, std::vector<RGB> start) override {
         SolverOptions so = so_;
         const uint64_t links = run_.links.size();
         so.on_iteration = [&](const IterationReport& rep) {
@@ -162,7 +162,7 @@ public:
         store_.discard_round(next);
         out_.reset();
     }
-    HierarchicalSolution solve(int round, const std::vector<RGB>& start) override {
+    HierarchicalSolution solve(int round, std::vector<RGB> start) override {
         // Solve round `round`'s links, checkpointing into the store.
         StreamingOptions so = so_;
         so.checkpoint_path = store_.checkpoint_path();
@@ -173,7 +173,8 @@ public:
             return !so_.on_round || so_.on_round(it, res);
         };
         run_.last_solve = StreamingStats{};
-        HierarchicalSolution sol = solve_streaming(h_, groups_, *chunks_, is_source_, outgoing_, start, so, run_.last_solve);
+        HierarchicalSolution sol = solve_streaming(h_, groups_, *chunks_, is_source_, outgoing_, std::move(start), so,
+                                                   run_.last_solve);
         shots_ += run_.last_solve.rounds;
         return sol;
     }
@@ -290,8 +291,12 @@ void run_rounds(const Hierarchy& h, RoundStages& stages, int max_rounds, RoundsS
             if (prepare) prepare();
             std::vector<RGB> start = node_emission(h);
             for (size_t i = start.size(); i < h.nodes.size(); ++i) start.push_back(start[h.nodes[i].parent]);
+            // The previous round's solution was what refinement read; it is not held through
+            // this solve (on the 10M-triangle building about 1 GB), and the start is the solve's
+            // to take (out of core it becomes the solver's B, not a copy of it).
+            s.solution = HierarchicalSolution{};
             const auto t0 = now();
-            s.solution = stages.solve(s.round, start);
+            s.solution = stages.solve(s.round, std::move(start));
             log.solve_seconds.push_back(seconds_since(t0));
             s.solved = true;
             stages.solved(s.round, s.solution);

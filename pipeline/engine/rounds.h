@@ -53,8 +53,8 @@ public:
     virtual void commit(int next) = 0;
     // Nothing split: the pending links are dropped, the current round stays final.
     virtual void discard(int next) = 0;
-    // Solves round `round`'s links from `start` (per node).
-    virtual HierarchicalSolution solve(int round, const std::vector<RGB>& start) = 0;
+    // Solves round `round`'s links from `start` (per node; the stage may take it over).
+    virtual HierarchicalSolution solve(int round, std::vector<RGB> start) = 0;
     // Round `round` was solved (persistence hook).
     virtual void solved(int round, const HierarchicalSolution& solution) {}
 };

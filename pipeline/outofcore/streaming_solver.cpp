@@ -134,7 +134,7 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
 
 HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& groups, const LinkChunks& chunks,
                                      const std::vector<uint8_t>& is_source, const std::vector<double>& outgoing,
-                                     const std::vector<RGB>& start, const StreamingOptions& opt,
+                                     std::vector<RGB> start, const StreamingOptions& opt,
                                      StreamingStats& stats) {
     const size_t n = h.nodes.size();
     const size_t ng = chunks.groups();
@@ -142,7 +142,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         throw std::invalid_argument("streaming solve: per-node source flags and outgoing sums must cover the hierarchy (" + std::to_string(is_source.size()) + ", " + std::to_string(outgoing.size()) + " for " + std::to_string(n) + " nodes)");
     if (ng != groups.count()) throw std::invalid_argument("streaming solve: the links' groups are not the hierarchy's");
 
-    std::vector<RGB> b = start.size() == n ? start : node_emission(h);
+    std::vector<RGB> b = start.size() == n ? std::move(start) : node_emission(h);
     // received: per node, the power G (B_S - shot_S) its links brought in (divided by the
     // node's area only before push-pull, so that shooting a link is a multiply-add).
     std::vector<RGB> shot(n), received(n), irradiance(n);

@@ -162,9 +162,10 @@ struct StreamingStats {
 
 // `is_source` and `outgoing` (per node: sum of G / A_S over its links) come from link
 // generation. Resumes from the checkpoint file when it exists with the same fingerprint.
+// `start` (per node; empty: the emission) becomes the solver's B: moved in, it is not copied.
 HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& groups, const LinkChunks& chunks,
                                      const std::vector<uint8_t>& is_source, const std::vector<double>& outgoing,
-                                     const std::vector<RGB>& start, const StreamingOptions& options,
+                                     std::vector<RGB> start, const StreamingOptions& options,
                                      StreamingStats& stats);
 
 }  // namespace hirad
