@@ -394,7 +394,7 @@ std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::
                                          const Visibility& vis) const {
     std::vector<RGB> out(x.size());
     if (luminaires_.empty()) return out;
-    luminaire_irradiance(luminaires_, &vis, x.data(), n.data(), x.size(), out.data(), 1e-5 * vis.scene_size());
+    luminaire_irradiance(luminaires_, &vis, x.data(), n.data(), x.size(), out.data(), vis.ray_offset());
     return out;
 }
 
@@ -1008,7 +1008,7 @@ std::vector<float> Engine::direct_transmittance(const std::vector<Vec3>& points,
     require_points(points, normals);
     std::vector<float> out(points.size() * directions.size());
     distant_transmittance(*visibility_, points.data(), normals.data(), points.size(), unit_directions(directions),
-                          1e-5 * visibility_->scene_size(), out.data());
+                          visibility_->ray_offset(), out.data());
     return out;
 }
 
@@ -1126,7 +1126,7 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
         std::vector<Vec3> ln(leaf.size());
         for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.shape(leaf[k]).normal;
         std::vector<RGB> d(x.size());
-        const double lift = 1e-5 * solved_->visibility->scene_size();
+        const double lift = solved_->visibility->ray_offset();
         luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(), lift);
         for (size_t k = 0; k < leaf.size(); ++k) e[k] += d[k];
         if (options.directional)

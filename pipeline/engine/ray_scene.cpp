@@ -139,7 +139,7 @@ Illuminance RayScene::illuminance(const std::vector<Vec3>& points, const std::ve
         std::vector<Vec3> unit(normals.size());
         for (size_t q = 0; q < unit.size(); ++q) unit[q] = normalize(normals[q]);
         luminaire_irradiance(luminaires_, visibility_.get(), points.data(), unit.data(), points.size(), d.data(),
-                             kSensorLift * visibility_->scene_size());
+                             visibility_->ray_offset());
         for (size_t q = 0; q < d.size(); ++q) e.direct[q] += d[q];
     }
     return e;
@@ -155,7 +155,7 @@ std::vector<float> RayScene::direct_transmittance(const std::vector<Vec3>& point
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
     std::vector<float> out(points.size() * directions.size());
     distant_transmittance(*visibility_, points.data(), normals.data(), points.size(), unit_directions(directions),
-                          kSensorLift * visibility_->scene_size(), out.data());
+                          visibility_->ray_offset(), out.data());
     return out;
 }
 

@@ -245,7 +245,7 @@ double RayCastFormFactors::form_factor(uint32_t i, uint32_t j) const {
     stratified(rng, g, s2.data(), t2.data());
     shuffle_cells(rng, n, s2.data(), t2.data());
     std::vector<Vec3> from(n), to(n);
-    const double lift = 1e-5 * visibility_.scene_size();
+    const double lift = visibility_.ray_offset();
     for (int k = 0; k < n; ++k) {
         Vec3 x = a.point(s[k], t[k]);
         f[k] = point_polygon_form_factor(x, a.normal, b.p.data(), b.nv, b.normal);
@@ -299,7 +299,7 @@ void RayCastFormFactors::batch_couplings(uint32_t i, const std::vector<uint32_t>
 void RayCastFormFactors::couplings_block(uint32_t i, const std::vector<uint32_t>& partners,
                                          std::vector<std::pair<uint32_t, float>>& out) const {
     const int g = grid_size(options_.samples), n = g * g;
-    const double lift = 1e-5 * visibility_.scene_size();
+    const double lift = visibility_.ray_offset();
     std::vector<Vec3> from, to;
     std::vector<double> weight;
     std::vector<uint32_t> owner;

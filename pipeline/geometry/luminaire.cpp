@@ -332,7 +332,7 @@ void element_group_irradiance(const std::vector<Luminaire>& luminaires, const st
     for (uint32_t q : group)
         if (q >= groups) throw std::invalid_argument("element_group_irradiance: a group index out of range");
     out.assign(groups * count, RGB{});
-    const double lift = 1e-5 * visibility.scene_size();
+    const double lift = visibility.ray_offset();
     const size_t m = size_t(g) * size_t(g);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Vec3> xs(m), ns(m);
@@ -359,7 +359,7 @@ void element_luminaire_irradiance(const std::vector<Luminaire>& luminaires, cons
     if (g < 1) throw std::invalid_argument("element_luminaire_irradiance: g must be at least 1");
     mean.assign(count, RGB{});
     spread.assign(count, 0.0);
-    const double lift = 1e-5 * visibility.scene_size();
+    const double lift = visibility.ray_offset();
     const size_t m = size_t(g) * size_t(g);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Vec3> xs(m), ns(m);

@@ -371,7 +371,7 @@ RayHit Visibility::intersect_through_glass(const Vec3& origin, const Vec3& direc
         if (panes) panes->push_back(hit);
         pass *= t_glass;
         // Onwards from just past the pane, lifted off its plane on the far side.
-        const double lift = 1e-5 * scene_size_;
+        const double lift = ray_offset();
         const double step = hit.t + (std::fabs(c) > 1e-6 ? lift / std::fabs(c) / (len > 0 ? len : 1) : lift);
         travelled = step;
         if (step >= tfar) { hit = RayHit{}; break; }

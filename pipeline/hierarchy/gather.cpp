@@ -251,7 +251,7 @@ RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3
                             : emitter ? 4
                                       : std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(opt_.rays))))));
     const int m = g * g;
-    const double lift = 1e-5 * vis_.scene_size();
+    const double lift = vis_.ray_offset();
     Vec3 from[16], to[16];
     RGB b[16];
     float seen[16];  // what each ray carries: 1, 0 blocked, T through glass (visibility.h)
@@ -364,7 +364,7 @@ RGB Gatherer::cell_transfer(const GatherLink& link, uint32_t source, const Patch
     if (link.visibility < 1.0f || emits(h_.shape(source))) {
         Vec3 y = cell.point(rng.uniform(), rng.uniform());
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
-        const double lift = 1e-5 * vis_.scene_size();
+        const double lift = vis_.ray_offset();
         const Vec3 from = x + n * lift, to = y + cell.normal * lift;
         float seen = 0;
         vis_.segments_transmittance(&from, &to, 1, &seen);
@@ -386,7 +386,7 @@ RGB Gatherer::cluster_transfer(const GatherLink& link, const Vec3& x, const Vec3
     const Node& c = h_.nodes[link.source];
     const int m = std::max(1, std::min(16, opt_.cluster_samples));
     const double lo = h_.area_prefix[c.face_begin], hi = h_.area_prefix[c.face_end];
-    const double lift = 1e-5 * vis_.scene_size();
+    const double lift = vis_.ray_offset();
     Vec3 from[16], to[16];
     RGB f[16], wb[16];
     SolidAngleMoments geo[16];
@@ -507,7 +507,7 @@ void gather_flat(const std::vector<Patch>& patches, const std::vector<RGB>& radi
                  const Vec3* x, const Vec3* n, size_t count, int rays, uint64_t seed, RGB* out) {
     const int g = std::max(1, std::min(4, static_cast<int>(std::lround(std::sqrt(double(rays))))));
     const int m = g * g;
-    const double lift = 1e-5 * vis.scene_size();
+    const double lift = vis.ray_offset();
     tbb::parallel_for(size_t(0), count, [&](size_t q) {
         Rng rng(hash_pair(q, 0xF1A7ull, seed));
         RGB h;

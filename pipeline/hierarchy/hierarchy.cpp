@@ -444,7 +444,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
     if (first >= nodes.size()) return;
     open.resize(nodes.size(), 1.0f);
     closure.resize(nodes.size(), -1.0f);
-    const double lift = 1e-5 * vis.scene_size();
+    const double lift = vis.ray_offset();
     tbb::parallel_for(first, nodes.size(), [&](size_t i) {
         const Node& node = nodes[i];
         if (node.cluster) return;

@@ -109,7 +109,7 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const Node& ns = h_.nodes[s];
     const int g = std::max(1, static_cast<int>(std::lround(std::sqrt(double(opt_.samples)))));
     const int n = g * g;
-    const double lift = 1e-5 * vis_.scene_size();
+    const double lift = vis_.ray_offset();
     // Seeded by the nodes' keys, not their indices: the same pair draws the same samples however
     // the hierarchy was numbered (on whichever machine its group was refined).
     const uint64_t kr = nr.key, ks = ns.key;

@@ -140,7 +140,7 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
     struct Emitter { Piece whole; std::vector<Piece> pieces; RGB le; double diameter; };
     std::vector<Emitter> emitters;
     const double lift = 1e-7 * visibility.scene_size();       // the emitters' side of a shadow ray
-    const double sensor_lift = kSensorLift * visibility.scene_size();
+    const double sensor_lift = visibility.ray_offset();
     for (size_t i = 0; i < patches.size(); ++i) {
         if (max_component(emitted[i]) <= 0) continue;
         const Patch& w = patches[i];

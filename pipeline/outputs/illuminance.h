@@ -21,7 +21,7 @@
 // surface: its value is that of the point itself. A sensor may lie on a surface (a corridor's
 // grid at floor level, height 0): its shadow rays, to the emitters, the luminaires and the
 // distant lights (RayScene::direct_transmittance, which daylight coefficients read),
-// start kSensorLift x the scene's size off it along n, so that the surface under it does not
+// start Visibility::ray_offset() (1e-5 of the scene's size) off it along n, so that the surface under it does not
 // block them (a shadow ray from the point itself met the floor at t = 0, and a floor-level
 // grid read no direct light from emitting surfaces at all); its hemisphere rays leave it
 // along their own directions past a tnear of 1e-7 x the scene's size.
@@ -37,9 +37,6 @@
 #include "pipeline/geometry/visibility.h"
 
 namespace hirad {
-
-// Where a sensor's rays start: this fraction of the scene's size off it along its normal.
-constexpr double kSensorLift = 1e-5;
 
 struct IlluminanceOptions {
     int rays = 512;            // hemisphere rays for the indirect part (0: direct only)

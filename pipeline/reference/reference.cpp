@@ -82,7 +82,7 @@ std::vector<ReferenceEstimate> reference_radiance(const std::vector<Patch>& patc
                                                   const std::vector<Luminaire>& luminaires) {
     if (patch.size() != st.size()) throw std::invalid_argument("reference: one (s, t) per patch index");
     const Emitters em = collect_emitters(patches);
-    const double lift = 1e-5 * vis.scene_size();
+    const double lift = vis.ray_offset();
     std::vector<ReferenceEstimate> out(patch.size());
     tbb::parallel_for(size_t(0), patch.size(), [&](size_t q) {
         if (patch[q] >= patches.size()) throw std::invalid_argument("reference: patch index out of range");

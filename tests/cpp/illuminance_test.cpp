@@ -107,7 +107,7 @@ TEST(Illuminance, LitCeilingIsExactAndShadowed) {
 TEST(Illuminance, SensorOnTheFloorReadsTheCeiling) {
     // A calculation grid at floor level (a corridor's, height 0) puts its sensors on the floor
     // itself. Each reads the lit ceiling's pi L F whole: the floor under it blocks no shadow ray
-    // (they start kSensorLift off it; from the point itself they met the floor at t = 0 and the
+    // (they start Visibility::ray_offset() off it; from the point itself they met the floor at t = 0 and the
     // direct light read 0). Sensors at the floor's middle and off it, by the corner formula.
     LitCeiling box;
     const std::vector<Patch>& patches = box.patches;
