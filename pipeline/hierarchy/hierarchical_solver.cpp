@@ -169,16 +169,18 @@ namespace {
 struct PushPullWalk {
     const Hierarchy& h;
     const std::vector<RGB>& gathered;
-    std::vector<RGB>& irradiance;
+    bool power;                     // `gathered` is power, divided by each node's area here
+    std::vector<RGB>* irradiance;   // each node's pushed irradiance (null: not kept)
     std::vector<RGB>& radiosity;
     const LeafTerms& terms;
     const std::vector<VectorIrradiance>& clusters;
     static constexpr uint32_t kSerialFaces = 4096;
 
-    // `from_parent`: the parent's pushed vector when the parent is a receiving cluster.
-    void visit(uint32_t i, const VectorIrradiance* from_parent) const {
+    // `above`: the parent's irradiance; `from_parent`: the parent's pushed vector when the
+    // parent is a receiving cluster.
+    void visit(uint32_t i, const RGB& parent_irradiance, const VectorIrradiance* from_parent) const {
         const Node& node = h.nodes[i];
-        RGB above = node.parent == kNoNode ? RGB{} : irradiance[node.parent];
+        RGB above = parent_irradiance;
         VectorIrradiance pushed;
         const bool pushes = node.cluster && !clusters.empty();
         if (pushes) {
@@ -187,17 +189,20 @@ struct PushPullWalk {
         } else if (from_parent) {
             above += from_parent->along(h.shape(i).normal);
         }
-        irradiance[i] = terms.leaf_irradiance(i, node.leaf(), gathered[i], above);
+        RGB own = gathered[i];
+        if (power) own = node.area > 0 ? own / node.area : RGB{};
+        const RGB here = terms.leaf_irradiance(i, node.leaf(), own, above);
+        if (irradiance) (*irradiance)[i] = here;
         if (node.leaf()) {
-            radiosity[i] = node.cluster ? RGB{} : h.shape(i).emission + mul(h.shape(i).reflectance, irradiance[i]);
+            radiosity[i] = node.cluster ? RGB{} : h.shape(i).emission + mul(h.shape(i).reflectance, here);
             return;
         }
         const VectorIrradiance* down = pushes ? &pushed : nullptr;
         if (node.cluster && node.face_end - node.face_begin > kSerialFaces)
             tbb::parallel_for(uint32_t(0), uint32_t(node.child_count),
-                              [&](uint32_t c) { visit(node.first_child + c, down); });
+                              [&](uint32_t c) { visit(node.first_child + c, here, down); });
         else
-            for (uint32_t c = 0; c < node.child_count; ++c) visit(node.first_child + c, down);
+            for (uint32_t c = 0; c < node.child_count; ++c) visit(node.first_child + c, here, down);
         RGB acc;
         for (uint32_t c = 0; c < node.child_count; ++c)
             acc += radiosity[node.first_child + c] * h.nodes[node.first_child + c].area;
@@ -210,7 +215,14 @@ struct PushPullWalk {
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity, const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters) {
     if (h.nodes.empty()) return;
-    PushPullWalk{h, gathered, irradiance, radiosity, terms, clusters}.visit(h.root, nullptr);  // the one root
+    PushPullWalk{h, gathered, false, &irradiance, radiosity, terms, clusters}.visit(h.root, RGB{}, nullptr);
+}
+
+void push_pull_power(const Hierarchy& h, const std::vector<RGB>& received, std::vector<RGB>& radiosity,
+                     const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters,
+                     std::vector<RGB>* irradiance) {
+    if (h.nodes.empty()) return;
+    PushPullWalk{h, received, true, irradiance, radiosity, terms, clusters}.visit(h.root, RGB{}, nullptr);
 }
 
 namespace {

@@ -111,6 +111,13 @@ LeafTerms gather_terms(const Hierarchy& h, std::vector<double> received, std::ve
 void push_pull(const Hierarchy& h, const std::vector<RGB>& gathered, std::vector<RGB>& irradiance,
                std::vector<RGB>& radiosity, const LeafTerms& terms = {},
                const std::vector<VectorIrradiance>& clusters = {});
+// The same from the power each node received (`received`, divided by the node's area: an
+// area of 0 receives nothing), the irradiance written to `irradiance` only when asked for: the
+// streaming solver pushes and pulls after every round and needs only B (24 bytes a node less
+// through the solve).
+void push_pull_power(const Hierarchy& h, const std::vector<RGB>& received, std::vector<RGB>& radiosity,
+                     const LeafTerms& terms, const std::vector<VectorIrradiance>& clusters,
+                     std::vector<RGB>* irradiance = nullptr);
 
 // Area-weighted mean emission per node.
 std::vector<RGB> node_emission(const Hierarchy& h);

@@ -145,14 +145,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     std::vector<RGB> b = start.size() == n ? std::move(start) : node_emission(h);
     // received: per node, the power G (B_S - shot_S) its links brought in (divided by the
     // node's area only before push-pull, so that shooting a link is a multiply-add).
-    std::vector<RGB> shot(n), received(n), irradiance(n);
+    std::vector<RGB> shot(n), received(n);
     std::vector<std::vector<uint32_t>> sources(ng);
     // Per node, compact: what validating a link and gathering read (the nodes themselves are
     // large).
     std::vector<uint32_t> source_group(n, kNoGroup);
-    std::vector<double> area(n);
     for (uint32_t i = 0; i < n; ++i) {
-        area[i] = h.nodes[i].area;
         if (!is_source[i]) continue;
         const uint32_t g = groups.of(h, i);
         if (g == kNoGroup) throw std::invalid_argument("streaming solve: a source above the groups' cut");
@@ -168,7 +166,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             stats.decoded_bytes += chunks.transport_bytes(g, p);
         }
     }
-    stats.state_bytes = n * (4 * sizeof(RGB) + 2 * sizeof(double) + sizeof(uint32_t) + sizeof(uint8_t));
+    stats.state_bytes = n * (3 * sizeof(RGB) + sizeof(double) + sizeof(uint32_t) + sizeof(uint8_t));
     stats.largest_chunk_bytes = largest;
     // Chunks in flight: one being shot, the others being read and decoded, two per thread
     // (decoding is what limits streaming).
@@ -215,12 +213,12 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
 
-    // The irradiance gathered at each node is what it received over its area; push-pull reads
-    // it from `irradiance` and overwrites it in place (parents before children, each node read
-    // before it is written).
+    // The irradiance gathered at each node is what it received over its area; push-pull
+    // divides as it walks, and keeps no irradiance until the end.
+    bool pushed = false;
     auto gather_and_push_pull = [&] {
-        for (size_t i = 0; i < n; ++i) irradiance[i] = area[i] > 0 ? received[i] / area[i] : RGB{};
-        push_pull(h, irradiance, irradiance, b, terms, received_clusters);
+        push_pull_power(h, received, b, terms, received_clusters);
+        pushed = true;
     };
 
     HierarchicalSolution sol;
@@ -431,6 +429,11 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     sol.outgoing.assign(n, 0.0);
     for (size_t i = 0; i < n; ++i)
         sol.outgoing[i] = outgoing[i] + (h.nodes[i].parent == kNoNode ? 0.0 : sol.outgoing[h.nodes[i].parent]);
+    // The irradiance that goes with B: the last push-pull again (the same B, to the bit), in
+    // the memory `shot` held (none before the first push-pull, as B is then the start).
+    shot = std::vector<RGB>();
+    std::vector<RGB> irradiance(n);
+    if (pushed) push_pull_power(h, received, b, terms, received_clusters, &irradiance);
     sol.radiosity = std::move(b);
     sol.irradiance = std::move(irradiance);
     return sol;

@@ -310,7 +310,8 @@ TEST(ClusterReceivers, ClearGlassScattersNothingItLetsThrough) {
 // irradiance is its own plus its parent's, plus n . E of the pushed vector when its parent is a
 // receiving cluster, the leaves' terms applied; a cluster's pushed vector is its own plus its
 // parent's; B = E + rho H at element leaves, area-weighted means above. Every value must be
-// that to the bit, with 1, 2 and 4 threads.
+// that to the bit, with 1, 2 and 4 threads; and push_pull_power, from power, the same as
+// push_pull from power over area.
 TEST(ClusterReceivers, PushPullInParallelIsTheDefinitionToTheBit) {
     const Scene scene = test::tiled_cube(40, test::grey(0.6), test::grey(0.1));  // 9,600 faces
     Hierarchy h(scene);
@@ -372,6 +373,21 @@ TEST(ClusterReceivers, PushPullInParallelIsTheDefinitionToTheBit) {
         std::vector<RGB> in_place = gathered;
         arena.execute([&] { push_pull(h, in_place, in_place, got_b, terms, clusters); });
         EXPECT_EQ(std::memcmp(in_place.data(), want_h.data(), n * sizeof(RGB)), 0) << threads << " threads: in place";
+        // From power, as the streaming solver calls it: received = gathered x area, divided
+        // back by the area as the walk goes (the same quotient the definition starts from).
+        std::vector<RGB> received(n), power_h(n), power_b(n), quotient = gathered;
+        for (size_t i = 0; i < n; ++i) {
+            received[i] = gathered[i] * h.nodes[i].area;
+            quotient[i] = received[i] / h.nodes[i].area;
+        }
+        std::vector<RGB> want_qh(n), want_qb(n);
+        push_pull(h, quotient, want_qh, want_qb, terms, clusters);  // checked above to be the definition
+        arena.execute([&] { push_pull_power(h, received, power_b, terms, clusters, &power_h); });
+        EXPECT_EQ(std::memcmp(power_h.data(), want_qh.data(), n * sizeof(RGB)), 0) << threads << " threads: power";
+        EXPECT_EQ(std::memcmp(power_b.data(), want_qb.data(), n * sizeof(RGB)), 0) << threads << " threads: power";
+        std::vector<RGB> only_b(n);
+        arena.execute([&] { push_pull_power(h, received, only_b, terms, clusters); });
+        EXPECT_EQ(std::memcmp(only_b.data(), want_qb.data(), n * sizeof(RGB)), 0) << threads << " threads: B only";
     }
 }
 
