@@ -166,7 +166,8 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
             stats.decoded_bytes += chunks.transport_bytes(g, p);
         }
     }
-    stats.state_bytes = n * (3 * sizeof(RGB) + sizeof(double) + sizeof(uint32_t) + sizeof(uint8_t));
+    // Per node: B, shot, received; its source group; the leaves' two terms (gather_terms).
+    stats.state_bytes = n * (3 * sizeof(RGB) + sizeof(uint32_t) + 2 * sizeof(double));
     stats.largest_chunk_bytes = largest;
     // Chunks in flight: one being shot, the others being read and decoded, two per thread
     // (decoding is what limits streaming).
