@@ -912,7 +912,7 @@ def cmd_building(args) -> None:
     if ls:
         print(f"the last solve: {ls['rounds']:,} rounds of block Southwell, {ls['groups_shot']:,} groups and "
               f"{ls['links_shot']:,} links shot ({ls['shoot_seconds']:.1f} s shooting, {ls['read_wait_seconds']:.1f} s "
-              f"waiting for chunks), {ls['checkpoints']} checkpoints; per-node state "
+              f"waiting for chunks), {ls['checkpoints']} checkpoints ({ls['checkpoint_write_seconds']:.1f} s writing them); per-node state "
               f"{ls['state_bytes'] / 2**20:,.0f} MiB, chunks resident at most {ls['resident_bytes_peak'] / 2**20:,.0f} MiB")
     print(f"per input face: {usage.ru_maxrss * 1024 / c['input_faces']:,.0f} bytes of peak RSS, "
           f"{wall / c['input_faces'] * 1e6:.1f} us of wall")

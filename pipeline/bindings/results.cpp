@@ -136,7 +136,9 @@ void bind_results(nb::module_& m) {
         .def_ro("checkpoints", &StreamingStats::checkpoints)
         .def_ro("resumed", &StreamingStats::resumed)
         .def_ro("read_wait_seconds", &StreamingStats::read_wait_seconds)
-        .def_ro("shoot_seconds", &StreamingStats::shoot_seconds);
+        .def_ro("shoot_seconds", &StreamingStats::shoot_seconds)
+        .def_ro("checkpoint_write_seconds", &StreamingStats::checkpoint_write_seconds,
+                "Time spent writing checkpoints, s.");
 
     nb::class_<GroupSolution>(m, "GroupSolution",
                               "One light group solved alone on the shared links, per patch or leaf.")

@@ -316,6 +316,7 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     };
 
     auto last_checkpoint = std::chrono::steady_clock::now();
+    double last_write = 0;  // seconds the last checkpoint took to write
     for (;;) {
         // Unshot power per group and the residual, in a fixed order.
         std::vector<double> power(ng, 0.0);
@@ -417,8 +418,11 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
         sol.residual_history.push_back(residual);
         if (opt.on_round && !opt.on_round(round, residual)) break;
         if (opt.checkpoint_seconds > 0 && !opt.checkpoint_path.empty() &&
-            seconds_since(last_checkpoint) >= opt.checkpoint_seconds) {
+            seconds_since(last_checkpoint) >= std::max(opt.checkpoint_seconds, kCheckpointSpacing * last_write)) {
+            const auto t0 = std::chrono::steady_clock::now();
             checkpoint();
+            last_write = seconds_since(t0);
+            stats.checkpoint_write_seconds += last_write;
             last_checkpoint = std::chrono::steady_clock::now();
         }
     }

@@ -136,11 +136,13 @@ struct StreamingOptions {
     double tolerance = 1e-4;          // on sqrt(sum A |B - shot|^2) / sqrt(sum A E^2) over sources
     uint64_t max_rounds = 100000;
     uint64_t memory_budget = 0;       // bytes for solver state and resident chunks; 0: unlimited
-    double checkpoint_seconds = 0;    // 0: no checkpoints
+    double checkpoint_seconds = 0;    // 0: no checkpoints; at least this far apart (see solve_streaming)
     std::string checkpoint_path;
     uint64_t checkpoint_fingerprint = 0;
     std::function<bool(uint64_t round, double residual)> on_round;  // false stops the solve
 };
+
+constexpr double kCheckpointSpacing = 19;
 
 struct StreamingStats {
     uint64_t rounds = 0;
@@ -158,10 +160,15 @@ struct StreamingStats {
     bool resumed = false;
     double read_wait_seconds = 0;     // time the shooter waited for the reader
     double shoot_seconds = 0;
+    double checkpoint_write_seconds = 0;  // writing checkpoints, in all
 };
 
 // `is_source` and `outgoing` (per node: sum of G / A_S over its links) come from link
 // generation. Resumes from the checkpoint file when it exists with the same fingerprint.
+// Checkpoints are written checkpoint_seconds apart, or further: the next one waits at least
+// kCheckpointSpacing times as long as the last one took to write, so that writing them is at
+// most a twentieth of the solve (on the 10M-triangle building a checkpoint is 1.9 GB, and
+// written every minute it was half of the solve's time: bench/README.md, stop 44).
 // `start` (per node; empty: the emission) becomes the solver's B: moved in, it is not copied.
 HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& groups, const LinkChunks& chunks,
                                      const std::vector<uint8_t>& is_source, const std::vector<double>& outgoing,

@@ -23,7 +23,8 @@ DISPLAY_FIELDS = ("points", "point_mesh", "corners", "boundary", "faces", "face_
                   "anchored")
 STREAMING_FIELDS = ("rounds", "groups_shot", "links_shot", "chunk_reads", "chunk_hits", "resident_bytes_peak",
                     "state_bytes", "largest_chunk_bytes", "chunks_in_flight", "minimum_budget", "decoded_bytes",
-                    "checkpoints", "resumed", "read_wait_seconds", "shoot_seconds")
+                    "checkpoints", "resumed", "read_wait_seconds", "shoot_seconds",
+                    "checkpoint_write_seconds")
 
 
 def build_engine(scene, *, face_source=None, with_uv: bool = True) -> "_engine.Engine":

@@ -506,7 +506,9 @@ class LinksConfig(BaseModel):
         json_schema_extra={"unit": "s"},
         default=60.0,
         ge=0.0,
-        description="Write the solver's state this often (0: never); `hirad bake --resume` continues from it.",
+        description=("Write the solver's state this often (0: never), or less often where a checkpoint is slow to"
+                     " write: the next waits at least 19 times as long as the last took, so that writing them stays"
+                     " under a twentieth of the solve; `hirad bake --resume` continues from it."),
     )
 
     @field_validator("memory_budget")
