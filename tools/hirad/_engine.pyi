@@ -695,6 +695,10 @@ class StreamingStats:
     @property
     def shoot_seconds(self) -> float: ...
 
+    @property
+    def checkpoint_write_seconds(self) -> float:
+        """Time spent writing checkpoints, s."""
+
 class GroupSolution:
     """One light group solved alone on the shared links, per patch or leaf."""
 
