@@ -176,7 +176,7 @@ struct PushPullWalk {
     const std::vector<VectorIrradiance>& clusters;
     static constexpr uint32_t kSerialFaces = 4096;
 
-    // `above`: the parent's irradiance; `from_parent`: the parent's pushed vector when the
+    // `parent_irradiance`: the parent's (zero at the root); `from_parent`: its pushed vector when the
     // parent is a receiving cluster.
     void visit(uint32_t i, const RGB& parent_irradiance, const VectorIrradiance* from_parent) const {
         const Node& node = h.nodes[i];
