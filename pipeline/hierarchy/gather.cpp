@@ -303,6 +303,12 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
         CellCache::const_accessor hit;
         if (cells_.find(hit, key)) return hit->second;
     }
+    // Each cell is gathered once, by the thread that inserts its key, holding the key's write
+    // lock (a thread asking for it meanwhile waits for the value): two threads gathering the
+    // same cell would give the same bits but count its rays twice, and the report's ray count
+    // would depend on the threads' timing. No lock is held while another is taken: the
+    // leaf's far part is read before the cell's lock, and gathering asks the cache for
+    // nothing (element_transfer at depth 1 gathers no cells).
     // B(y) = B_S + rho_S (H(y) - H_S) at the cell's centre y: H(y) from the leaf's chain at y,
     // its sources at their leaves' radiosity; H_S the leaf's irradiance in the solution, the
     // same links at their mean coupling. Seeded by the leaf's key and the cell: whichever
@@ -323,18 +329,17 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
         if (cells_.find(hit, leaf_key)) {
             far = hit->second;
         } else {  // (a failed find holds no lock)
-            far = cell_difference(source, s.centroid, false, kLeafCode);
             CellCache::accessor slot;
-            if (cells_.insert(slot, leaf_key)) slot->second = far;
+            if (cells_.insert(slot, leaf_key)) slot->second = cell_difference(source, s.centroid, false, kLeafCode);
             far = slot->second;
         }
     }
     Vec3 centre;
     for (int k = 0; k < cell.nv; ++k) centre += cell.p[k];
     centre = centre / double(cell.nv);
-    const RGB b = radiosity_[source] + mul(s.reflectance, far + cell_difference(source, centre, true, code));
     CellCache::accessor slot;
-    if (cells_.insert(slot, key)) slot->second = b;  // (another thread's, if first: the same bits)
+    if (cells_.insert(slot, key))
+        slot->second = radiosity_[source] + mul(s.reflectance, far + cell_difference(source, centre, true, code));
     return slot->second;
 }
 

@@ -5,9 +5,11 @@
 #include "pipeline/hierarchy/gather.h"
 
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -233,6 +235,38 @@ TEST(Gather, AValueDoesNotDependOnTheOtherPointsOfItsCall) {
             ASSERT_EQ(alone.y, together[k].y);
             ASSERT_EQ(alone.z, together[k].z);
         }
+    }
+}
+
+TEST(Gather, TheRaysCountedDoNotDependOnTheThreads) {
+    // The second bounce's cells are cached: every floor point near the wall asks for the same
+    // cells of the wall's leaves, from whichever thread holds it. Each cell must be gathered
+    // once, so that the rays counted (the report's counts.rays) are the same with one thread
+    // and with eight on two cores, run after run; the values are the same bits as well. (Two
+    // threads that missed a cell together both gathered it, and the count moved under load.)
+    Scene scene;
+    scene.faces.push_back(quad({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, 0.3, 2.0));
+    scene.faces.push_back(quad({{0, 0, 0}, {0, 1, 0}, {0, 1, 1}, {0, 0, 1}}, 0.5, 0.0));
+    const Linked linked(scene, {1e-4, 0.01, 16, 1});
+    const FloorPoints p(linked.h, 2000, 0.3, 5);
+    GatherOptions o;
+    o.second_bounce = 1.0;
+    auto gather = [&](int threads, std::vector<RGB>& out) {
+        out.assign(p.xs.size(), RGB{});
+        const uint64_t before = linked.vis.rays_cast();
+        tbb::task_arena arena(threads);
+        arena.execute([&] {
+            Gatherer(linked.h, linked.links, linked.sol.radiosity, linked.vis, o)
+                .irradiance(p.leaves.data(), p.xs.data(), p.keys.data(), p.xs.size(), out.data());
+        });
+        return linked.vis.rays_cast() - before;
+    };
+    std::vector<RGB> one, many;
+    const uint64_t want = gather(1, one);
+    ASSERT_GT(want, 0u);
+    for (int run = 0; run < 12; ++run) {
+        ASSERT_EQ(gather(8, many), want) << "run " << run;
+        ASSERT_EQ(std::memcmp(many.data(), one.data(), one.size() * sizeof(RGB)), 0) << "run " << run;
     }
 }
 
