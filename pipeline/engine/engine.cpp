@@ -26,6 +26,10 @@ namespace {
 
 std::unique_ptr<tbb::global_control> g_threads;
 
+// Elements whose patches are made from the hierarchy at once where a stage needs whole
+// patches of all of them (lighting, distant lights' power): 65,536 patches, 21 MB.
+constexpr size_t kMadeBlock = 65536;
+
 // Hemicube rows are not reciprocal on their own; the stored coupling is the mean of the two
 // directions, G_ij = (A_i F_ij + A_j F_ji) / 2.
 LinkMatrix symmetric_hemicube_links(const std::vector<Patch>& patches, const Hemicube& hc, const DoneFn& done) {
@@ -264,14 +268,18 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
     std::vector<double>* seconds) const {
     std::vector<HierarchicalSolution> out;
     if (groups_.empty()) return out;
+    // The elements' patches, made once from the hierarchy (light groups light them per group);
+    // what each group gives them is written back to the hierarchy, which the solves read.
+    std::vector<Patch> made;
     std::vector<Patch*> shapes;
     std::vector<uint32_t> ids;
     h.measure_open(vis);
     for (uint32_t i = 0; i < h.nodes.size(); ++i)
         if (!h.nodes[i].cluster) {
-            shapes.push_back(&h.shape(i));
+            made.push_back(h.shape(i));
             ids.push_back(i);
         }
+    for (Patch& p : made) shapes.push_back(&p);
     std::vector<RGB> emission(shapes.size()), direct(shapes.size());
     for (size_t k = 0; k < shapes.size(); ++k) {
         emission[k] = shapes[k]->emission;
@@ -291,6 +299,7 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
             Patch& p = *shapes[k];
             p.direct = d[k];
             p.emission = (p.back ? RGB{} : group_emission(groups_[q], p.face)) + mul(p.reflectance, d[k]);
+            h.set_light(ids[k], p.direct, p.emission);
         }
         // As every round's solve: from the emission (rounds.cpp).
         std::vector<RGB> start = node_emission(h);
@@ -299,10 +308,7 @@ std::vector<HierarchicalSolution> Engine::solve_groups_on(
         if (seconds)
             seconds->push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
-    for (size_t k = 0; k < shapes.size(); ++k) {
-        shapes[k]->emission = emission[k];
-        shapes[k]->direct = direct[k];
-    }
+    for (size_t k = 0; k < shapes.size(); ++k) h.set_light(ids[k], direct[k], emission[k]);
     return out;
 }
 
@@ -326,23 +332,36 @@ void Engine::light_patches(std::vector<Patch*>& patches, const Visibility& vis, 
 void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector<uint32_t>* fresh,
                                 std::vector<double>* spread) const {
     std::vector<uint32_t> ids;
-    std::vector<Patch*> shapes;
     for (uint32_t i = 0; i < h.nodes.size(); ++i)
-        if (!h.nodes[i].cluster && !h.nodes[i].lit) {
-            ids.push_back(i);
-            shapes.push_back(&h.shape(i));
+        if (!h.nodes[i].cluster && !h.nodes[i].lit) ids.push_back(i);
+    // The elements' patches made kMadeBlock at a time (the hierarchy keeps its faces compact),
+    // lit, and their light written back.
+    if (spread) spread->clear();
+    std::vector<Patch> made;
+    std::vector<Patch*> shapes;
+    std::vector<double> block_spread;
+    for (size_t b = 0; b < ids.size(); b += kMadeBlock) {
+        const size_t e = std::min(ids.size(), b + kMadeBlock);
+        made.resize(e - b);
+        shapes.resize(e - b);
+        for (size_t k = b; k < e; ++k) {
+            made[k - b] = h.shape(ids[k]);
+            shapes[k - b] = &made[k - b];
         }
-    light_patches(shapes, vis, spread);
+        light_patches(shapes, vis, spread ? &block_spread : nullptr);
+        for (size_t k = b; k < e; ++k) h.set_light(ids[k], made[k - b].direct, made[k - b].emission);
+        if (spread) spread->insert(spread->end(), block_spread.begin(), block_spread.end());
+    }
     // The direct light of the element's open part (Hierarchy::open), like its links' light.
     h.measure_open(vis);
     for (uint32_t i : ids) {
         h.nodes[i].lit = true;
         const double open = h.open_share(i);
         if (open > 0 && open < 1) {  // the emission the solve starts from holds rho x direct too
-            Patch& p = h.shape(i);
-            const RGB own = p.self_emission();
-            p.direct = p.direct / open;
-            p.emission = own + mul(p.reflectance, p.direct);
+            const RGB& rho = h.reflectance(i);
+            const RGB own = h.emission(i) - mul(rho, h.direct(i));  // Patch::self_emission
+            const RGB direct = h.direct(i) / open;
+            h.set_light(i, direct, own + mul(rho, direct));
         }
     }
     if (fresh) *fresh = std::move(ids);
@@ -369,23 +388,34 @@ void Engine::split_for_luminaires(Hierarchy& h, const Visibility& vis, double ep
     }
 }
 
-double Engine::distant_power(const std::vector<Patch>& faces, const Visibility& vis) const {
+double Engine::distant_power(const FaceTable& faces, const Visibility& vis) const {
     // Distant lights have no flux of their own: what they deliver to the input faces (their
     // luminance Y, W or lm) takes its place in epsilon x the emitted power. One point a face.
     std::vector<Luminaire> distant;
     for (const Luminaire& l : luminaires_)
         if (l.distant) distant.push_back(l);
     if (distant.empty()) return 0;
+    // The faces' patches made kMadeBlock at a time (the table keeps them compact).
+    double power = 0;
+    std::vector<Patch> made;
     std::vector<const Patch*> shapes;
-    for (const Patch& f : faces) shapes.push_back(&f);
     std::vector<RGB> mean;
     std::vector<double> spread;
-    element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
-    double power = 0;
-    for (size_t k = 0; k < faces.size(); ++k) {
-        // glass: only what it reflects enters the exchange (what it lets through lands elsewhere)
-        const bool glass = face_record(faces[k].face).transmittance > 0;
-        power += luminance(glass ? mul(faces[k].reflectance, mean[k]) : mean[k]) * faces[k].area;
+    for (size_t b = 0; b < faces.size(); b += kMadeBlock) {
+        const size_t e = std::min(faces.size(), b + kMadeBlock);
+        made.resize(e - b);
+        shapes.resize(e - b);
+        for (size_t k = b; k < e; ++k) {
+            made[k - b] = faces[k];
+            shapes[k - b] = &made[k - b];
+        }
+        element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
+        for (size_t k = b; k < e; ++k) {
+            const Patch& f = made[k - b];
+            // glass: only what it reflects enters the exchange (what it lets through lands elsewhere)
+            const bool glass = face_record(f.face).transmittance > 0;
+            power += luminance(glass ? mul(f.reflectance, mean[k - b]) : mean[k - b]) * f.area;
+        }
     }
     return power;
 }
@@ -645,7 +675,8 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     state->visibility =
         std::make_unique<Visibility>(state->hierarchy.faces, &glazing_, state->hierarchy.scene_faces);
     emitted = 0;
-    for (const Patch& f : state->hierarchy.faces) emitted += luminance(f.emission) * f.area;
+    const Hierarchy& h = state->hierarchy;
+    for (size_t f = 0; f < h.faces.size(); ++f) emitted += luminance(h.faces.emission(f)) * h.nodes[h.face_node[f]].area;
     emitted += luminance(luminaire_flux());
     emitted += distant_power(state->hierarchy.faces, *state->visibility);
     split_for_luminaires(state->hierarchy, *state->visibility, o.epsilon * emitted, o.min_area);
@@ -833,8 +864,10 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     std::vector<uint32_t> leaves, backs;
     for (uint32_t i : h.leaves()) (h.shape(i).back ? backs : leaves).push_back(i);
     if (!groups.empty()) {
+        std::vector<Patch> made;  // the leaves' patches, made from the hierarchy
+        for (uint32_t i : leaves) made.push_back(h.shape(i));
         std::vector<Patch*> shapes;
-        for (uint32_t i : leaves) shapes.push_back(&h.shape(i));
+        for (Patch& p : made) shapes.push_back(&p);
         const size_t batch = group_batch(shapes.size());
         std::vector<RGB> lit;
         for (size_t k = 0; k < groups.size(); ++k) {
@@ -1124,7 +1157,7 @@ PointValues Engine::gather(const std::vector<Vec3>& points, const std::vector<Ve
     g.irradiance(leaf.data(), x.data(), key.data(), leaf.size(), e.data(), options.directional ? mo.data() : nullptr);
     if (!lums.empty()) {
         std::vector<Vec3> ln(leaf.size());
-        for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.shape(leaf[k]).normal;
+        for (size_t k = 0; k < leaf.size(); ++k) ln[k] = solved_->hierarchy.normal(leaf[k]);
         std::vector<RGB> d(x.size());
         const double lift = solved_->visibility->ray_offset();
         luminaire_irradiance(lums, solved_->visibility.get(), x.data(), ln.data(), x.size(), d.data(), lift);

@@ -447,7 +447,7 @@ private:
                             std::vector<double>* spread) const;
     void split_for_luminaires(Hierarchy& h, const Visibility& visibility, double epsilon_watts, double min_area) const;
     // What the distant lights deliver to `faces` (luminance Y x area), W or lm.
-    double distant_power(const std::vector<Patch>& faces, const Visibility& vis) const;
+    double distant_power(const FaceTable& faces, const Visibility& vis) const;
     // Luminaire irradiance at points x with unit normals n (zero without luminaires).
     std::vector<RGB> luminaire_light(const std::vector<Vec3>& x, const std::vector<Vec3>& n, const Visibility& vis) const;
 

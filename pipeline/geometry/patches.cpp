@@ -12,12 +12,7 @@
 
 namespace hirad {
 
-Vec3 Patch::point(double s, double t) const {
-    if (nv == 4)
-        return p[0] * ((1 - s) * (1 - t)) + p[1] * (s * (1 - t)) + p[2] * (s * t) + p[3] * ((1 - s) * t);
-    if (s + t > 1) { s = 1 - s; t = 1 - t; }
-    return p[0] + (p[1] - p[0]) * s + (p[2] - p[0]) * t;
-}
+Vec3 Patch::point(double s, double t) const { return polygon_point(p[0], p[1], p[2], p[3], nv, s, t); }
 
 void inverse_bilinear(const std::array<Vec2, 4>& q, const Vec2& p, double& s, double& t) {
     auto cross2 = [](const Vec2& a, const Vec2& b) { return a.u * b.v - a.v * b.u; };

@@ -46,6 +46,14 @@ struct Patch {
     Vec2 coordinates(const Vec3& x, Vec2 guess = {0.5, 0.5}) const;
 };
 
+// Patch::point over corners p0..p3 (a triangle's p3 is not read).
+inline Vec3 polygon_point(const Vec3& p0, const Vec3& p1, const Vec3& p2, const Vec3& p3, int nv, double s, double t) {
+    if (nv == 4)
+        return p0 * ((1 - s) * (1 - t)) + p1 * (s * (1 - t)) + p2 * (s * t) + p3 * ((1 - s) * t);
+    if (s + t > 1) { s = 1 - s; t = 1 - t; }
+    return p0 + (p1 - p0) * s + (p2 - p0) * t;
+}
+
 // The four children of a patch at its edge midpoints (and a quad's centre; a triangle's fourth
 // child is the middle one), with their texture coordinates; each child is a copy of the patch
 // with its own corners (p, uv; area, normal and centroid still to be finished). Hierarchical

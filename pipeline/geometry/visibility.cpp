@@ -52,7 +52,7 @@ struct GlassContext {
     const float* prim_transmittance; // per primitive
     const float* angular;            // r(cos theta) at n evenly spaced cosines
     int angular_n;
-    const std::vector<Patch>* patches;
+    const PatchView* patches;
 };
 
 float relative_from(const float* table, int n, double c) {
@@ -87,13 +87,13 @@ void glass_filter(const RTCFilterFunctionNArguments* args) {
         const Vec3 d{RTCRayN_dir_x(args->ray, args->N, i), RTCRayN_dir_y(args->ray, args->N, i),
                      RTCRayN_dir_z(args->ray, args->N, i)};
         const double len = length(d);
-        const double c = len > 0 ? std::fabs(dot(d, (*ctx->patches)[prim].normal)) / len : 1.0;
+        const double c = len > 0 ? std::fabs(dot(d, ctx->patches->normal(prim))) / len : 1.0;
         ctx->factor[id] *= tau * relative_from(ctx->angular, ctx->angular_n, c);
     }
 }
 
 struct PointQueryState {
-    const std::vector<Patch>* patches;
+    const PatchView* patches;
     Vec3 point, normal;
     bool use_normal;
     RayHit best;
@@ -102,8 +102,9 @@ struct PointQueryState {
 
 bool point_query(RTCPointQueryFunctionArguments* args) {
     auto* st = static_cast<PointQueryState*>(args->userPtr);
-    const Patch& patch = (*st->patches)[args->primID];
-    if (st->use_normal && dot(patch.normal, st->normal) < 0.5) return false;
+    if (st->use_normal && dot(st->patches->normal(args->primID), st->normal) < 0.5) return false;
+    Patch scratch;
+    const Patch& patch = st->patches->get(args->primID, scratch);
     // Quads as two triangles (0,1,2) and (0,2,3) for the distance.
     double v, w, u_quad = 0, v_quad = 0;
     Vec3 q = closest_on_triangle(st->point, patch.p[0], patch.p[1], patch.p[2], v, w);
@@ -164,7 +165,7 @@ void Glazing::validate() const {
         if (!(r >= 0 && r <= 1)) throw std::invalid_argument("glazing: an angular transmittance is outside [0, 1]");
 }
 
-Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing, size_t count) : patches_(patches) {
+Visibility::Visibility(PatchView patches, const Glazing* glazing, size_t count) : patches_(patches) {
     // The same kernels on every machine that has them: Embree would pick AVX-512 where the CPU
     // has it, and its wider traversal reports hits that differ from the AVX2 kernels' in the
     // last bits of t, u and v, so a render (and anything read at a hit) would change bits
@@ -182,21 +183,51 @@ Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing
     rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
     RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_QUAD);
     const size_t n = std::min(count, patches.size());
-    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                                 3 * sizeof(float), 4 * n));
-    auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,
-                                                                   4 * sizeof(uint32_t), n));
     Vec3 lo{1e300, 1e300, 1e300}, hi{-1e300, -1e300, -1e300};
-    for (size_t i = 0; i < n; ++i) {
-        // Triangles are quads whose last corner repeats the third, which Embree accepts.
-        for (int k = 0; k < 4; ++k) {
-            const Vec3& p = patches[i].p[k < patches[i].nv ? k : 2];
-            for (int a = 0; a < 3; ++a) {
-                vertices[3 * (4 * i + k) + a] = static_cast<float>(p[a]);
-                lo[a] = std::min(lo[a], p[a]);
-                hi[a] = std::max(hi[a], p[a]);
+    auto bound = [&](const Vec3& p) {
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], p[a]);
+            hi[a] = std::max(hi[a], p[a]);
+        }
+    };
+    if (const FaceTable* table = patches.table()) {
+        // A hierarchy's faces share their corners (face_table.h): one vertex each, as floats of
+        // the same doubles, so the quads and their BVH are those of a vertex per corner (12
+        // bytes a point here, against 48 a face).
+        std::vector<uint8_t> used(table->points(), 0);
+        auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,
+                                                                       4 * sizeof(uint32_t), n));
+        for (size_t i = 0; i < n; ++i) {
+            const int nv = table->nv(i);
+            for (int k = 0; k < 4; ++k) {
+                // Triangles are quads whose last corner repeats the third, which Embree accepts.
+                const uint32_t v = table->corner_index(i, k < nv ? k : 2);
+                indices[4 * i + k] = v;
+                used[v] = 1;
             }
-            indices[4 * i + k] = static_cast<uint32_t>(4 * i + k);
+        }
+        const std::vector<Vec3>& points = table->point_list();
+        auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                                     3 * sizeof(float), std::max<size_t>(points.size(), 1)));
+        for (size_t v = 0; v < points.size(); ++v) {
+            for (int a = 0; a < 3; ++a) vertices[3 * v + a] = static_cast<float>(points[v][a]);
+            if (used[v]) bound(points[v]);  // the traced faces' corners only, as for patches
+        }
+    } else {
+        auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                                     3 * sizeof(float), 4 * n));
+        auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,
+                                                                       4 * sizeof(uint32_t), n));
+        Patch scratch;
+        for (size_t i = 0; i < n; ++i) {
+            const Patch& patch = patches.get(i, scratch);
+            // Triangles are quads whose last corner repeats the third, which Embree accepts.
+            for (int k = 0; k < 4; ++k) {
+                const Vec3& p = patch.p[k < patch.nv ? k : 2];
+                for (int a = 0; a < 3; ++a) vertices[3 * (4 * i + k) + a] = static_cast<float>(p[a]);
+                bound(p);
+                indices[4 * i + k] = static_cast<uint32_t>(4 * i + k);
+            }
         }
     }
     if (n > 0) {
@@ -207,7 +238,7 @@ Visibility::Visibility(const std::vector<Patch>& patches, const Glazing* glazing
     if (glazing && glazing->any()) {
         prim_transmittance_.resize(n);
         for (size_t i = 0; i < n; ++i) {
-            const uint32_t f = patches[i].face;
+            const uint32_t f = patches.face(i);
             prim_transmittance_[i] =
                 f < glazing->face_transmittance.size() ? static_cast<float>(glazing->face_transmittance[f]) : 0.0f;
         }
@@ -362,9 +393,8 @@ RayHit Visibility::intersect_through_glass(const Vec3& origin, const Vec3& direc
     RayHit hit = intersect(origin, direction, tnear, tfar);
     double travelled = 0;  // along `direction` from `origin` to the current ray's origin
     for (int k = 0; has_glass() && hit.patch >= 0 && k < kMaxPanes; ++k) {
-        const Patch& p = patches_[size_t(hit.patch)];
         const double len = length(direction);
-        const double c = dot(p.normal, direction) / (len > 0 ? len : 1);
+        const double c = dot(patches_.normal(size_t(hit.patch)), direction) / (len > 0 ? len : 1);
         const double t_glass = glass_transmittance(hit.patch, std::fabs(c));
         if (!(t_glass > 0)) break;
         hit.t += travelled;

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "pipeline/geometry/face_table.h"
 #include "pipeline/geometry/patches.h"
 
 typedef struct RTCDeviceTy* RTCDevice;
@@ -43,13 +44,34 @@ struct Glazing {
     void validate() const;
 };
 
+// The polygons a Visibility traces, by index: a vector of patches, or a hierarchy's faces
+// (FaceTable, face_table.h), whose patches are made on demand.
+class PatchView {
+public:
+    PatchView(const std::vector<Patch>& patches) : vector_(&patches) {}  // NOLINT: implicit
+    PatchView(const FaceTable& faces) : table_(&faces) {}                // NOLINT: implicit
+    size_t size() const { return vector_ ? vector_->size() : table_->size(); }
+    // Patch i: a reference into the vector, or `scratch` made from the table.
+    const Patch& get(size_t i, Patch& scratch) const {
+        if (vector_) return (*vector_)[i];
+        scratch = (*table_)[i];
+        return scratch;
+    }
+    const Vec3& normal(size_t i) const { return vector_ ? (*vector_)[i].normal : table_->normal(i); }
+    uint32_t face(size_t i) const { return vector_ ? (*vector_)[i].face : table_->face(i); }
+    const FaceTable* table() const { return table_; }
+
+private:
+    const std::vector<Patch>* vector_ = nullptr;
+    const FaceTable* table_ = nullptr;
+};
+
 class Visibility {
 public:
     // `glazing` (may be null, or have no glass) is copied for the patches' faces. Only the first
     // `count` patches are traced (a hierarchy's faces without the backs of its glazed faces,
     // which lie on their fronts).
-    explicit Visibility(const std::vector<Patch>& patches, const Glazing* glazing = nullptr,
-                        size_t count = SIZE_MAX);
+    explicit Visibility(PatchView patches, const Glazing* glazing = nullptr, size_t count = SIZE_MAX);
     ~Visibility();
     Visibility(const Visibility&) = delete;
     Visibility& operator=(const Visibility&) = delete;
@@ -103,7 +125,7 @@ public:
 private:
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
-    const std::vector<Patch>& patches_;
+    PatchView patches_;
     double scene_size_ = 1;
     Vec3 lo_{0, 0, 0}, hi_{0, 0, 0};
     std::vector<float> prim_transmittance_;  // per patch (empty: no glass)
@@ -119,21 +141,21 @@ private:
 // from its front (its own radiosity: what it reflects), weight the glass before it, then
 // visit(hit, pass) for the surface past the glass. Backs give nothing (one-sided).
 template <typename Visit>
-void visit_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
+void visit_through_glass(const Visibility& vis, const PatchView& patches, const Vec3& dir,
                          const std::vector<RayHit>& panes, const RayHit& hit, double pass, Visit&& visit) {
     double before = 1;
     const double len = length(dir) > 0 ? length(dir) : 1.0;
     for (const RayHit& g : panes) {
-        const double c = dot(patches[size_t(g.patch)].normal, dir) / len;
+        const double c = dot(patches.normal(size_t(g.patch)), dir) / len;
         if (c < 0) visit(g, before);
         before *= vis.glass_transmittance(g.patch, std::fabs(c));
     }
-    if (hit.patch >= 0 && dot(patches[size_t(hit.patch)].normal, dir) < 0) visit(hit, pass);
+    if (hit.patch >= 0 && dot(patches.normal(size_t(hit.patch)), dir) < 0) visit(hit, pass);
 }
 
 // The sum of value(surface) x weight over what visit_through_glass visits.
 template <typename Value>
-RGB seen_through_glass(const Visibility& vis, const std::vector<Patch>& patches, const Vec3& dir,
+RGB seen_through_glass(const Visibility& vis, const PatchView& patches, const Vec3& dir,
                        const std::vector<RayHit>& panes, const RayHit& hit, double pass, Value&& value) {
     RGB sum;
     visit_through_glass(vis, patches, dir, panes, hit, pass,

@@ -17,7 +17,10 @@ constexpr int kHorizonRedraws = 8;
 
 // Whether a source emits light of its own (not only its luminaires' share rho x direct): its
 // links are traced from every point, 4 x 4 rays (element_transfer).
-bool emits(const Patch& s) { return luminance(s.self_emission()) > 0; }
+bool emits(const RGB& emission, const RGB& reflectance, const RGB& direct) {
+    return luminance(emission - mul(reflectance, direct)) > 0;  // Patch::self_emission
+}
+bool emits(const Patch& s) { return emits(s.emission, s.reflectance, s.direct); }
 
 // The part of the polygon strictly above the plane through x with normal n (as the form
 // factor clips it, so that n . w1 = pi F to rounding).
@@ -121,7 +124,7 @@ void Gatherer::build_steps() {
     steps_.resize(n);
     for (size_t i = 0; i < n; ++i) {
         const Node& node = h_.nodes[i];
-        steps_[i] = DescentStep{node.first_child, node.child_count, static_cast<uint8_t>(h_.shape(uint32_t(i)).nv)};
+        steps_[i] = DescentStep{node.first_child, node.child_count, static_cast<uint8_t>(h_.nv(uint32_t(i)))};
     }
 }
 
@@ -129,13 +132,13 @@ double Gatherer::mean_coupling(const GatherLink& l, uint32_t receiver, uint32_t 
     // G / A_R over an element receiver; over a receiving cluster, what the leaf's face takes
     // of it by its orientation (Hierarchy::reception).
     if (h_.slot_of(receiver) == kNoNode) return double(l.coupling) / h_.nodes[receiver].area;
-    return double(l.coupling) * std::max(0.0, h_.reception(receiver, l.source).along(h_.shape(leaf).normal));
+    return double(l.coupling) * std::max(0.0, h_.reception(receiver, l.source).along(h_.normal(leaf)));
 }
 
 bool Gatherer::varies(const GatherLink& l, uint32_t leaf) const {
     const Node& me = h_.nodes[leaf];
     const Node& s = h_.nodes[l.source];
-    if (!s.cluster && luminance(h_.shape(l.source).emission) > 0) return true;
+    if (!s.cluster && luminance(h_.emission(l.source)) > 0) return true;
     double gap2 = 0;
     for (int a = 0; a < 3; ++a) {
         const double d = std::max({0.0, s.lo[a] - me.hi[a], me.lo[a] - s.hi[a]});
@@ -201,7 +204,8 @@ RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3
     if (depth == 0 && opt_.second_bounce > 0 && node.leaf() &&
         box_gap(node.lo, node.hi, x) < opt_.second_bounce * node.diagonal())
         return cell_transfer(link, link.source, h_.shape(link.source), 0, 0, x, n, rng, mo);
-    const Patch& s = h_.shape(link.source);
+    Patch scratch;
+    const Patch& s = h_.shape(link.source, scratch);
     // Self-emitting sources exactly (the direct light); others far from x compared with their
     // size by quadrature (formfactors.h: within about 1e-3, at a fraction of the cost).
     const bool emitter = emits(s);
@@ -286,7 +290,7 @@ RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3
 RGB Gatherer::cell_difference(uint32_t source, const Vec3& y, bool near, uint64_t code) const {
     RGB h_y, mean_h;
     Rng rng(hash_pair(h_.nodes[source].key, code, opt_.seed ^ 0x5EC0Dull));
-    const Vec3 n = h_.shape(source).normal;
+    const Vec3 n = h_.normal(source);
     for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {
             const GatherLink& l = links_[k];
@@ -321,7 +325,8 @@ RGB Gatherer::cell_radiosity(uint32_t source, const Patch& cell, uint64_t code) 
     // spans the open floor), so they are gathered once, at the leaf's centre, and that
     // difference is shared by all its cells. Gathering every link at every cell was most of
     // the country kitchen's lightmap time.
-    const Patch& s = h_.shape(source);
+    Patch scratch;
+    const Patch& s = h_.shape(source, scratch);
     RGB far;
     {
         const uint64_t leaf_key = uint64_t(source) << 16 | kLeafCode;
@@ -366,7 +371,7 @@ RGB Gatherer::cell_transfer(const GatherLink& link, uint32_t source, const Patch
     const RGB b = cell_radiosity(source, cell, code | uint64_t(depth) << (2 * kCellDepth));
     // One ray to the cell, above x's horizon, where the link's estimate saw a shadow or the
     // source emits (element_transfer: an emitter's estimate can miss a small shadow).
-    if (link.visibility < 1.0f || emits(h_.shape(source))) {
+    if (link.visibility < 1.0f || emits(h_.emission(source), h_.reflectance(source), h_.direct(source))) {
         Vec3 y = cell.point(rng.uniform(), rng.uniform());
         for (int r = 0; r < kHorizonRedraws && dot(y - x, n) <= 0; ++r) y = cell.point(rng.uniform(), rng.uniform());
         const double lift = vis_.ray_offset();
@@ -435,7 +440,8 @@ RGB Gatherer::cluster_transfer(const GatherLink& link, const Vec3& x, const Vec3
 }
 
 RGB Gatherer::at(uint32_t leaf, const Vec3& x_in, uint64_t key, RadianceMoments* mo, const Split* sp) const {
-    const Patch& shape = h_.shape(leaf);
+    Patch scratch;
+    const Patch& shape = h_.shape(leaf, scratch);
     const Vec3 n = shape.normal;
     // On the leaf's plane, whatever small offset the query point had.
     const Vec3 x = x_in - n * dot(x_in - shape.p[0], n);
@@ -503,8 +509,7 @@ void Gatherer::irradiance(const uint32_t* leaf, const Vec3* x, const uint64_t* k
 void Gatherer::radiance(const uint32_t* leaf, const Vec3* x, const uint64_t* key, size_t count, RGB* out) const {
     irradiance(leaf, x, key, count, out);
     for (size_t k = 0; k < count; ++k) {
-        const Patch& s = h_.shape(leaf[k]);
-        out[k] = (s.emission + mul(s.reflectance, out[k])) / kPi;
+        out[k] = (h_.emission(leaf[k]) + mul(h_.reflectance(leaf[k]), out[k])) / kPi;
     }
 }
 

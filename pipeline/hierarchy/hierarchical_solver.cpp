@@ -20,7 +20,7 @@ void sort_links(std::vector<Link>& links) {
 double leaf_emission_norm(const Hierarchy& h, const std::vector<uint32_t>& leaves) {
     return emission_norm(
         leaves.size(), [&](size_t k) { return h.nodes[leaves[k]].area; },
-        [&](size_t k) { return h.shape(leaves[k]).emission; });
+        [&](size_t k) { return h.emission(leaves[k]); });
 }
 
 std::vector<RGB> node_emission(const Hierarchy& h) {
@@ -29,7 +29,7 @@ std::vector<RGB> node_emission(const Hierarchy& h) {
     for (size_t i = h.nodes.size(); i-- > 0;) {
         const Node& n = h.nodes[i];
         if (n.leaf()) {
-            e[i] = n.cluster ? RGB{} : h.shape(uint32_t(i)).emission;
+            e[i] = n.cluster ? RGB{} : h.emission(uint32_t(i));
             continue;
         }
         RGB acc;
@@ -98,7 +98,7 @@ double inherited_sum(const Hierarchy& h, const std::vector<double>& f, std::vect
     if (!fc.empty() && node.parent != kNoNode && h.nodes[node.parent].cluster) {
         const Reception& r = fc[h.cluster_slot[node.parent]];
         if (node.cluster) fc[h.cluster_slot[i]] += r;
-        else above += std::max(0.0, r.along(h.shape(uint32_t(i)).normal));
+        else above += std::max(0.0, r.along(h.normal(uint32_t(i))));
     }
     return above;
 }
@@ -123,7 +123,7 @@ LeafTerms gather_terms(const Hierarchy& h, std::vector<double> f, std::vector<Re
         const double own = f[i], above = inherited_sum(h, f, fc, i);
         f[i] = own + above;
         if (!node.leaf() || node.cluster) continue;
-        const RGB& rho = h.shape(uint32_t(i)).reflectance;
+        const RGB& rho = h.reflectance(uint32_t(i));
         const double rho_max = std::max({rho.x, rho.y, rho.z});
         // What the leaf inherits is scaled so that its sum comes to the leaf's closure where
         // that was measured (Hierarchy::closure), by at most kClosureMost either way: its own
@@ -187,14 +187,14 @@ struct PushPullWalk {
             pushed = clusters[h.cluster_slot[i]];
             if (from_parent) pushed.add(*from_parent);
         } else if (from_parent) {
-            above += from_parent->along(h.shape(i).normal);
+            above += from_parent->along(h.normal(i));
         }
         RGB own = gathered[i];
         if (power) own = node.area > 0 ? own / node.area : RGB{};
         const RGB here = terms.leaf_irradiance(i, node.leaf(), own, above);
         if (irradiance) (*irradiance)[i] = here;
         if (node.leaf()) {
-            radiosity[i] = node.cluster ? RGB{} : h.shape(i).emission + mul(h.shape(i).reflectance, here);
+            radiosity[i] = node.cluster ? RGB{} : h.emission(i) + mul(h.reflectance(i), here);
             return;
         }
         const VectorIrradiance* down = pushes ? &pushed : nullptr;
@@ -370,7 +370,7 @@ void push_pull_face(const Hierarchy& h, const std::vector<uint32_t>& tree, const
         const uint32_t i = tree[k];
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            radiosity[i] = h.shape(uint32_t(i)).emission + mul(h.shape(uint32_t(i)).reflectance, irradiance[i]);
+            radiosity[i] = h.emission(uint32_t(i)) + mul(h.reflectance(uint32_t(i)), irradiance[i]);
             continue;
         }
         RGB acc;
@@ -548,7 +548,7 @@ HierarchicalSolution solve_southwell_push_pull(const Hierarchy& h, const std::ve
                 if (node.leaf()) {
                     const RGB got = pushed[i];
                     r2 -= node.area * dot(r[i], r[i]);
-                    r[i] += mul(h.shape(uint32_t(i)).reflectance, got);
+                    r[i] += mul(h.reflectance(uint32_t(i)), got);
                     r2 += node.area * dot(r[i], r[i]);
                 }
             }

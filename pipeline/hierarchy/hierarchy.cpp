@@ -39,35 +39,47 @@ Vec3 mid(const Vec3& a, const Vec3& b) { return (a + b) * 0.5; }
 Hierarchy::Hierarchy(const Scene& scene) {
     const uint32_t ns = static_cast<uint32_t>(scene.faces.size());
     scene_faces = ns;
-    faces.resize(ns);
     std::vector<uint32_t> glazed;
+    for (uint32_t f = 0; f < ns; ++f)
+        if (scene.faces[f].transmittance > 0) glazed.push_back(f);
+    faces.reserve(ns + glazed.size());
+    // Each face's centroid, while the tree is built (the table makes it on demand).
+    std::vector<Vec3> centroid;
+    centroid.reserve(ns + glazed.size());
+    auto add = [&](const Patch& p) {
+        faces.push_back(p);
+        centroid.push_back(p.centroid);
+    };
     for (uint32_t f = 0; f < ns; ++f) {
         const Face& face = scene.faces[f];
-        Patch& p = faces[f];
+        Patch p;
         p.nv = face.nv;
         for (int k = 0; k < 4; ++k) { p.p[k] = face.p[std::min(k, face.nv - 1)]; p.uv[k] = face.uv[std::min(k, face.nv - 1)]; }
         p.reflectance = face.reflectance;
         p.emission = face.emission;
         p.mesh = face.mesh;
         p.face = f;
+        p.vertex = {0, 0, 0, 0};
         finish_shape(p);
-        if (face.transmittance > 0) glazed.push_back(f);
+        add(p);
     }
     // The backs of glazed faces: the same polygon turned over (corners reversed), reflecting as
     // the front, emitting nothing, after all the scene's faces.
     for (uint32_t f : glazed) {
-        Patch back = faces[f];
+        const Patch front = faces[f];
+        Patch back = front;
         const int nv = back.nv;
         for (int k = 0; k < nv; ++k) {
-            back.p[k] = faces[f].p[nv - 1 - k];
-            back.uv[k] = faces[f].uv[nv - 1 - k];
+            back.p[k] = front.p[nv - 1 - k];
+            back.uv[k] = front.uv[nv - 1 - k];
         }
         if (nv == 3) { back.p[3] = back.p[2]; back.uv[3] = back.uv[2]; }
         back.emission = RGB{};
         back.back = true;
         finish_shape(back);
-        faces.push_back(back);
+        add(back);
     }
+    faces.seal();
     const uint32_t n = static_cast<uint32_t>(faces.size());
     face_order.resize(n);
     std::iota(face_order.begin(), face_order.end(), 0u);
@@ -90,9 +102,15 @@ Hierarchy::Hierarchy(const Scene& scene) {
         if (t.end - t.begin == 1) {
             const uint32_t f = face_order[t.begin];
             node.element = f;  // an element root is its face
-            node.area = faces[f].area;
+            node.area = faces.area(f);
             node.cluster = false;
-            bound_shape(node, faces[f]);
+            node.lo = {1e300, 1e300, 1e300};
+            node.hi = {-1e300, -1e300, -1e300};
+            for (int k = 0; k < faces.nv(f); ++k)
+                for (int a = 0; a < 3; ++a) {
+                    node.lo[a] = std::min(node.lo[a], faces.corner(f, k)[a]);
+                    node.hi[a] = std::max(node.hi[a], faces.corner(f, k)[a]);
+                }
             face_node[f] = t.node;
             continue;
         }
@@ -100,15 +118,15 @@ Hierarchy::Hierarchy(const Scene& scene) {
         Vec3 clo{1e300, 1e300, 1e300}, chi{-1e300, -1e300, -1e300};
         for (uint32_t k = t.begin; k < t.end; ++k)
             for (int a = 0; a < 3; ++a) {
-                clo[a] = std::min(clo[a], faces[face_order[k]].centroid[a]);
-                chi[a] = std::max(chi[a], faces[face_order[k]].centroid[a]);
+                clo[a] = std::min(clo[a], centroid[face_order[k]][a]);
+                chi[a] = std::max(chi[a], centroid[face_order[k]][a]);
             }
         Vec3 ext = chi - clo;
         int axis = ext.x >= ext.y && ext.x >= ext.z ? 0 : (ext.y >= ext.z ? 1 : 2);
         const uint32_t m = t.begin + (t.end - t.begin) / 2;
         std::nth_element(face_order.begin() + t.begin, face_order.begin() + m, face_order.begin() + t.end,
                          [&](uint32_t a, uint32_t b) {
-                             double ca = faces[a].centroid[axis], cb = faces[b].centroid[axis];
+                             double ca = centroid[a][axis], cb = centroid[b][axis];
                              return ca < cb || (ca == cb && a < b);
                          });
         const uint32_t first = static_cast<uint32_t>(nodes.size());
@@ -121,7 +139,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
         stack.push_back({first, t.begin, m});
     }
     area_prefix.assign(n + 1, 0.0);
-    for (uint32_t k = 0; k < n; ++k) area_prefix[k + 1] = area_prefix[k] + faces[face_order[k]].area;
+    for (uint32_t k = 0; k < n; ++k) area_prefix[k + 1] = area_prefix[k] + faces.area(face_order[k]);
     // Cluster bounds and areas, children before parents (they have larger indices).
     for (uint32_t i = static_cast<uint32_t>(nodes.size()); i-- > 0;) {
         Node& node = nodes[i];
@@ -150,9 +168,9 @@ Hierarchy::Hierarchy(const Scene& scene) {
         ClusterShape& c = cluster_shapes[k];
         Vec3 weighted;
         for (uint32_t j = node.face_begin; j < node.face_end; ++j) {
-            const Patch& f = faces[face_order[j]];
-            weighted += f.centroid * f.area;
-            c.vector_area += f.normal * f.area;
+            const uint32_t f = face_order[j];
+            weighted += centroid[f] * faces.area(f);
+            c.vector_area += faces.normal(f) * faces.area(f);
         }
         c.centre = node.area > 0 ? weighted / node.area : (node.lo + node.hi) * 0.5;
         for (int corner = 0; corner < 8; ++corner) {
@@ -166,11 +184,11 @@ Hierarchy::Hierarchy(const Scene& scene) {
         c.cos_spread = 1;
         double lo = 1e300, hi = -1e300;
         for (uint32_t j = node.face_begin; j < node.face_end; ++j) {
-            const Patch& f = faces[face_order[j]];
-            c.cos_spread = std::min(c.cos_spread, dot(f.normal, c.axis));
-            for (int k = 0; k < f.nv; ++k) {
-                lo = std::min(lo, dot(f.p[k], c.axis));
-                hi = std::max(hi, dot(f.p[k], c.axis));
+            const uint32_t f = face_order[j];
+            c.cos_spread = std::min(c.cos_spread, dot(faces.normal(f), c.axis));
+            for (int k = 0; k < faces.nv(f); ++k) {
+                lo = std::min(lo, dot(faces.corner(f, k), c.axis));
+                hi = std::max(hi, dot(faces.corner(f, k), c.axis));
             }
         }
         // Layers: deeper along the axis than one surface of that spread of normals can be.
@@ -183,13 +201,16 @@ Hierarchy::Hierarchy(const Scene& scene) {
 
 Vec3 Hierarchy::centre(uint32_t i) const {
     const uint32_t slot = slot_of(i);
-    return slot != kNoNode ? cluster_shapes[slot].centre : shape(i).centroid;
+    if (slot != kNoNode) return cluster_shapes[slot].centre;
+    Patch scratch;
+    return shape(i, scratch).centroid;
 }
 
 double Hierarchy::radius(uint32_t i) const {
     const uint32_t slot = slot_of(i);
     if (slot != kNoNode) return cluster_shapes[slot].radius;
-    const Patch& p = shape(i);
+    Patch scratch;
+    const Patch& p = shape(i, scratch);
     double r = 0;
     for (int k = 0; k < p.nv; ++k) r = std::max(r, length(p.p[k] - p.centroid));
     return r;
@@ -279,6 +300,17 @@ bool Hierarchy::can_subdivide(uint32_t i, double min_area) const {
     return node.child_count > 0 || node.area / 4 >= min_area;
 }
 
+void Hierarchy::set_light(uint32_t node, const RGB& direct, const RGB& emission) {
+    const uint32_t e = nodes[node].element;
+    if (e == kNoNode) throw std::invalid_argument("set_light: node " + std::to_string(node) + " is a cluster");
+    if (e < faces.size()) {
+        faces.set_light(e, direct, emission);
+    } else {
+        pieces[e - faces.size()].direct = direct;
+        pieces[e - faces.size()].emission = emission;
+    }
+}
+
 void Hierarchy::subdivide(uint32_t i) {
     if (nodes[i].child_count > 0 || nodes[i].cluster) return;
     Patch kids[4];
@@ -323,7 +355,12 @@ void Hierarchy::replay(const std::vector<uint32_t>& log) {
 void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point, Vec3& normal) const {
     const Node& node = nodes[i];
     if (!node.cluster) {
-        const Patch& p = shape(i);
+        if (node.element < faces.size()) {  // a face: read from the table, not made whole
+            point = faces.point(node.element, s, t);
+            normal = faces.normal(node.element);
+            return;
+        }
+        const Patch& p = pieces[node.element - faces.size()];
         point = p.point(s, t);
         normal = p.normal;
         return;
@@ -333,16 +370,15 @@ void Hierarchy::sample(uint32_t i, double pick, double s, double t, Vec3& point,
     auto it = std::upper_bound(area_prefix.begin() + node.face_begin + 1, area_prefix.begin() + node.face_end + 1, target);
     uint32_t k = static_cast<uint32_t>(it - area_prefix.begin()) - 1;
     k = std::min(std::max(k, node.face_begin), node.face_end - 1);
-    const Patch& f = faces[face_order[k]];
-    point = f.point(s, t);
-    normal = f.normal;
+    point = faces.point(face_order[k], s, t);
+    normal = faces.normal(face_order[k]);
 }
 
 uint32_t Hierarchy::leaf_at(uint32_t i, double s, double t) const {
     return descend_to_leaf(
         [this](uint32_t k) {
             const Node& n = nodes[k];
-            return DescentStep{n.first_child, n.child_count, static_cast<uint8_t>(shape(k).nv)};
+            return DescentStep{n.first_child, n.child_count, static_cast<uint8_t>(nv(k))};
         },
         i, s, t);
 }
@@ -381,8 +417,10 @@ uint64_t Hierarchy::balance() {
     for (;;) {
         const std::vector<uint32_t> leaf = leaves();
         std::unordered_set<std::string> corners;
-        for (uint32_t i : leaf)
-            for (int k = 0; k < shape(i).nv; ++k) corners.insert(corner_key(shape(i).mesh, shape(i).p[k]));
+        for (uint32_t i : leaf) {
+            const Patch s = shape(i);
+            for (int k = 0; k < s.nv; ++k) corners.insert(corner_key(s.mesh, s.p[k]));
+        }
         std::vector<uint32_t> marked;
         for (uint32_t i : leaf) {
             const Patch& s = shape(i);
@@ -407,7 +445,7 @@ namespace {
 // The share of the cosine-weighted hemisphere above 8 x 8 stratified points of `s` that meets
 // the front of a surface (Hierarchy::closure); over the whole element, points inside geometry
 // (whose rays meet backs) included.
-double measure_closure(const Visibility& vis, const std::vector<Patch>& faces, const Patch& s, Rng& rng,
+double measure_closure(const Visibility& vis, const FaceTable& faces, const Patch& s, Rng& rng,
                        double lift) {
     const Vec3 n = s.normal;
     const Vec3 a = std::fabs(n.x) < 0.6 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
@@ -431,9 +469,9 @@ double measure_closure(const Visibility& vis, const std::vector<Patch>& faces, c
         double before = 1;
         for (const RayHit& p : panes) {  // a pane is an element on either side
             sum += before;
-            before *= vis.glass_transmittance(p.patch, std::fabs(dot(faces[size_t(p.patch)].normal, d)));
+            before *= vis.glass_transmittance(p.patch, std::fabs(dot(faces.normal(size_t(p.patch)), d)));
         }
-        if (hit.patch >= 0 && dot(faces[size_t(hit.patch)].normal, d) < 0) sum += pass;
+        if (hit.patch >= 0 && dot(faces.normal(size_t(hit.patch)), d) < 0) sum += pass;
     }
     return sum / (g * g);
 }
@@ -466,7 +504,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
                 for (const Vec3& d : dirs) {
                     // (glass encloses nothing: seen through, the backs behind it count)
                     const RayHit hit = vis.intersect_through_glass(x, d);
-                    if (hit.patch < 0 || dot(faces[static_cast<size_t>(hit.patch)].normal, d) < 0) {
+                    if (hit.patch < 0 || dot(faces.normal(static_cast<size_t>(hit.patch)), d) < 0) {
                         enclosed = false;
                         break;
                     }

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "pipeline/core/link.h"
+#include "pipeline/geometry/face_table.h"
 #include "pipeline/geometry/patches.h"
 #include "pipeline/geometry/scene.h"
 
@@ -125,21 +126,51 @@ public:
     std::vector<uint32_t> face_order;   // faces in cluster order
     std::vector<uint32_t> face_node;    // element root of each face
     std::vector<double> area_prefix;    // prefix sums of face area in face_order (size faces+1)
-    std::vector<Patch> faces;           // the faces as polygons (for Embree and sampling), then the
-                                        // backs of the glazed ones (Patch::back; face = the front's)
+    FaceTable faces;                    // the faces as polygons (for Embree and sampling), then the
+                                        // backs of the glazed ones (Patch::back; face = the front's),
+                                        // stored compactly (face_table.h)
     size_t scene_faces = 0;             // faces[0, scene_faces) are the scene's
     std::vector<Patch> pieces;          // the polygons of the elements made by subdivision
 
     // An element's polygon, material and face (Node::element); an empty patch for a cluster.
-    const Patch& shape(uint32_t node) const {
+    // A face's is made from the FaceTable (a copy: the same bits as the patch it was made
+    // from); what the solvers read of every node in their walks has accessors of its own.
+    Patch shape(uint32_t node) const {
         const uint32_t e = nodes[node].element;
-        return e == kNoNode ? kNoShape : (e < faces.size() ? faces[e] : pieces[e - faces.size()]);
+        return e == kNoNode ? Patch{} : (e < faces.size() ? faces[e] : pieces[e - faces.size()]);
     }
-    Patch& shape(uint32_t node) {
+    // The same without copying a piece: a reference to it, or `scratch` made from the table.
+    const Patch& shape(uint32_t node, Patch& scratch) const {
         const uint32_t e = nodes[node].element;
-        return e < faces.size() ? faces[e] : pieces.at(e - faces.size());
+        if (e == kNoNode) return scratch = Patch{};
+        if (e >= faces.size()) return pieces[e - faces.size()];
+        faces.get(e, scratch);
+        return scratch;
     }
-    static inline const Patch kNoShape{};
+    const RGB& reflectance(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? kZero : (e < faces.size() ? faces.reflectance(e) : pieces[e - faces.size()].reflectance);
+    }
+    const RGB& emission(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? kZero : (e < faces.size() ? faces.emission(e) : pieces[e - faces.size()].emission);
+    }
+    const RGB& direct(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? kZero : (e < faces.size() ? faces.direct(e) : pieces[e - faces.size()].direct);
+    }
+    const Vec3& normal(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? kZero : (e < faces.size() ? faces.normal(e) : pieces[e - faces.size()].normal);
+    }
+    int nv(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? 0 : (e < faces.size() ? faces.nv(e) : pieces[e - faces.size()].nv);
+    }
+    // An element's light from luminaires (Patch::direct) and its source term with it
+    // (Patch::emission).
+    void set_light(uint32_t node, const RGB& direct, const RGB& emission);
+    static inline const Vec3 kZero{};
 
     // Glazing's two sides. A glazed face (Face::transmittance tau0 > 0) is two element trees
     // back to back: the face, and its back (the polygon turned over), each receiving the light

@@ -96,9 +96,12 @@ bool Refiner::may_face(uint32_t a, uint32_t b) const {
         return false;
     };
     if (na.cluster && nb.cluster) return true;
-    if (na.cluster) return box_in_front(na, h_.shape(b));
-    if (nb.cluster) return box_in_front(nb, h_.shape(a));
-    return in_front(h_.shape(b), h_.shape(a)) && in_front(h_.shape(a), h_.shape(b));
+    Patch scratch_a, scratch_b;
+    if (na.cluster) return box_in_front(na, h_.shape(b, scratch_b));
+    if (nb.cluster) return box_in_front(nb, h_.shape(a, scratch_a));
+    const Patch& pa = h_.shape(a, scratch_a);
+    const Patch& pb = h_.shape(b, scratch_b);
+    return in_front(pb, pa) && in_front(pa, pb);
 }
 
 Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
@@ -126,7 +129,8 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const bool polygon_source = !ns.cluster;
     const bool polygon_receiver = !polygon_source && !nr.cluster;
     const uint32_t sampled = polygon_source ? r : (polygon_receiver ? s : r);
-    const Patch& target = std::as_const(h_).shape(polygon_source ? s : r);  // (empty between clusters)
+    Patch scratch;
+    const Patch& target = h_.shape(polygon_source ? s : r, scratch);  // (empty between clusters)
     const double area = h_.nodes[sampled].area;
     // A polygon far from the sampled end compared with its size (RefineOptions::far): the
     // point-to-point kernel between stratified points of both ends, the polygon's strata
@@ -332,7 +336,7 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity, bool solved) {
     for (size_t i = 0; i < h_.nodes.size(); ++i) {
         const Node& node = h_.nodes[i];
         if (node.cluster) continue;
-        const double rho = luminance(h_.shape(uint32_t(i)).reflectance);
+        const double rho = luminance(h_.reflectance(uint32_t(i)));
         if (rho > 0) gathered_[i] = std::max(0.0, luminance(radiosity[i])) / rho;
     }
 }

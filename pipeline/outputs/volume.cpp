@@ -84,7 +84,7 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
     return out;
 }
 
-void lift_samples(const std::vector<Patch>& patches, const Visibility& visibility, std::vector<Vec3>& points,
+void lift_samples(const PatchView& patches, const Visibility& visibility, std::vector<Vec3>& points,
                   const std::vector<Vec3>& normals, double epsilon, double reach, std::vector<uint8_t>& moved,
                   const std::vector<Vec3>* anchors) {
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
@@ -106,7 +106,7 @@ void lift_samples(const std::vector<Patch>& patches, const Visibility& visibilit
         bool inside = false;
         for (const Vec3& d : dirs) {
             const RayHit hit = visibility.intersect(x, d, 0, reach);
-            if (hit.patch < 0 || dot(patches[hit.patch].normal, d) <= 0) continue;
+            if (hit.patch < 0 || dot(patches.normal(size_t(hit.patch)), d) <= 0) continue;
             // nearest exit, or (steered) the exit most towards the anchor, nearest on ties
             const double score = steer ? dot(d, towards) - 1e-6 * hit.t : -hit.t;
             if (score > best_score) {

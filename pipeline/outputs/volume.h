@@ -68,7 +68,7 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
 // hit in the direction closest to the anchor rather than the nearest one: a texel that
 // straddles a wall keeps its samples on the side it mostly shows. Normals (and anchors) must
 // be one per point (std::invalid_argument).
-void lift_samples(const std::vector<Patch>& patches, const Visibility& visibility, std::vector<Vec3>& points,
+void lift_samples(const PatchView& patches, const Visibility& visibility, std::vector<Vec3>& points,
                   const std::vector<Vec3>& normals, double epsilon, double reach, std::vector<uint8_t>& moved,
                   const std::vector<Vec3>* anchors = nullptr);
 

@@ -62,7 +62,7 @@ struct SolvedRoom {
     // is all the lamp emits, whatever the geometry.
     double balance(double rho) const {
         double ah = 0;
-        for (uint32_t i : h.leaves()) ah += h.nodes[i].area * (sol.radiosity[i].x - h.shape(i).emission.x) / rho;
+        for (uint32_t i : h.leaves()) ah += h.nodes[i].area * (sol.radiosity[i].x - h.emission(i).x) / rho;
         return ah / (phi / (1 - rho));
     }
 };

@@ -346,15 +346,15 @@ TEST(ClusterReceivers, PushPullInParallelIsTheDefinitionToTheBit) {
         if (node.parent != kNoNode && h.nodes[node.parent].cluster) {
             const VectorIrradiance& v = pushed[h.cluster_slot[node.parent]];
             if (node.cluster) pushed[h.cluster_slot[i]].add(v);
-            else above += v.along(h.shape(uint32_t(i)).normal);
+            else above += v.along(h.normal(uint32_t(i)));
         }
         want_h[i] = terms.leaf_irradiance(uint32_t(i), node.leaf(), gathered[i], above);
     }
     for (size_t i = n; i-- > 0;) {
         const Node& node = h.nodes[i];
         if (node.leaf()) {
-            want_b[i] = node.cluster ? RGB{} : h.shape(uint32_t(i)).emission +
-                                                   mul(h.shape(uint32_t(i)).reflectance, want_h[i]);
+            want_b[i] = node.cluster ? RGB{} : h.emission(uint32_t(i)) +
+                                                   mul(h.reflectance(uint32_t(i)), want_h[i]);
             continue;
         }
         RGB acc;

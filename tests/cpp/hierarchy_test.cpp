@@ -44,7 +44,7 @@ TEST(Hierarchy, SubdivisionTilesTheParent) {
         const Node& child = h.nodes[h.nodes[e].first_child + c];
         sum += child.area;
         EXPECT_EQ(child.parent, e);
-        EXPECT_NEAR(dot(h.shape(h.nodes[e].first_child + c).normal, h.shape(e).normal), 1.0, 1e-12);
+        EXPECT_NEAR(dot(h.normal(h.nodes[e].first_child + c), h.normal(e)), 1.0, 1e-12);
     }
     EXPECT_NEAR(sum, h.nodes[e].area, 1e-12);
 }

@@ -164,7 +164,11 @@ TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
     Problem pb(std::move(scene), 2);
     // A NaN that got past the scene's checks (they refuse it in Scene::build).
     for (uint32_t i = 0; i < pb.h.nodes.size(); ++i)
-        if (!pb.h.nodes[i].cluster && pb.h.shape(i).face == 4) pb.h.shape(i).emission.z = std::nan("");
+        if (!pb.h.nodes[i].cluster && pb.h.shape(i).face == 4) {
+            RGB e = pb.h.emission(i);
+            e.z = std::nan("");
+            pb.h.set_light(i, pb.h.direct(i), e);
+        }
     StreamingOptions opt;
     opt.tolerance = 1e-12;
     uint64_t rounds = 0;

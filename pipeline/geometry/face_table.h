@@ -1,0 +1,96 @@
+// The input faces of a hierarchy, stored compactly, and each face's Patch made from them on
+// demand.
+//
+// A Patch is 328 bytes: four double corners and texture coordinates, its normal, centroid and
+// area, its material and light. Held for every input face, it was the largest array of a large
+// bake: 201.7 MB of a 615k-triangle floor's 1.2 GB heap, 3.2 GB of the 9.84M-triangle
+// building's (bench/README.md, stop 44). Here a face keeps its corners as indices into its
+// points (welded where the bits agree: a mesh's shared vertices are stored once), its
+// reflectance as an index into the distinct reflectances, its unit normal (the solvers' walks
+// read it for every face) and area, its emission and direct light (set again as luminaires
+// light it), and its texture coordinates only once a face has non-zero ones: about 124 bytes
+// a face of a triangle mesh without texture coordinates. operator[] gives the Patch with its corners,
+// coordinates, fields, normal and area as stored and its centroid the mean of its corners (as
+// finish_patch makes it for the hierarchy): the same bits as the Patch it was made from.
+#pragma once
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "pipeline/geometry/patches.h"
+
+namespace hirad {
+
+class FaceTable {
+public:
+    FaceTable() = default;
+    FaceTable(FaceTable&&) = default;
+    FaceTable& operator=(FaceTable&&) = default;
+
+    // Adds a finished patch (finish_patch with PatchCentroid::CornerMean) as the next face.
+    void push_back(const Patch& p);
+    void reserve(size_t n);
+    // Lets go of the welding index and spare capacity once every face is in.
+    void seal();
+
+    size_t size() const { return records_.size(); }
+    bool empty() const { return records_.empty(); }
+
+    // Face f as a Patch (see the top of this file).
+    Patch operator[](size_t f) const {
+        Patch p;
+        get(f, p);
+        return p;
+    }
+    void get(size_t f, Patch& p) const;
+
+    int nv(size_t f) const { return records_[f].nv; }
+    bool back(size_t f) const { return records_[f].back != 0; }
+    uint32_t mesh(size_t f) const { return records_[f].mesh; }
+    uint32_t face(size_t f) const { return records_[f].face; }
+    const Vec3& corner(size_t f, int k) const { return points_[records_[f].corner[k]]; }
+    // Corner k's index in points(): the faces' shared vertices (an indexed mesh for Embree).
+    uint32_t corner_index(size_t f, int k) const { return records_[f].corner[k]; }
+    const std::vector<Vec3>& point_list() const { return points_; }
+    const Vec3& normal(size_t f) const { return normal_[f]; }
+    double area(size_t f) const { return area_[f]; }
+    // Patch::point of face f, without making the patch.
+    Vec3 point(size_t f, double s, double t) const {
+        const Record& r = records_[f];
+        return polygon_point(points_[r.corner[0]], points_[r.corner[1]], points_[r.corner[2]], points_[r.corner[3]],
+                             r.nv, s, t);
+    }
+    const RGB& reflectance(size_t f) const { return reflectances_[records_[f].reflectance]; }
+    const RGB& emission(size_t f) const { return emission_[f]; }
+    const RGB& direct(size_t f) const { return direct_[f]; }
+    // What luminaires give face f (Patch::direct) and its source term with it (Patch::emission).
+    void set_light(size_t f, const RGB& direct, const RGB& emission) {
+        direct_[f] = direct;
+        emission_[f] = emission;
+    }
+
+    // Bytes held (for reports and tests).
+    size_t bytes() const;
+    size_t points() const { return points_.size(); }
+
+private:
+    struct Record {
+        uint32_t corner[4];
+        uint32_t mesh = 0, face = 0, reflectance = 0;
+        uint8_t nv = 0, back = 0;
+    };
+    std::vector<Record> records_;
+    std::vector<Vec3> points_;
+    std::vector<Vec3> normal_;
+    std::vector<double> area_;
+    std::vector<RGB> reflectances_;
+    std::vector<RGB> emission_, direct_;
+    std::vector<std::array<Vec2, 4>> uv_;   // empty while every face's are zero
+    // Welding: open addressing over points_ (and over reflectances_), by the values' bits.
+    std::vector<uint32_t> point_slots_, reflectance_slots_;
+    uint32_t point_index(const Vec3& p);
+    uint32_t reflectance_index(const RGB& r);
+};
+
+}  // namespace hirad
