@@ -30,6 +30,24 @@ std::unique_ptr<tbb::global_control> g_threads;
 // patches of all of them (lighting, distant lights' power): 65,536 patches, 21 MB.
 constexpr size_t kMadeBlock = 65536;
 
+// Calls each(b, e, made, shapes) for every block [b, e) of [0, count), kMadeBlock at a time,
+// with made[k - b] = make(k) and shapes[k - b] = &made[k - b].
+template <class Make, class Each>
+void in_made_blocks(size_t count, Make&& make, Each&& each) {
+    std::vector<Patch> made;
+    std::vector<Patch*> shapes;
+    for (size_t b = 0; b < count; b += kMadeBlock) {
+        const size_t e = std::min(count, b + kMadeBlock);
+        made.resize(e - b);
+        shapes.resize(e - b);
+        for (size_t k = b; k < e; ++k) {
+            made[k - b] = make(k);
+            shapes[k - b] = &made[k - b];
+        }
+        each(b, e, made, shapes);
+    }
+}
+
 // Hemicube rows are not reciprocal on their own; the stored coupling is the mean of the two
 // directions, G_ij = (A_i F_ij + A_j F_ji) / 2.
 LinkMatrix symmetric_hemicube_links(const std::vector<Patch>& patches, const Hemicube& hc, const DoneFn& done) {
@@ -337,21 +355,13 @@ void Engine::light_new_elements(Hierarchy& h, const Visibility& vis, std::vector
     // The elements' patches made kMadeBlock at a time (the hierarchy keeps its faces compact),
     // lit, and their light written back.
     if (spread) spread->clear();
-    std::vector<Patch> made;
-    std::vector<Patch*> shapes;
     std::vector<double> block_spread;
-    for (size_t b = 0; b < ids.size(); b += kMadeBlock) {
-        const size_t e = std::min(ids.size(), b + kMadeBlock);
-        made.resize(e - b);
-        shapes.resize(e - b);
-        for (size_t k = b; k < e; ++k) {
-            made[k - b] = h.shape(ids[k]);
-            shapes[k - b] = &made[k - b];
-        }
-        light_patches(shapes, vis, spread ? &block_spread : nullptr);
-        for (size_t k = b; k < e; ++k) h.set_light(ids[k], made[k - b].direct, made[k - b].emission);
-        if (spread) spread->insert(spread->end(), block_spread.begin(), block_spread.end());
-    }
+    in_made_blocks(ids.size(), [&](size_t k) { return h.shape(ids[k]); },
+                   [&](size_t b, size_t e, const std::vector<Patch>& made, std::vector<Patch*>& shapes) {
+                       light_patches(shapes, vis, spread ? &block_spread : nullptr);
+                       for (size_t k = b; k < e; ++k) h.set_light(ids[k], made[k - b].direct, made[k - b].emission);
+                       if (spread) spread->insert(spread->end(), block_spread.begin(), block_spread.end());
+                   });
     // The direct light of the element's open part (Hierarchy::open), like its links' light.
     h.measure_open(vis);
     for (uint32_t i : ids) {
@@ -397,26 +407,19 @@ double Engine::distant_power(const FaceTable& faces, const Visibility& vis) cons
     if (distant.empty()) return 0;
     // The faces' patches made kMadeBlock at a time (the table keeps them compact).
     double power = 0;
-    std::vector<Patch> made;
-    std::vector<const Patch*> shapes;
     std::vector<RGB> mean;
     std::vector<double> spread;
-    for (size_t b = 0; b < faces.size(); b += kMadeBlock) {
-        const size_t e = std::min(faces.size(), b + kMadeBlock);
-        made.resize(e - b);
-        shapes.resize(e - b);
-        for (size_t k = b; k < e; ++k) {
-            made[k - b] = faces[k];
-            shapes[k - b] = &made[k - b];
-        }
-        element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
-        for (size_t k = b; k < e; ++k) {
-            const Patch& f = made[k - b];
-            // glass: only what it reflects enters the exchange (what it lets through lands elsewhere)
-            const bool glass = face_record(f.face).transmittance > 0;
-            power += luminance(glass ? mul(f.reflectance, mean[k - b]) : mean[k - b]) * f.area;
-        }
-    }
+    in_made_blocks(faces.size(), [&](size_t k) { return faces[k]; },
+                   [&](size_t b, size_t e, const std::vector<Patch>& made, std::vector<Patch*>& shapes) {
+                       element_luminaire_irradiance(distant, vis, shapes.data(), shapes.size(), 1, mean, spread);
+                       for (size_t k = b; k < e; ++k) {
+                           const Patch& f = made[k - b];
+                           // glass: only what it reflects enters the exchange (what it lets
+                           // through lands elsewhere)
+                           const bool glass = face_record(f.face).transmittance > 0;
+                           power += luminance(glass ? mul(f.reflectance, mean[k - b]) : mean[k - b]) * f.area;
+                       }
+                   });
     return power;
 }
 
