@@ -41,7 +41,7 @@ struct RayCastResult {
 };
 
 // First hits of rays against `patches` and their BVH (RayScene and Engine::ray_cast).
-RayCastResult cast_rays(const std::vector<Patch>& patches, const Visibility& visibility,
+RayCastResult cast_rays(const PatchView& patches, const Visibility& visibility,
                         const std::vector<Vec3>& origins, const std::vector<Vec3>& directions);
 
 struct LiftResult {
@@ -100,7 +100,7 @@ public:
     RayCastResult camera_rays(const Camera& camera) const;
 
 private:
-    std::vector<Patch> patches_;
+    FaceTable patches_;
     CornerValues radiance_, irradiance_;
     bool has_values_ = false;
     std::unique_ptr<Visibility> visibility_;   // over patches_, built once

@@ -106,10 +106,7 @@ void FaceTable::get(size_t f, Patch& p) const {
     p.vertex = {0, 0, 0, 0};
     p.normal = normal_[f];
     p.area = area_[f];
-    // finish_patch's CornerMean centroid, the same expression
-    Vec3 c;
-    for (int k = 0; k < p.nv; ++k) c += p.p[k];
-    p.centroid = c / p.nv;
+    p.centroid = patch_centroid(p, centroid_);
 }
 
 size_t FaceTable::bytes() const {

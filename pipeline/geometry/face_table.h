@@ -10,8 +10,8 @@
 // read it for every face) and area, its emission and direct light (set again as luminaires
 // light it), and its texture coordinates only once a face has non-zero ones: about 124 bytes
 // a face of a triangle mesh without texture coordinates. operator[] gives the Patch with its corners,
-// coordinates, fields, normal and area as stored and its centroid the mean of its corners (as
-// finish_patch makes it for the hierarchy): the same bits as the Patch it was made from.
+// coordinates, fields, normal and area as stored and its centroid made again by the table's
+// rule (patch_centroid: the same bits as finish_patch): the Patch it was made from.
 #pragma once
 #include <array>
 #include <cstddef>
@@ -24,7 +24,9 @@ namespace hirad {
 
 class FaceTable {
 public:
-    FaceTable() = default;
+    // `centroid`: the rule the patches were finished with (the hierarchy's corner mean; a
+    // RayScene's area-weighted), by which a patch's centroid is made again.
+    explicit FaceTable(PatchCentroid centroid = PatchCentroid::CornerMean) : centroid_(centroid) {}
     FaceTable(FaceTable&&) = default;
     FaceTable& operator=(FaceTable&&) = default;
 
@@ -89,6 +91,7 @@ private:
     std::vector<std::array<Vec2, 4>> uv_;   // empty while every face's are zero
     // Welding: open addressing over points_ (and over reflectances_), by the values' bits.
     std::vector<uint32_t> point_slots_, reflectance_slots_;
+    PatchCentroid centroid_ = PatchCentroid::CornerMean;
     uint32_t point_index(const Vec3& p);
     uint32_t reflectance_index(const RGB& r);
 };

@@ -85,11 +85,14 @@ void finish_patch(Patch& patch, PatchCentroid centroid) {
     for (int k = 0; k < patch.nv; ++k) n += cross(patch.p[k], patch.p[(k + 1) % patch.nv]);
     patch.area = 0.5 * length(n);
     patch.normal = normalize(n);
+    patch.centroid = patch_centroid(patch, centroid);
+}
+
+Vec3 patch_centroid(const Patch& patch, PatchCentroid centroid) {
     if (centroid == PatchCentroid::CornerMean) {
         Vec3 c;
         for (int k = 0; k < patch.nv; ++k) c += patch.p[k];
-        patch.centroid = c / patch.nv;
-        return;
+        return c / patch.nv;
     }
     // Area-weighted centroid over a fan of triangles.
     Vec3 c;
@@ -99,7 +102,7 @@ void finish_patch(Patch& patch, PatchCentroid centroid) {
         c += (patch.p[0] + patch.p[k] + patch.p[k + 1]) * (a / 3);
         total += a;
     }
-    patch.centroid = total > 0 ? c / total : patch.p[0];
+    return total > 0 ? c / total : patch.p[0];
 }
 
 namespace {

@@ -66,6 +66,8 @@ void split_in_four(const Patch& s, Patch kids[4]);
 // are median splits of (and which its elements keep, so that every solution keeps its bits).
 enum class PatchCentroid { AreaWeighted, CornerMean };
 void finish_patch(Patch& patch, PatchCentroid centroid);
+// The centroid finish_patch gives a patch whose corners (p, nv) are set.
+Vec3 patch_centroid(const Patch& patch, PatchCentroid centroid);
 
 // (s, t) of p in the bilinear quad q: corner 0 at (0, 0), 1 at (1, 0), 2 at (1, 1), 3 at
 // (0, 1). Newton iterations from the (s, t) given; clamped to [0, 1].

@@ -58,6 +58,7 @@ public:
         return scratch;
     }
     const Vec3& normal(size_t i) const { return vector_ ? (*vector_)[i].normal : table_->normal(i); }
+    int nv(size_t i) const { return vector_ ? (*vector_)[i].nv : table_->nv(i); }
     uint32_t face(size_t i) const { return vector_ ? (*vector_)[i].face : table_->face(i); }
     const FaceTable* table() const { return table_; }
 

@@ -54,7 +54,7 @@ int rays_side(int rays) { return rays > 0 ? std::max(1, int(std::ceil(std::sqrt(
 
 }  // namespace
 
-HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibility& visibility,
+HemisphereHits hemisphere_hits(const PatchView& patches, const Visibility& visibility,
                                const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
                                uint64_t seed) {
     if (normals.size() != points.size()) throw std::invalid_argument("points and normals differ in length");
@@ -114,7 +114,7 @@ std::vector<Patch> patch_pieces(const Patch& patch, int g) {
     return out;
 }
 
-Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
+Illuminance illuminance_at(const PatchView& patches, const Visibility& visibility,
                            const CornerValues& corner_radiance, const std::vector<RGB>& emitted,
                            const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const IlluminanceOptions& o) {
@@ -143,7 +143,8 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
     const double sensor_lift = visibility.ray_offset();
     for (size_t i = 0; i < patches.size(); ++i) {
         if (max_component(emitted[i]) <= 0) continue;
-        const Patch& w = patches[i];
+        Patch scratch;
+        const Patch& w = patches.get(i, scratch);
         Emitter e{{w, w.centroid + w.normal * lift}, {}, emitted[i], 0};
         for (int a = 0; a < w.nv; ++a)
             for (int b = a + 1; b < w.nv; ++b) e.diameter = std::max(e.diameter, length(w.p[a] - w.p[b]));
@@ -194,8 +195,8 @@ Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& 
         hemisphere_rays(visibility, x, nx, q, k, o.seed, lift,
                         [&](const Vec3& d, const RayHit& h, double pass, const std::vector<RayHit>& panes) {
                             sum += seen_through_glass(visibility, patches, d, panes, h, pass, [&](const RayHit& at) {
-                                const Patch& p = patches[at.patch];
-                                RGB l = interpolate_corners(p.nv, corner_radiance[at.patch], at.u, at.v) -
+                                RGB l = interpolate_corners(patches.nv(size_t(at.patch)), corner_radiance[at.patch],
+                                                            at.u, at.v) -
                                         emitted[at.patch];
                                 return RGB{std::max(0.0, l.x), std::max(0.0, l.y), std::max(0.0, l.z)};
                             });

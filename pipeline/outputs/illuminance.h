@@ -66,13 +66,13 @@ struct Illuminance {
 // `corner_radiance` (per patch, 4 corners) is the full exitant radiance; `emitted` (per patch)
 // its self-emitted part Le, W/(m^2 sr). Throws std::invalid_argument on mismatched lengths,
 // a zero normal or non-finite input.
-Illuminance illuminance_at(const std::vector<Patch>& patches, const Visibility& visibility,
+Illuminance illuminance_at(const PatchView& patches, const Visibility& visibility,
                            const CornerValues& corner_radiance, const std::vector<RGB>& emitted,
                            const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                            const IlluminanceOptions& options);
 
 // The indirect part's rays of illuminance_at (the same rays for the same seed), traced once.
-HemisphereHits hemisphere_hits(const std::vector<Patch>& patches, const Visibility& visibility,
+HemisphereHits hemisphere_hits(const PatchView& patches, const Visibility& visibility,
                                const std::vector<Vec3>& points, const std::vector<Vec3>& normals, int rays,
                                uint64_t seed);
 

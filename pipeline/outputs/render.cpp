@@ -19,7 +19,7 @@ Vec3 camera_direction(const Camera& cam, double x, double y) {
     return forward + right * (px * half_w) + up * (py * half_h);
 }
 
-std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
+std::vector<float> render_radiance(const PatchView& patches, const Visibility& visibility,
                                    const CornerValues& corner_radiance, const Camera& cam,
                                    int samples) {
     const int w = cam.width, h = cam.height;
@@ -44,7 +44,7 @@ std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visi
                     const RayHit hit = visibility.intersect_through_glass(cam.position, normalize(dir), 0, 1e30,
                                                                           &panes, &pass);
                     sum += seen_through_glass(visibility, patches, dir, panes, hit, pass, [&](const RayHit& at) {
-                        return interpolate_corners(patches[at.patch].nv, corner_radiance[at.patch], at.u, at.v);
+                        return interpolate_corners(patches.nv(size_t(at.patch)), corner_radiance[at.patch], at.u, at.v);
                     });
                 }
             sum = sum / double(g * g);

@@ -31,7 +31,7 @@ Vec3 camera_direction(const Camera& camera, double x, double y);
 // `samples` per pixel on a stratified grid (rounded down to a square). Throws
 // std::invalid_argument for a size that is not positive, std::length_error for one above
 // kMaxRenderPixels.
-std::vector<float> render_radiance(const std::vector<Patch>& patches, const Visibility& visibility,
+std::vector<float> render_radiance(const PatchView& patches, const Visibility& visibility,
                                    const CornerValues& corner_radiance,
                                    const Camera& camera, int samples);
 

@@ -36,7 +36,7 @@ void sh2_basis(const Vec3& d, double y[9]) {
     y[8] = k4 * (x * x - yy * yy);
 }
 
-std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const Visibility& visibility,
+std::vector<ProbeMoments> probe_moments(const PatchView& patches, const Visibility& visibility,
                                         const CornerValues& corner_radiance,
                                         const std::vector<Vec3>& points, int rays, uint64_t seed) {
     const int k = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(std::max(rays, 1))))));
@@ -62,12 +62,12 @@ std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const
                 if (hit.patch < 0 && panes.empty()) continue;
                 ++hits;
                 if (m.nearest < 0 || first < m.nearest) m.nearest = first;
-                if (hit.patch >= 0 && panes.empty() && dot(patches[hit.patch].normal, d) >= 0) {
+                if (hit.patch >= 0 && panes.empty() && dot(patches.normal(size_t(hit.patch)), d) >= 0) {
                     ++back;  // the back of a one-sided surface
                     continue;
                 }
                 const RGB l = seen_through_glass(visibility, patches, d, panes, hit, pass, [&](const RayHit& at) {
-                                  return interpolate_corners(patches[at.patch].nv, corner_radiance[at.patch], at.u, at.v);
+                                  return interpolate_corners(patches.nv(size_t(at.patch)), corner_radiance[at.patch], at.u, at.v);
                               }) * weight;
                 m.s0 += l;
                 m.s1[0] += l * d.x;

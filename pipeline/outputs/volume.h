@@ -54,7 +54,7 @@ void sh2_basis(const Vec3& d, double y[9]);
 
 // `rays` stratified directions per probe (rounded up to a square k x k of equal-area strata
 // on the sphere, jittered deterministically from `seed` and the probe index).
-std::vector<ProbeMoments> probe_moments(const std::vector<Patch>& patches, const Visibility& visibility,
+std::vector<ProbeMoments> probe_moments(const PatchView& patches, const Visibility& visibility,
                                         const CornerValues& corner_radiance,
                                         const std::vector<Vec3>& points, int rays, uint64_t seed);
 
