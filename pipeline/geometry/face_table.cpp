@@ -53,7 +53,6 @@ uint32_t FaceTable::reflectance_index(const RGB& r) { return intern(reflectances
 
 void FaceTable::reserve(size_t n) {
     records_.reserve(n);
-    normal_.reserve(n);
     area_.reserve(n);
     emission_.reserve(n);
     direct_.reserve(n);
@@ -67,12 +66,12 @@ void FaceTable::push_back(const Patch& p) {
     r.reflectance = reflectance_index(p.reflectance);
     r.nv = static_cast<uint8_t>(p.nv);
     r.back = p.back ? 1 : 0;
+    r.normal = p.normal;
     const bool textured = p.uv[0].u != 0 || p.uv[0].v != 0 || p.uv[1].u != 0 || p.uv[1].v != 0 ||
                           p.uv[2].u != 0 || p.uv[2].v != 0 || p.uv[3].u != 0 || p.uv[3].v != 0;
     if (textured && uv_.empty()) uv_.resize(records_.size());  // the faces before had zeros
     if (!uv_.empty()) uv_.push_back(p.uv);
     records_.push_back(r);
-    normal_.push_back(p.normal);
     area_.push_back(p.area);
     emission_.push_back(p.emission);
     direct_.push_back(p.direct);
@@ -83,12 +82,23 @@ void FaceTable::seal() {
     std::vector<uint32_t>().swap(reflectance_slots_);
     records_.shrink_to_fit();
     points_.shrink_to_fit();
-    normal_.shrink_to_fit();
     area_.shrink_to_fit();
     reflectances_.shrink_to_fit();
     emission_.shrink_to_fit();
     direct_.shrink_to_fit();
     uv_.shrink_to_fit();
+}
+
+Vec3 FaceTable::centroid(size_t f) const {
+    const Record& r = records_[f];
+    if (centroid_ == PatchCentroid::CornerMean) {  // patch_centroid's expression
+        Vec3 c;
+        for (int k = 0; k < r.nv; ++k) c += points_[r.corner[k]];
+        return c / r.nv;
+    }
+    Patch p;
+    get(f, p);
+    return p.centroid;
 }
 
 void FaceTable::get(size_t f, Patch& p) const {
@@ -104,14 +114,14 @@ void FaceTable::get(size_t f, Patch& p) const {
     p.face = r.face;
     p.back = r.back != 0;
     p.vertex = {0, 0, 0, 0};
-    p.normal = normal_[f];
+    p.normal = r.normal;
     p.area = area_[f];
     p.centroid = patch_centroid(p, centroid_);
 }
 
 size_t FaceTable::bytes() const {
     return records_.capacity() * sizeof(Record) + points_.capacity() * sizeof(Vec3) +
-           normal_.capacity() * sizeof(Vec3) + area_.capacity() * sizeof(double) +
+           area_.capacity() * sizeof(double) +
            reflectances_.capacity() * sizeof(RGB) +
            (emission_.capacity() + direct_.capacity()) * sizeof(RGB) + uv_.capacity() * sizeof(uv_[0]) +
            (point_slots_.capacity() + reflectance_slots_.capacity()) * sizeof(uint32_t);

@@ -55,7 +55,9 @@ public:
     // Corner k's index in points(): the faces' shared vertices (an indexed mesh for Embree).
     uint32_t corner_index(size_t f, int k) const { return records_[f].corner[k]; }
     const std::vector<Vec3>& point_list() const { return points_; }
-    const Vec3& normal(size_t f) const { return normal_[f]; }
+    const Vec3& normal(size_t f) const { return records_[f].normal; }
+    // Patch::centroid of face f by the table's rule, without making the patch.
+    Vec3 centroid(size_t f) const;
     double area(size_t f) const { return area_[f]; }
     // Patch::point of face f, without making the patch.
     Vec3 point(size_t f, double s, double t) const {
@@ -77,14 +79,14 @@ public:
     size_t points() const { return points_.size(); }
 
 private:
-    struct Record {
+    struct Record {  // what sampling a face reads, together: its corners' indices and normal
+        Vec3 normal;
         uint32_t corner[4];
         uint32_t mesh = 0, face = 0, reflectance = 0;
         uint8_t nv = 0, back = 0;
     };
     std::vector<Record> records_;
     std::vector<Vec3> points_;
-    std::vector<Vec3> normal_;
     std::vector<double> area_;
     std::vector<RGB> reflectances_;
     std::vector<RGB> emission_, direct_;

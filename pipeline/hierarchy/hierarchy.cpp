@@ -202,6 +202,8 @@ Hierarchy::Hierarchy(const Scene& scene) {
 Vec3 Hierarchy::centre(uint32_t i) const {
     const uint32_t slot = slot_of(i);
     if (slot != kNoNode) return cluster_shapes[slot].centre;
+    const uint32_t e = nodes[i].element;
+    if (e != kNoNode && e < faces.size()) return faces.centroid(e);
     Patch scratch;
     return shape(i, scratch).centroid;
 }
