@@ -477,6 +477,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                              mesh_faces, groups=light_groups, n_specs=len(specs)))
             usd.write_solution_layer(cfg.scene, path, scene, meshes, meta, view=cfg.outputs.usd_view)
             outputs["usd"] = "solution.usda"
+            outputs["usd_arrays"] = usd.solution.arrays_path(path).name  # its arrays, sublayered
     if not grouped:  # only the light groups' files read the per-mesh arrays after this
         meshes = mesh_faces = None
         release_free_memory()

@@ -446,12 +446,17 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
     # --- the solution layer: new primvars on the same meshes
     layer_path = out_dir / "solution.usda"
     if layer_path.is_file():
+        from .usd.solution import export_solution, is_arrays_sublayer, merge_arrays
+
         src = Sdf.Layer.FindOrOpen(str(layer_path))
         layer = Sdf.Layer.CreateAnonymous(".usda")
         layer.TransferContent(src)
+        merge_arrays(layer, layer_path)  # edited as one layer, split again when written
         subs = list(layer.subLayerPaths)
         new_subs = []
         for s in subs:
+            if is_arrays_sublayer(s, layer_path):
+                continue
             absolute = (out_dir / s).resolve() if not os.path.isabs(s) else Path(s)
             rel = os.path.relpath(absolute, staging)
             new_subs.append(rel if rel.startswith(".") else "./" + rel)
@@ -500,12 +505,7 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
         data["hirad:relitFrom"] = str(out_dir)
         stage_layer.customLayerData = data
         del stage
-        for s in new_subs:
-            stage_layer.subLayerPaths.append(s)
-        with files.atomic_path(staging / "solution.usda", ".usda") as tmp:
-            if not stage_layer.Export(str(tmp)):
-                raise files.WriteError(f"{staging / 'solution.usda'}: could not write the solution layer")
-        written.append("solution.usda")
+        written += [p.name for p in reversed(export_solution(stage_layer, staging / "solution.usda", new_subs))]
         lum = out_dir / "luminaires.npz"
         if lum.is_file():
             _relit_luminaires(lum, staging / "luminaires.npz", doc, weights, values)

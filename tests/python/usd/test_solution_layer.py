@@ -17,7 +17,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade  # noqa: E402
 import hirad  # noqa: E402
 from hirad import usd as hu  # noqa: E402
 from hirad.config import config_from_dict  # noqa: E402
-from hirad.usd.solution import COLOR_SPACE, find_solution_root  # noqa: E402
+from hirad.usd.solution import COLOR_SPACE, arrays_path, find_solution_root, merge_arrays  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[3]
 CORNELL = REPO / "configs" / "scenes" / "cornell_box.usda"
@@ -238,7 +238,11 @@ def test_layers_with_the_old_root_still_read(tmp_path):
     scene = hu.read_scene(src)
     out = tmp_path / "solution.usda"
     hu.write_solution_layer(src, out, scene, _patches_of(scene), {})
-    layer = Sdf.Layer.FindOrOpen(str(out))
+    # ... in one file, its arrays in it
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.TransferContent(Sdf.Layer.FindOrOpen(str(out)))
+    assert merge_arrays(layer, out)
+    layer.subLayerPaths.remove("./" + arrays_path(out).name)
     data = dict(layer.customLayerData)
     del data["hirad:solutionRoot"]
     layer.customLayerData = data

@@ -738,10 +738,18 @@ def test_write_and_read_solution_layer(tmp_path):
 
     assert sha(src) == before
     assert out.is_file()
-    assert not [p for p in out.parent.iterdir() if p.name != out.name]  # no temp files left
+    # the text root and its arrays in a crate beside it; no temporary files left
+    assert sorted(p.name for p in out.parent.iterdir()) == ["solution.arrays.usdc", "solution.usda"]
+    assert (out.parent / "solution.arrays.usdc").read_bytes()[:8] == b"PXR-USDC"
+    assert out.read_text().startswith("#usda")
 
     layer = Sdf.Layer.FindOrOpen(str(out))
-    assert list(layer.subLayerPaths) == ["../in/cornell.usda"]
+    assert list(layer.subLayerPaths) == ["./solution.arrays.usdc", "../in/cornell.usda"]
+    arrays_in_text = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda path: arrays_in_text.append(path) if (
+        path.IsPropertyPath() and layer.GetAttributeAtPath(path) and layer.GetAttributeAtPath(path).typeName.isArray)
+        else None)
+    assert arrays_in_text == []
     assert layer.customLayerData["hirad:version"] == "0.1.0"
     assert layer.customLayerData["fingerprint"] == "abc"
 

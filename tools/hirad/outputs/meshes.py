@@ -21,7 +21,10 @@ def patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b,
         if fids.size == 0:
             continue
         counts = face_nv[fids].astype(np.int32)
-        flat = np.concatenate([faces[f, :face_nv[f]] for f in fids])
+        # each face's first nv corners, face after face: the faces' rows masked, in row order
+        # (a list of per-face slices held ~230 bytes a face at once: the USD stage's peak)
+        nv = face_nv[fids]
+        flat = faces[fids][np.arange(faces.shape[1])[None, :] < nv[:, None]]
         used, local = np.unique(flat, return_inverse=True)
         pids = face_patch[fids]
         out.append(usd.PatchMeshData(
@@ -47,18 +50,3 @@ def lightmap_units_label(units: str) -> str:
     from ..units import label
 
     return f"{label(units, 'incident')}; final colour = albedo x lightmap"
-
-
-def triangulate(counts: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Display faces (triangles and planar quads) as triangles: (tris (M,3) of local vertex
-    ids, face (M,), corners (M,3) of face corner slots). A quad (a,b,c,d) -> (a,b,c), (a,c,d)."""
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    tris, face, slots = [], [], []
-    for f, (s0, c) in enumerate(zip(starts, counts)):
-        for k in range(1, c - 1):
-            slot = (s0, s0 + k, s0 + k + 1)
-            slots.append(slot)
-            tris.append([indices[j] for j in slot])
-            face.append(f)
-    return (np.asarray(tris, np.int64).reshape(-1, 3), np.asarray(face, np.int64),
-            np.asarray(slots, np.int64).reshape(-1, 3))

@@ -418,19 +418,102 @@ def write_solution_layer(
                      "Rec.709 (lin_rec709_scene), radiance W/(m^2 sr)")
     del stage  # release the authoring stage so adding the sublayer composes nothing
     # sublayer last so the authoring above never composes (or touches) the input
-    layer.subLayerPaths.append(sub)
+    export_solution(layer, output_path, [sub])
+    return output_path
 
+
+# The arrays of a text solution layer go to a binary (crate) layer beside it, which the text
+# layer sublayers above the input: `solution.usda` and `solution.arrays.usdc`. usd-core formats
+# each array of a text layer into one string before it reaches the file: about 100 bytes of
+# transient memory per element of the largest array (measured, usd-core 26.11: 2M colour triples
+# +204 MiB, 4M +331 MiB), and text about three times the size of the crate. On a 2.5M-triangle
+# floor the text export was the bake's peak (+625 MiB over the reconstruction); at 10M
+# triangles it would be over a GB. The crate writer writes the arrays as they are. The text
+# root keeps what a person reads (what is hidden, the meshes, their materials, the bake's
+# metadata); a stage opened on it composes both, so no reader needs to know of the split.
+ARRAYS_SUFFIX = ".arrays.usdc"
+
+
+def arrays_path(layer_path: str | Path) -> Path:
+    """The crate layer that holds the arrays of the text solution layer at `layer_path`."""
+    p = Path(layer_path)
+    return p.with_name(p.stem + ARRAYS_SUFFIX)
+
+
+def _array_attributes(layer: Sdf.Layer) -> list[Sdf.Path]:
+    """Every attribute spec of `layer` whose default value is an array, in traversal order."""
+    found: list[Sdf.Path] = []
+
+    def visit(path: Sdf.Path):
+        if path.IsPropertyPath():
+            spec = layer.GetAttributeAtPath(path)
+            if spec and spec.typeName.isArray and spec.HasDefaultValue():
+                found.append(path)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return found
+
+
+def _copy_attributes(src: Sdf.Layer, dst: Sdf.Layer, paths: Sequence[Sdf.Path]) -> None:
+    """Copies the attribute specs at `paths` from `src` into `dst`, making `over` prims for
+    their prims where `dst` has none (arrays are shared, not copied: VtArray is copy on write)."""
+    for path in paths:
+        Sdf.CreatePrimInLayer(dst, path.GetPrimPath())
+        if not Sdf.CopySpec(src, path, dst, path):
+            raise RuntimeError(f"could not copy {path} between the solution's layers")
+
+
+def merge_arrays(layer: Sdf.Layer, layer_path: str | Path) -> bool:
+    """Copies into `layer` (the content of the text solution layer at `layer_path`) the arrays
+    its crate layer holds, so that it can be edited as one layer and written again with
+    :func:`export_solution`. False when there is no crate layer (a layer written before the
+    split, or a .usdc solution: its arrays are in it already)."""
+    crate = arrays_path(layer_path)
+    if not crate.is_file():
+        return False
+    arrays = Sdf.Layer.FindOrOpen(str(crate))
+    if arrays is None:
+        raise SceneError(f"{crate}: cannot open the solution's arrays")
+    _copy_attributes(arrays, layer, _array_attributes(arrays))
+    return True
+
+
+def is_arrays_sublayer(sublayer: str, layer_path: str | Path) -> bool:
+    """Whether `sublayer` (as a solution layer at `layer_path` names it) is its crate layer."""
+    return (Path(layer_path).parent / sublayer).resolve() == arrays_path(layer_path).resolve()
+
+
+def export_solution(layer: Sdf.Layer, output_path: str | Path, sublayers: Sequence[str]) -> list[Path]:
+    """Writes the solution `layer` (anonymous, holding everything, no sublayers) to
+    `output_path` with `sublayers` below it. A text output (.usda) moves its arrays to
+    arrays_path(output_path), written first and sublayered strongest; a binary one (.usdc,
+    .usd) keeps them. Each file is written under a temporary name and renamed when complete.
+    Returns the files written, the arrays' first."""
     from ..files import WriteError, atomic_path
 
+    output_path = Path(output_path)
     suffix = output_path.suffix if output_path.suffix in (".usda", ".usdc", ".usd") else ".usda"
-    try:
-        with atomic_path(output_path, suffix) as tmp:
-            if not layer.Export(str(tmp)):
-                raise WriteError(f"{output_path}: could not write the solution layer")
-    except Tf.ErrorException as exc:
-        raise WriteError(f"{output_path}: could not write the solution layer ({_usd_reason(exc)}; "
-                         "is the disk full?)") from None
-    return output_path
+    targets: list[tuple[Sdf.Layer, Path, str]] = []
+    if suffix == ".usda":
+        arrays = Sdf.Layer.CreateAnonymous(ARRAYS_SUFFIX)
+        moving = _array_attributes(layer)
+        _copy_attributes(layer, arrays, moving)
+        for path in moving:
+            layer.GetPrimAtPath(path.GetPrimPath()).RemoveProperty(layer.GetAttributeAtPath(path))
+        layer.subLayerPaths.append("./" + arrays_path(output_path).name)
+        targets.append((arrays, arrays_path(output_path), ".usdc"))
+    for s in sublayers:
+        layer.subLayerPaths.append(s)
+    targets.append((layer, output_path, suffix))
+    for target, path, ext in targets:
+        try:
+            with atomic_path(path, ext) as tmp:
+                if not target.Export(str(tmp)):
+                    raise WriteError(f"{path}: could not write the solution layer")
+        except Tf.ErrorException as exc:
+            raise WriteError(f"{path}: could not write the solution layer ({_usd_reason(exc)}; "
+                             "is the disk full?)") from None
+    return [path for _, path, _ in targets]
 
 
 def _usd_reason(exc: Exception) -> str:
