@@ -178,17 +178,16 @@ Hierarchy::Hierarchy(const Scene& scene) {
                          corner & 4 ? node.hi.z : node.lo.z};
             c.radius = std::max(c.radius, length(p - c.centre));
         }
-        const double va = length(c.vector_area);
-        if (!(va > 1e-12 * node.area)) return;  // faces in every direction: no cone
-        c.axis = c.vector_area / va;
+        if (!(length(c.vector_area) > 1e-12 * node.area)) return;  // faces in every direction: no cone
+        const Vec3 axis = c.axis();
         c.cos_spread = 1;
         double lo = 1e300, hi = -1e300;
         for (uint32_t j = node.face_begin; j < node.face_end; ++j) {
             const uint32_t f = face_order[j];
-            c.cos_spread = std::min(c.cos_spread, dot(faces.normal(f), c.axis));
+            c.cos_spread = std::min(c.cos_spread, dot(faces.normal(f), axis));
             for (int k = 0; k < faces.nv(f); ++k) {
-                lo = std::min(lo, dot(faces.corner(f, k), c.axis));
-                hi = std::max(hi, dot(faces.corner(f, k), c.axis));
+                lo = std::min(lo, dot(faces.corner(f, k), axis));
+                hi = std::max(hi, dot(faces.corner(f, k), axis));
             }
         }
         // Layers: deeper along the axis than one surface of that spread of normals can be.
@@ -223,6 +222,7 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     if (slot == kNoNode) return Facing::Mixed;
     const ClusterShape& c = cluster_shapes[slot];
     if (c.cos_spread <= 0) return Facing::Mixed;  // some faces at right angles to others, or worse
+    const Vec3 axis = c.axis();
     if (c.cos_spread > kPlanarCosine) {
         // Faces of one orientation take G / A_R each whatever the direction (hierarchy.h):
         // only a source wholly behind all of them passes nothing.
@@ -232,8 +232,8 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
         for (int k = 0; k < 8; ++k) {
             const Vec3 a{k & 1 ? rn.hi.x : rn.lo.x, k & 2 ? rn.hi.y : rn.lo.y, k & 4 ? rn.hi.z : rn.lo.z};
             const Vec3 b{k & 1 ? sn.hi.x : sn.lo.x, k & 2 ? sn.hi.y : sn.lo.y, k & 4 ? sn.hi.z : sn.lo.z};
-            r_min = std::min(r_min, dot(a, c.axis));
-            s_max = std::max(s_max, dot(b, c.axis));
+            r_min = std::min(r_min, dot(a, axis));
+            s_max = std::max(s_max, dot(b, axis));
         }
         if (s_max <= r_min) return Facing::Back;
         if (direction_error) *direction_error = 0;
@@ -246,7 +246,7 @@ Hierarchy::Facing Hierarchy::facing(uint32_t r, uint32_t s, double* direction_er
     // Angles theta between the axis and d, alpha the normals' half-angle, beta the directions',
     // each by its cosine and sine, added by the addition formulas: this runs for every link to
     // a cluster, in refinement and in the solvers, and needs no inverse trigonometry.
-    const double ct = std::clamp(dot(c.axis, d) / dist, -1.0, 1.0), st = std::sqrt(std::max(0.0, 1 - ct * ct));
+    const double ct = std::clamp(dot(axis, d) / dist, -1.0, 1.0), st = std::sqrt(std::max(0.0, 1 - ct * ct));
     const double ca = c.cos_spread, sa = std::sqrt(std::max(0.0, 1 - ca * ca));
     const double sb = std::clamp(reach / dist, 0.0, 1.0), cb = std::sqrt(std::max(0.0, 1 - sb * sb));
     const double c1 = ct * ca - st * sa, s1 = st * ca + ct * sa;  // theta + alpha

@@ -228,15 +228,16 @@ public:
     static constexpr double kPlanarCosine = 1 - 1e-9;    // cos_spread above this: one plane
     // Per cluster: its centre (the area-weighted mean of its faces' centroids), radius about it
     // (to the farthest corner of its box), vector area, and the cone of its faces' normals
-    // (axis: the vector area's direction; cos_spread: the least n_f . axis, -1 when the vector
-    // area vanishes).
+    // (axis(): the vector area's direction; cos_spread: the least n_f . axis, -1 when the vector
+    // area vanishes). 72 bytes: the axis is made when asked, by the one expression the
+    // constructor used (24 bytes a cluster, about one per face, for a division and a root).
     struct ClusterShape {
         Vec3 centre;
         double radius = 0;
         Vec3 vector_area;
-        Vec3 axis;
         double cos_spread = -1;
         bool layered = false;   // deeper along the axis than r sin(alpha): may shade itself
+        Vec3 axis() const { return vector_area / length(vector_area); }
     };
     std::vector<ClusterShape> cluster_shapes;   // per cluster slot
     std::vector<uint32_t> cluster_slot;         // per node the constructor built: its slot, or kNoNode
