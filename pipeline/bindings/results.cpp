@@ -181,6 +181,9 @@ void bind_results(nb::module_& m) {
                 "sum to their measured closure (hierarchy.h Hierarchy::closure).")
         .def_ro("rounds", &H::rounds, "The final round.")
         .def_ro("settled", &H::settled, "Refinement stopped splitting (else max_rounds ended it).")
+        .def_ro("face_bytes", &H::face_bytes, "Bytes of the hierarchy's input faces (FaceTable).")
+        .def_ro("bvh_bytes", &H::bvh_bytes, "Bytes Embree holds for its scene over the faces, after the build.")
+        .def_ro("bvh_peak_bytes", &H::bvh_peak_bytes, "The most bytes Embree held while building it.")
         .def_ro("links_per_round", &H::links_per_round)
         .def_ro("splits_per_round", &H::splits_per_round,
                 "In memory: each refinement after the first (a last 0 when settled); out of core: each pass that "

@@ -918,6 +918,9 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     r.elements = leaves.size();
     r.nodes = h.nodes.size();
     for (const Node& node : h.nodes) r.clusters += node.cluster;
+    r.face_bytes = h.faces.bytes();
+    r.bvh_bytes = state->visibility->bytes();
+    r.bvh_peak_bytes = state->visibility->peak_bytes();
     if (state->links.size() == run.link_count) {
         r.links_on_clusters = 0;
         for (const Link& l : state->links) r.links_on_clusters += h.nodes[l.receiver].cluster;

@@ -236,6 +236,9 @@ struct HierarchicalResult {
                                       // closure (Hierarchy::closure)
     int rounds = 0;                   // the final round
     bool settled = false;             // refinement stopped splitting (else max_rounds ended it)
+    uint64_t face_bytes = 0;          // the hierarchy's input faces (FaceTable::bytes)
+    uint64_t bvh_bytes = 0;           // Embree's scene over them after the build (Visibility::bytes)
+    uint64_t bvh_peak_bytes = 0;      // and the most Embree held during the build
     std::vector<uint64_t> links_per_round;
     // Links split per refinement pass. In memory: each pass after the first, the last 0 when
     // it settled; out of core: each pass that made a round, the first included. (Two

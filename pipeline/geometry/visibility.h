@@ -15,9 +15,12 @@
 // Several panes multiply. An Embree occlusion filter does it: it rejects a hit on glass after
 // multiplying the ray's factor, so the traversal goes on to the next surface.
 #pragma once
+#include <algorithm>
 #include <atomic>
 #include <cstdint>
 #include <vector>
+
+#include <sys/types.h>  // ssize_t, as Embree's monitor gives it
 
 #include "pipeline/geometry/face_table.h"
 #include "pipeline/geometry/patches.h"
@@ -113,6 +116,10 @@ public:
     RayHit closest_point(const Vec3& point, const Vec3& normal, double max_distance) const;
 
     uint64_t rays_cast() const { return rays_.load(); }
+    // Bytes Embree holds for this scene now (its BVH, its copies of the vertices and indices),
+    // and the most it held, during the build: counted by the device's memory monitor.
+    uint64_t bytes() const { return uint64_t(std::max<int64_t>(bytes_.load(), 0)); }
+    uint64_t peak_bytes() const { return uint64_t(std::max<int64_t>(peak_bytes_.load(), 0)); }
     // Length of the scene's bounding box diagonal; used to scale ray offsets.
     double scene_size() const { return scene_size_; }
     // How far a ray leaving a surface starts off it (along the surface's normal, or past a
@@ -135,6 +142,8 @@ private:
     void occlusion(const Vec3* from, const Vec3* to, size_t count, Out* out, bool through_glass,
                    double end_gap) const;
     mutable std::atomic<uint64_t> rays_{0};
+    std::atomic<int64_t> bytes_{0}, peak_bytes_{0};
+    static bool count_bytes(void* self, ssize_t bytes, bool post);
 };
 
 // The surfaces a ray that reads a solved surface sees through clear glass, from the result of

@@ -11,6 +11,7 @@
 #include <set>
 #include <vector>
 
+#include "pipeline/geometry/visibility.h"
 #include "pipeline/hierarchy/hierarchy.h"
 #include "test_scenes.h"
 
@@ -142,6 +143,27 @@ TEST(FaceTable, AHierarchysFacesAreThePatchesOfItsSceneFacesAndTakeAFractionOfTh
         }
     EXPECT_EQ(h.faces.points(), distinct.size());
     EXPECT_LT(distinct.size(), scene.faces.size());  // shared corners: fewer points than faces
+}
+
+TEST(FaceTable, EmbreeKeepsOneVertexAPointAndACompactTree) {
+    // Visibility over a hierarchy's faces hands Embree the table's points once and quads that
+    // index them, and asks for its compact tree (leaves that index the vertices instead of
+    // copying four of them a quad): what Embree holds after the build is its index and vertex
+    // buffers (16 bytes a face, 12 a point) plus the tree, counted by the device's memory
+    // monitor.
+    Scene quads = test::tiled_cube(40, test::grey(0.5));
+    const Hierarchy h(quads);
+    const Visibility vis(h.faces);
+    const size_t n = h.faces.size(), points = h.faces.points();
+    const uint64_t buffers = 16 * n + 12 * points;
+    EXPECT_GE(vis.bytes(), buffers);
+    EXPECT_GE(vis.peak_bytes(), vis.bytes());
+    // The compact tree: a leaf of four quads holds their 16 vertex indices and their ids (96
+    // bytes, 24 a quad), and a 4-wide node, its children's boxes and references (128 bytes),
+    // comes once for about three leaves (11 a quad): under 48 bytes a face. The default tree
+    // copies each quad's four vertices into its leaf (48 bytes a quad and more: 82 a face here).
+    const double tree_per_face = double(vis.bytes() - buffers) / double(n);
+    EXPECT_LT(tree_per_face, 48.0) << vis.bytes() << " bytes for " << n << " faces and " << points << " points";
 }
 
 }  // namespace

@@ -815,6 +815,18 @@ class HierarchicalResult:
         """Refinement stopped splitting (else max_rounds ended it)."""
 
     @property
+    def face_bytes(self) -> int:
+        """Bytes of the hierarchy's input faces (FaceTable)."""
+
+    @property
+    def bvh_bytes(self) -> int:
+        """Bytes Embree holds for its scene over the faces, after the build."""
+
+    @property
+    def bvh_peak_bytes(self) -> int:
+        """The most bytes Embree held while building it."""
+
+    @property
     def links_per_round(self) -> list[int]: ...
 
     @property

@@ -401,7 +401,11 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                       luminaires=luminaires,
                       transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
 
-    result = make_result(vertex_radiance, vertex_irradiance)
+    # The Result holds each display face's corners and corner values (288 bytes a face): the
+    # one the bake keeps is made after the engine's patches are let go, and the one the vertex
+    # gather reads is dropped before it (one floor of the bench building: the write-USD stage
+    # held both the engine's patches and this, 193 MiB over the reconstruction).
+    result = None
     display_info = None
     if values == "final_gather" and grouped:
         rep.warn("reconstruction.values: final_gather is not applied to bakes with light groups yet: their vertex "
@@ -413,8 +417,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         refine = rc.refine_levels if not day_groups else 0  # daylight coefficients read the engine's mesh
         with rep.stage("vertex gather"):
             display, g_rad, g_irr, gathered = gathered_vertex_values(
-                result, display, patches, rays=rc.gather_rays, importance=rc.gather_importance,
-                sample_offset=cfg.outputs.lightmaps.sample_offset, refine_levels=refine,
+                make_result(vertex_radiance, vertex_irradiance), display, patches, rays=rc.gather_rays,
+                importance=rc.gather_importance, sample_offset=cfg.outputs.lightmaps.sample_offset, refine_levels=refine,
                 refine_tolerance=rc.refine_tolerance, second_bounce=rc.gather_second_bounce)
         n_old = len(vertex_radiance)
         if len(display["points"]) > n_old:  # refinement's new points: their face's patch, by the vertex rule's
@@ -430,7 +434,6 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             rep.warn(f"reconstruction.values: final_gather: {gathered['unfound']} display points found no surface to "
                      f"gather on ({gathered['unfilled']} vertices kept the patches' values)")
         display_info = gathered
-        result = make_result(vertex_radiance, vertex_irradiance)
     done_gathering("vertex gather")
     if cfg.method == "hierarchical" and not (model.has_hierarchy or grouped or day_groups):
         # Every output from here on reads the Result's and the per-mesh arrays, not the engine's
@@ -438,6 +441,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         # field are made (the 1M-triangle kitchen: 0.45 GB less at the preview).
         model.release_patches()
         release_free_memory()
+    result = make_result(vertex_radiance, vertex_irradiance)
 
     outputs: dict[str, object] = {}
     meshes, mesh_faces = patch_meshes(scene, patches, display, vertex_radiance, vertex_irradiance, b, h)
@@ -592,7 +596,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             **{k: getattr(solved, k) for k in ("rounds", "settled", "elements", "clusters", "nodes", "links_per_round",
                                      "splits_per_round", "link_estimates", "refine_seconds", "solve_seconds",
                                      "epsilon_watts", "balance_splits", "limited_leaves",
-                                     "normalised_leaves")},
+                                     "normalised_leaves", "face_bytes", "bvh_bytes", "bvh_peak_bytes")},
             # Links that end on clusters (hierarchy.cluster_receivers); None out of core (not counted).
             "links_on_clusters": solved.links_on_clusters if solved.links_on_clusters >= 0 else None},
         "links": None if not (hierarchical and solved.out_of_core) else {

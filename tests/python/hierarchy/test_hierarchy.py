@@ -377,6 +377,11 @@ def test_bake_hierarchical_cornell(tmp_path):
     assert 1 <= h["rounds"] <= 4 and len(h["links_per_round"]) == h["rounds"]
     assert h["elements"] == rep["counts"]["patches"] == len(res.patch_radiosity)
     assert h["links_per_round"][-1] == rep["counts"]["links"]
+    # The memory of the faces and of Embree's scene over them: at least the table's 112 bytes a
+    # face and Embree's index buffer (16 a face), and Embree's peak at least what it keeps.
+    faces = rep["counts"]["input_faces"]
+    assert h["face_bytes"] >= 112 * faces and h["bvh_bytes"] >= 16 * faces
+    assert h["bvh_peak_bytes"] >= h["bvh_bytes"]
     eb = rep["energy_balance"]
     assert eb["max_relative_error"] < 0.02
     em, ab, es = (np.array(eb[k]) for k in ("emitted_W", "absorbed_W", "escaped_W"))
