@@ -865,7 +865,7 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     // The backs of glazed faces are solved with the rest but not published: their light shows
     // in the energy balance's glazing terms.
     std::vector<uint32_t> leaves, backs;
-    for (uint32_t i : h.leaves()) (h.shape(i).back ? backs : leaves).push_back(i);
+    for (uint32_t i : h.leaves()) (h.back(i) ? backs : leaves).push_back(i);
     if (!groups.empty()) {
         std::vector<Patch> made;  // the leaves' patches, made from the hierarchy
         for (uint32_t i : leaves) made.push_back(h.shape(i));

@@ -163,6 +163,11 @@ public:
         const uint32_t e = nodes[node].element;
         return e == kNoNode ? kZero : (e < faces.size() ? faces.normal(e) : pieces[e - faces.size()].normal);
     }
+    // An element is the back of a glazed face (Patch::back); a cluster is not.
+    bool back(uint32_t node) const {
+        const uint32_t e = nodes[node].element;
+        return e == kNoNode ? false : (e < faces.size() ? faces.back(e) : pieces[e - faces.size()].back);
+    }
     int nv(uint32_t node) const {
         const uint32_t e = nodes[node].element;
         return e == kNoNode ? 0 : (e < faces.size() ? faces.nv(e) : pieces[e - faces.size()].nv);
