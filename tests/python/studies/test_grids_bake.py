@@ -163,12 +163,18 @@ def test_hirad_grid_on_the_stored_solution_gives_the_bake_values(baked):
 
 
 def test_hirad_grid_refuses_a_layer_without_emission(baked, tmp_path):
-    from pxr import Usd
+    from pxr import Sdf, Usd
+
+    from hirad.usd.solution import arrays_path, merge_arrays
 
     src = baked["out"] / "solution.usda"
     old = tmp_path / "old.usda"
-    stage = Usd.Stage.Open(str(src))
-    stage.GetRootLayer().Export(str(old))
+    # a layer as hirad wrote it before the emission primvar (and before the arrays' crate)
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.TransferContent(Sdf.Layer.FindOrOpen(str(src)))
+    assert merge_arrays(layer, src)
+    layer.subLayerPaths.remove("./" + arrays_path(src).name)
+    layer.Export(str(old))
     stage = Usd.Stage.Open(str(old))
     for prim in stage.Traverse():
         attr = prim.GetAttribute("primvars:hirad:emission")
