@@ -289,7 +289,7 @@ RGB Gatherer::element_transfer(const GatherLink& link, const Vec3& x, const Vec3
 
 RGB Gatherer::cell_difference(uint32_t source, const Vec3& y, bool near, uint64_t code) const {
     RGB h_y, mean_h;
-    Rng rng(hash_pair(h_.nodes[source].key, code, opt_.seed ^ 0x5EC0Dull));
+    Rng rng(hash_pair(h_.key(source), code, opt_.seed ^ 0x5EC0Dull));
     const Vec3 n = h_.normal(source);
     for (uint32_t i = source; i != kNoNode; i = h_.nodes[i].parent)
         for (uint64_t k = first_link_[i]; k < first_link_[i + 1]; ++k) {

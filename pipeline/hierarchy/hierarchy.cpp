@@ -152,7 +152,7 @@ Hierarchy::Hierarchy(const Scene& scene) {
             node.hi[k] = std::max(a.hi[k], b.hi[k]);
         }
     }
-    for (uint32_t i = 0; i < nodes.size(); ++i) nodes[i].key = i;
+    built_nodes = static_cast<uint32_t>(nodes.size());  // keyed by their index (key())
     root = 0;
     // The clusters' shapes for receiving (see hierarchy.h), each from its own faces.
     cluster_slot.assign(nodes.size(), kNoNode);
@@ -319,8 +319,10 @@ void Hierarchy::subdivide(uint32_t i) {
     split_in_four(shape(i), kids);
     const uint32_t first = static_cast<uint32_t>(nodes.size());
     const uint16_t level = nodes[i].level + 1;
+    const uint64_t parent_key = key(i);
     grow_by_an_eighth(nodes, 4);
     grow_by_an_eighth(pieces, 4);
+    grow_by_an_eighth(made_keys, 4);
     for (int k = 0; k < 4; ++k) {
         Node child;
         finish_shape(kids[k]);
@@ -331,9 +333,9 @@ void Hierarchy::subdivide(uint32_t i) {
         child.level = level;
         child.face_begin = nodes[i].face_begin;  // its face's place in face_order
         child.face_end = nodes[i].face_end;
-        child.key = hash_pair(nodes[i].key, uint64_t(k) + 1, 0xC41Dull);
         bound_shape(child, kids[k]);
         nodes.push_back(child);
+        made_keys.push_back(hash_pair(parent_key, uint64_t(k) + 1, 0xC41Dull));
     }
     nodes[i].first_child = first;
     nodes[i].child_count = 4;
@@ -495,7 +497,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
         const Vec3 t = normalize(cross(n, a)), b = cross(n, t);
         const double c = 0.5, si = std::sqrt(0.75);
         const Vec3 dirs[5] = {n, n * c + t * si, n * c - t * si, n * c + b * si, n * c - b * si};
-        Rng rng(node.key ^ 0x09E4ull);
+        Rng rng(key(static_cast<uint32_t>(i)) ^ 0x09E4ull);
         // Share of g x g stratified points inside geometry.
         auto inside_share = [&](int g) {
             int inside = 0;

@@ -67,12 +67,6 @@ struct Node {
     bool lit = false;        // elements: shape.direct computed for this element (luminaire.h)
     uint16_t level = 0;      // depth below the element root (elements only)
     uint32_t face_begin = 0, face_end = 0;  // their faces in Hierarchy::face_order (an element: its face's)
-    // Who the node is, whatever order the hierarchy grew in: its index for the nodes the
-    // constructor builds (clusters and element roots), and for an element made by subdivision
-    // a hash of its parent's key and its place among the children. Refinement seeds its link
-    // estimates with keys, so a group refined on another machine, whose new nodes are numbered
-    // differently, draws the same samples (pipeline/engine/distributed.h).
-    uint64_t key = 0;
     // Elements: their polygon, material and face, Hierarchy::shape (an index into the
     // hierarchy's faces for an element root, which is its face, or into its pieces); clusters
     // have none (kNoNode). Kept apart so that a cluster, half the nodes, does not carry a
@@ -265,6 +259,15 @@ public:
     // the link can carry is a small part of epsilon (refine.h).
     double misplaced(uint32_t r, uint32_t s) const;
 
+    // Who a node is, whatever order the hierarchy grew in: its index for the nodes the
+    // constructor built (clusters and element roots), and for an element made by subdivision
+    // a hash of its parent's key and its place among the children. Refinement seeds its link
+    // estimates with keys, so a group refined on another machine, whose new nodes are numbered
+    // differently, draws the same samples (pipeline/engine/distributed.h). Only the made
+    // elements' keys are stored (8 bytes a node less: most nodes are the constructor's).
+    uint64_t key(uint32_t node) const { return node < built_nodes ? node : made_keys[node - built_nodes]; }
+    uint32_t built_nodes = 0;          // nodes the constructor built
+    std::vector<uint64_t> made_keys;   // per node made by subdivision, from built_nodes on
     // Elements in the order they were subdivided: replaying it on a new hierarchy of the same
     // scene rebuilds the same nodes with the same indices (what the link store refers to).
     std::vector<uint32_t> subdivided;

@@ -115,7 +115,7 @@ Link Refiner::estimate(uint32_t r, uint32_t s, uint64_t stream) const {
     const double lift = vis_.ray_offset();
     // Seeded by the nodes' keys, not their indices: the same pair draws the same samples however
     // the hierarchy was numbered (on whichever machine its group was refined).
-    const uint64_t kr = nr.key, ks = ns.key;
+    const uint64_t kr = h_.key(r), ks = h_.key(s);
     Rng rng(hash_pair(std::min(kr, ks), std::max(kr, ks), opt_.seed ^ 0x11E7ull ^ (stream * 0x9E3779B97F4A7C15ull)));
     std::vector<Vec3> from, to;
     std::vector<double> weight;

@@ -245,9 +245,10 @@ def test_solution_layer(cornell):
     path = out / "solution.usda"
     layer = Sdf.Layer.FindOrOpen(str(path))
     assert layer is not None
-    # sublayers the input scene
-    assert len(layer.subLayerPaths) == 1
-    assert (out / layer.subLayerPaths[0]).resolve() == scene.resolve()
+    # sublayers its arrays' crate, then the input scene
+    assert len(layer.subLayerPaths) == 2
+    assert (out / layer.subLayerPaths[0]).resolve() == (out / "solution.arrays.usdc").resolve()
+    assert (out / layer.subLayerPaths[1]).resolve() == scene.resolve()
     stage = Usd.Stage.Open(str(path))
     assert UsdGeom.GetStageMetersPerUnit(stage) == pytest.approx(0.001)
     inputs = mesh_points_by_path(scene)

@@ -629,7 +629,8 @@ def test_disk_full_on_the_output_names_the_file(tmp_path):
     assert proc.returncode == 4, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("hirad: error: "), proc.stderr
-    assert lines[0].startswith(f"hirad: error: {out / 'solution.usda'}: could not write"), lines[0]
+    # the layer's arrays are written first (the crate beside solution.usda)
+    assert lines[0].startswith(f"hirad: error: {out / 'solution.arrays.usdc'}: could not write"), lines[0]
     assert ".partial" not in lines[0] and ".tmp" not in lines[0]
     assert "ErrorException" not in proc.stderr and "Traceback" not in proc.stderr
     assert not out.exists() and partials(tmp_path) == []

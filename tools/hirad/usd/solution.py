@@ -493,7 +493,7 @@ def export_solution(layer: Sdf.Layer, output_path: str | Path, sublayers: Sequen
 
     output_path = Path(output_path)
     suffix = output_path.suffix if output_path.suffix in (".usda", ".usdc", ".usd") else ".usda"
-    targets: list[tuple[Sdf.Layer, Path, str]] = []
+    targets: list[tuple[Sdf.Layer, Path, str, str]] = []
     if suffix == ".usda":
         arrays = Sdf.Layer.CreateAnonymous(ARRAYS_SUFFIX)
         moving = _array_attributes(layer)
@@ -501,19 +501,18 @@ def export_solution(layer: Sdf.Layer, output_path: str | Path, sublayers: Sequen
         for path in moving:
             layer.GetPrimAtPath(path.GetPrimPath()).RemoveProperty(layer.GetAttributeAtPath(path))
         layer.subLayerPaths.append("./" + arrays_path(output_path).name)
-        targets.append((arrays, arrays_path(output_path), ".usdc"))
+        targets.append((arrays, arrays_path(output_path), ".usdc", "the solution layer's arrays"))
     for s in sublayers:
         layer.subLayerPaths.append(s)
-    targets.append((layer, output_path, suffix))
-    for target, path, ext in targets:
+    targets.append((layer, output_path, suffix, "the solution layer"))
+    for target, path, ext, what in targets:
         try:
             with atomic_path(path, ext) as tmp:
                 if not target.Export(str(tmp)):
-                    raise WriteError(f"{path}: could not write the solution layer")
+                    raise WriteError(f"{path}: could not write {what}")
         except Tf.ErrorException as exc:
-            raise WriteError(f"{path}: could not write the solution layer ({_usd_reason(exc)}; "
-                             "is the disk full?)") from None
-    return [path for _, path, _ in targets]
+            raise WriteError(f"{path}: could not write {what} ({_usd_reason(exc)}; is the disk full?)") from None
+    return [path for _, path, _, _ in targets]
 
 
 def _usd_reason(exc: Exception) -> str:
