@@ -414,8 +414,9 @@ def write_solution_layer(
                               "is a physical value per channel (radiance W/(m^2 sr), irradiance W/m^2)"}
     md.update(metadata or {})
     layer.customLayerData = _to_vt_value(md)
-    layer.comment = (f"hirad radiosity solution under {root}; sublayers the input scene; colours are linear "
-                     "Rec.709 (lin_rec709_scene), radiance W/(m^2 sr)")
+    arrays = f"its arrays in {arrays_path(output_path).name} and " if output_path.suffix not in (".usdc", ".usd") else ""
+    layer.comment = (f"hirad radiosity solution under {root}; sublayers {arrays}the input scene; colours are "
+                     "linear Rec.709 (lin_rec709_scene), radiance W/(m^2 sr)")
     del stage  # release the authoring stage so adding the sublayer composes nothing
     # sublayer last so the authoring above never composes (or touches) the input
     export_solution(layer, output_path, [sub])
