@@ -885,6 +885,14 @@ def test_existing_output_replaced_atomically_and_input_protected(tmp_path):
     with pytest.raises(hu.SceneError):
         hu.write_solution_layer(src, src, scene, _fake_solution(scene), {})
     assert sha(src) == before
+    # nor through the arrays' crate a text layer writes beside itself
+    crate_input = tmp_path / "room.arrays.usdc"
+    Sdf.Layer.FindOrOpen(str(src)).Export(str(crate_input))
+    before = sha(crate_input)
+    with pytest.raises(hu.SceneError, match="refusing to overwrite the input scene"):
+        hu.write_solution_layer(crate_input, tmp_path / "room.usda", hu.read_scene(crate_input),
+                                _fake_solution(scene), {})
+    assert sha(crate_input) == before and not (tmp_path / "room.usda").exists()
 
 
 def test_bad_patch_shapes_rejected_before_writing(tmp_path):
