@@ -448,7 +448,7 @@ def _write_relit(out_dir: Path, staging: Path, doc: dict, values: dict, weights:
     if layer_path.is_file():
         from .usd.solution import export_solution, is_arrays_sublayer, merge_arrays
 
-        src = Sdf.Layer.FindOrOpen(str(layer_path))
+        src = Sdf.Layer.OpenAsAnonymous(str(layer_path))  # the file as it is now (see merge_arrays)
         layer = Sdf.Layer.CreateAnonymous(".usda")
         layer.TransferContent(src)
         merge_arrays(layer, layer_path)  # edited as one layer, split again when written

@@ -255,3 +255,29 @@ def test_layers_with_the_old_root_still_read(tmp_path):
     stage = Usd.Stage.Open(str(old))
     assert find_solution_root(stage).GetPath() == "/HiradSolution"
     assert len(hu.read_solution_layer(old).meshes) == 2
+
+
+def test_merge_reads_the_arrays_as_written_not_a_layer_held_open(tmp_path):
+    # A stage a user keeps open on an earlier bake's output holds its crate layer; the solution
+    # written again at the same path must be read as it is on disk, not as that layer was.
+    from pxr import Vt
+
+    from hirad.usd.solution import export_solution
+
+    def layer_with(x: float) -> Sdf.Layer:
+        layer = Sdf.Layer.CreateAnonymous(".usda")
+        prim = Sdf.CreatePrimInLayer(layer, "/World/Mesh")
+        prim.specifier, prim.typeName = Sdf.SpecifierDef, "Mesh"
+        Sdf.AttributeSpec(prim, "points", Sdf.ValueTypeNames.Point3fArray).default = \
+            Vt.Vec3fArray([Gf.Vec3f(x, 0, 0)] * 3)
+        return layer
+
+    out = tmp_path / "solution.usda"
+    export_solution(layer_with(1.0), out, [])
+    held = Sdf.Layer.FindOrOpen(str(arrays_path(out)))
+    assert held.GetAttributeAtPath("/World/Mesh.points").default[0][0] == 1.0
+    export_solution(layer_with(2.0), out, [])
+    merged = Sdf.Layer.CreateAnonymous(".usda")
+    merged.TransferContent(Sdf.Layer.OpenAsAnonymous(str(out)))
+    assert merge_arrays(merged, out)
+    assert merged.GetAttributeAtPath("/World/Mesh.points").default[0][0] == 2.0

@@ -473,13 +473,16 @@ def _copy_attributes(src: Sdf.Layer, dst: Sdf.Layer, paths: Sequence[Sdf.Path]) 
 
 def merge_arrays(layer: Sdf.Layer, layer_path: str | Path) -> bool:
     """Copies into `layer` (the content of the text solution layer at `layer_path`) the arrays
-    its crate layer holds, so that it can be edited as one layer and written again with
-    :func:`export_solution`. False when there is no crate layer (a layer written before the
-    split, or a .usdc solution: its arrays are in it already)."""
+    its crate layer holds (read from the file, never from a layer already open in this process),
+    so that it can be edited as one layer and written again with :func:`export_solution`.
+    False when there is no crate layer (a layer written before the split, or a .usdc solution:
+    its arrays are in it already)."""
     crate = arrays_path(layer_path)
     if not crate.is_file():
         return False
-    arrays = Sdf.Layer.FindOrOpen(str(crate))
+    # Read from the file as it is now: FindOrOpen would give a layer this process already holds
+    # (a stage a user keeps open on an earlier bake's output), stale once the file is rewritten.
+    arrays = Sdf.Layer.OpenAsAnonymous(str(crate))
     if arrays is None:
         raise SceneError(f"{crate}: cannot open the solution's arrays")
     _copy_attributes(arrays, layer, _array_attributes(arrays))
