@@ -49,6 +49,27 @@ inline Array<double> rows3(const std::vector<Vec3>& v) {
     return to_numpy(std::move(flat), {v.size(), 3});
 }
 
+// Property getters of a struct's vectors (each returns an owned copy, with kOwned): a vector
+// as a 1-d array, Vec3s as (n, 3) rows, fixed four-element arrays as (n, 4) rows of T.
+template <class C, class T>
+auto arr(std::vector<T> C::*p) {
+    return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
+}
+template <class C>
+auto vec3s(std::vector<Vec3> C::*p) {
+    return [p](const C& c) { return rows3(c.*p); };
+}
+template <class T, class C, class U>
+auto quads(std::vector<std::array<U, 4>> C::*p) {
+    return [p](const C& c) {
+        const auto& v = c.*p;
+        std::vector<T> flat(v.size() * 4);
+        for (size_t i = 0; i < v.size(); ++i)
+            for (int k = 0; k < 4; ++k) flat[4 * i + k] = static_cast<T>(v[i][k]);
+        return to_numpy(std::move(flat), {v.size(), 4});
+    };
+}
+
 // Checks a numpy array's shape, naming it: `shape` entries < 0 are free.
 template <typename T>
 void require_shape(const In<T>& a, std::initializer_list<long> shape, const char* what) {

@@ -1,5 +1,5 @@
 // hirad._engine.SurfaceField: a solved surface as one ray-tracing scene built once
-// (pipeline/engine/ray_scene.h), queried many times; and the display mesh's arrays.
+// (pipeline/engine/ray_scene.h), queried many times.
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/vector.h>
 
@@ -7,7 +7,6 @@
 
 #include "pipeline/bindings/common.h"
 #include "pipeline/engine/ray_scene.h"
-#include "pipeline/outputs/reconstruct.h"
 
 namespace hirad::py {
 
@@ -18,26 +17,6 @@ namespace {
 Vec3 vec3(const std::vector<double>& v, const char* what) {
     if (v.size() != 3) throw std::invalid_argument(std::string(what) + ": 3 components");
     return {v[0], v[1], v[2]};
-}
-
-template <class C, class T>
-auto arr(std::vector<T> C::*p) {
-    return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
-}
-template <class C>
-auto vec3s(std::vector<Vec3> C::*p) {
-    return [p](const C& c) { return rows3(c.*p); };
-}
-// (n, 4) rows of fixed-size arrays.
-template <class T, class C, class U>
-auto quads(std::vector<std::array<U, 4>> C::*p) {
-    return [p](const C& c) {
-        const auto& v = c.*p;
-        std::vector<T> flat(v.size() * 4);
-        for (size_t i = 0; i < v.size(); ++i)
-            for (int k = 0; k < 4; ++k) flat[4 * i + k] = static_cast<T>(v[i][k]);
-        return to_numpy(std::move(flat), {v.size(), 4});
-    };
 }
 
 // The pinhole camera of a render or camera_rays call.
@@ -54,31 +33,6 @@ Camera camera_of(const std::vector<double>& pos, const std::vector<double>& fwd,
 }
 
 }  // namespace
-
-void bind_display(nb::module_& m) {
-    nb::class_<DisplayMesh>(m, "DisplayMesh", "Welded display mesh of the patches (reconstruct.h).")
-        .def_prop_ro("points", vec3s(&DisplayMesh::points), kOwned, "(points, 3) m.")
-        .def_prop_ro("point_mesh", [](const DisplayMesh& d) {
-            std::vector<int32_t> v(d.point_mesh.begin(), d.point_mesh.end());
-            return to_numpy(std::move(v), {d.point_mesh.size()});
-        }, kOwned, "(points) input mesh of each point.")
-        .def_prop_ro("corners", quads<int32_t>(&DisplayMesh::corners), kOwned,
-                     "(patches, 4) each patch's corner points.")
-        .def_prop_ro("boundary", arr(&DisplayMesh::boundary), kOwned, "(points) 1 on a boundary.")
-        .def_prop_ro("faces", quads<int32_t>(&DisplayMesh::faces), kOwned, "(faces, 4) display faces' points.")
-        .def_prop_ro("face_nv", arr(&DisplayMesh::face_nv), kOwned, "(faces) 3 or 4.")
-        .def_prop_ro("face_patch", [](const DisplayMesh& d) {
-            std::vector<int32_t> v(d.face_patch.begin(), d.face_patch.end());
-            return to_numpy(std::move(v), {d.face_patch.size()});
-        }, kOwned, "(faces) the patch each face belongs to.")
-        .def_prop_ro("face_code", quads<uint8_t>(&DisplayMesh::face_code), kOwned,
-                     "(faces, 4) corner codes (reconstruct.h).")
-        .def_prop_ro("anchored", [](const DisplayMesh& d) {
-            std::vector<uint8_t> v(d.anchors.size());
-            for (size_t i = 0; i < v.size(); ++i) v[i] = !d.anchors[i].empty();
-            return to_numpy(std::move(v), {v.size()});
-        }, kOwned, "(points) 1 for T-vertices and fan centres (weighted sums of other points).");
-}
 
 void bind_fields(nb::module_& m) {
     nb::class_<ProbeResult>(m, "ProbeResult", "The closest surface point to each query point.")
@@ -157,6 +111,35 @@ void bind_fields(nb::module_& m) {
              "Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner "
              "(n, 4, 3), optional (zero without); glazing: transmittance (n) per patch and glass_angular "
              "(visibility.h), so that the luminaires' and distant lights' direct light passes windows.")
+        .def("__init__",
+             [](RayScene* self, In<double> points, In<int32_t> faces, In<int32_t> nv, std::optional<In<double>> rad,
+                std::optional<In<double>> irr, std::optional<In<double>> tau, std::optional<In<double>> angular) {
+                 require_shape(nv, {-1}, "nv");
+                 const long n = long(nv.shape(0));
+                 require_shape(points, {-1, 3}, "points");
+                 const long m = long(points.shape(0));
+                 require_shape(faces, {n, 4}, "faces");
+                 if (rad) require_shape(*rad, {m, 3}, "point_radiance");
+                 if (irr) require_shape(*irr, {m, 3}, "point_irradiance");
+                 Glazing glazing;
+                 if (tau) {
+                     require_shape(*tau, {n}, "transmittance");
+                     glazing.face_transmittance.assign(tau->data(), tau->data() + n);
+                 }
+                 if (angular) {
+                     require_shape(*angular, {-1}, "glass_angular");
+                     glazing.angular.assign(angular->data(), angular->data() + angular->shape(0));
+                 }
+                 new (self) RayScene(points.data(), size_t(m), faces.data(), nv.data(), size_t(n),
+                                     rad ? rad->data() : nullptr, irr ? irr->data() : nullptr,
+                                     tau ? &glazing : nullptr);
+             },
+             nb::kw_only(), "points"_a, "faces"_a, "nv"_a, "point_radiance"_a.none() = nb::none(),
+             "point_irradiance"_a.none() = nb::none(), "transmittance"_a.none() = nb::none(),
+             "glass_angular"_a.none() = nb::none(),
+             "The same from an indexed mesh (ray_scene.h): points (m, 3), faces (n, 4) of point indices with "
+             "nv (n), radiance and irradiance per point (m, 3); the same patches and values, to the bit, as "
+             "from points[faces] and the values at points[faces].")
         .def("__len__", &RayScene::size)
         .def("hemisphere_hits",
              [](const RayScene& s, In<double> p, In<double> n, int rays, uint64_t seed) {

@@ -3,7 +3,8 @@
 //   options.cpp      option structs (MeshOptions, FormFactorOptions, SolveOptions, ...)
 //   results.cpp      result structs (Stats, PatchArrays, FlatSolveResult, HierarchicalResult, ...)
 //   engine.cpp       Engine: scene -> patches -> links -> solution
-//   fields.cpp       SurfaceField (one ray-tracing scene per solution) and DisplayMesh
+//   fields.cpp       SurfaceField (one ray-tracing scene per solution)
+//   display.cpp      DisplayMesh, Engine.display_arrays
 //   formats.cpp      EXR and OpenVDB files
 //   formfactors.cpp  closed-form form factors, set_threads
 //   luminaires.cpp   Luminaire (point, spot, IES, sphere and cylinder lights)

@@ -19,10 +19,6 @@ auto rgb1(RGB C::*p) {
     };
 }
 template <class C, class T>
-auto arr(std::vector<T> C::*p) {
-    return [p](const C& c) { return to_numpy(c.*p, {(c.*p).size()}); };
-}
-template <class C, class T>
 auto rows(std::vector<T> C::*p, size_t C::*count, std::initializer_list<size_t> tail_dims) {
     std::vector<size_t> tail(tail_dims);  // an initializer_list's array would not outlive this call
     return [p, count, tail](const C& c) {

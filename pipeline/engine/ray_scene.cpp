@@ -2,27 +2,14 @@
 
 #include <tbb/parallel_for.h>
 
+#include <functional>
 #include <stdexcept>
 
 namespace hirad {
 
-namespace {
-
-CornerValues corner_values(const double* a, size_t n) {
-    CornerValues v(n);
-    for (size_t i = 0; i < n; ++i)
-        for (int k = 0; k < 4; ++k) {
-            const double* c = a + (i * 4 + k) * 3;
-            for (int a = 0; a < 3; ++a) v[i].v[3 * k + a] = static_cast<float>(c[a]);
-        }
-    return v;
-}
-
-}  // namespace
-
-RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
-                   const double* corner_irradiance, const Glazing* glazing)
-    : patches_(PatchCentroid::AreaWeighted) {
+template <class Corner, class Value>
+void RayScene::build(size_t n, const int32_t* nv, Corner&& corner, const Value* radiance, const Value* irradiance,
+                     const Glazing* glazing) {
     // The patches kept compact (face_table.h: about 112 bytes a patch and 24 a corner, where a
     // Patch is 328), made again when one is read.
     patches_.reserve(n);
@@ -32,21 +19,59 @@ RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const dou
         if (p.nv != 3 && p.nv != 4)
             throw std::invalid_argument("nv: patch " + std::to_string(i) + " has " + std::to_string(p.nv) +
                                         " corners (3 or 4)");
-        for (int k = 0; k < 4; ++k) {
-            const double* c = corners + (i * 4 + k) * 3;
-            p.p[k] = {c[0], c[1], c[2]};
-        }
+        for (int k = 0; k < 4; ++k) p.p[k] = corner(i, k);
         finish_patch(p, PatchCentroid::AreaWeighted);
         p.face = static_cast<uint32_t>(i);  // glazing is given per patch
         p.vertex = {0, 0, 0, 0};
         patches_.push_back(p);
     }
     patches_.seal();
-    has_values_ = corner_radiance && corner_irradiance;
-    radiance_ = corner_radiance ? corner_values(corner_radiance, n) : CornerValues(n);
-    irradiance_ = corner_irradiance ? corner_values(corner_irradiance, n) : CornerValues(n);
+    // Either value may be missing (zero), as may both (has_values false).
+    has_values_ = radiance && irradiance;
+    auto fill = [&](CornerValues& out, const Value* value) {
+        out = CornerValues(n);
+        if (value)
+            for (size_t i = 0; i < n; ++i)
+                for (int k = 0; k < 4; ++k) {
+                    const Vec3 c = (*value)(i, k);
+                    for (int a = 0; a < 3; ++a) out[i].v[3 * k + a] = static_cast<float>(c[a]);
+                }
+    };
+    fill(radiance_, radiance);
+    fill(irradiance_, irradiance);
     if (glazing) glazing->validate();
     visibility_ = std::make_unique<Visibility>(patches_, glazing);
+}
+
+RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
+                   const double* corner_irradiance, const Glazing* glazing)
+    : patches_(PatchCentroid::AreaWeighted) {
+    using At = std::function<Vec3(size_t, int)>;
+    auto at = [](const double* a) -> At {
+        return [a](size_t i, int k) { const double* c = a + (i * 4 + k) * 3; return Vec3{c[0], c[1], c[2]}; };
+    };
+    const At rad = corner_radiance ? at(corner_radiance) : At{}, irr = corner_irradiance ? at(corner_irradiance) : At{};
+    build(n, nv, at(corners), corner_radiance ? &rad : nullptr, corner_irradiance ? &irr : nullptr, glazing);
+}
+
+RayScene::RayScene(const double* points, size_t num_points, const int32_t* faces, const int32_t* nv, size_t n,
+                   const double* point_radiance, const double* point_irradiance, const Glazing* glazing)
+    : patches_(PatchCentroid::AreaWeighted) {
+    for (size_t i = 0; i < n; ++i)
+        for (int k = 0; k < 4; ++k)
+            if (faces[4 * i + k] < 0 || size_t(faces[4 * i + k]) >= num_points)
+                throw std::invalid_argument("faces: corner " + std::to_string(k) + " of face " + std::to_string(i) +
+                                            " is point " + std::to_string(faces[4 * i + k]) + ", outside the " +
+                                            std::to_string(num_points) + " points");
+    using At = std::function<Vec3(size_t, int)>;
+    auto at = [faces](const double* a) -> At {
+        return [a, faces](size_t i, int k) {
+            const double* c = a + size_t(faces[4 * i + k]) * 3;
+            return Vec3{c[0], c[1], c[2]};
+        };
+    };
+    const At rad = point_radiance ? at(point_radiance) : At{}, irr = point_irradiance ? at(point_irradiance) : At{};
+    build(n, nv, at(points), point_radiance ? &rad : nullptr, point_irradiance ? &irr : nullptr, glazing);
 }
 
 std::vector<float> RayScene::render(const Camera& camera, int samples) const {

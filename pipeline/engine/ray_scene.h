@@ -68,6 +68,14 @@ public:
     // table, so that luminaires and distant lights shine through windows (visibility.h).
     RayScene(const double* corners, const int32_t* nv, size_t n, const double* corner_radiance,
              const double* corner_irradiance, const Glazing* glazing = nullptr);
+    // The same from an indexed mesh: `points` (num_points, 3), each patch's corner points
+    // `faces` (n, 4), and radiance and irradiance per point (num_points, 3, or null): what a
+    // display mesh holds, 16 bytes a face and 72 a point instead of 288 bytes a face for its
+    // corners and their two values spelled out. The patches and their corner values are the
+    // same bits as from those spelled-out arrays. Throws std::invalid_argument for an index
+    // outside the points.
+    RayScene(const double* points, size_t num_points, const int32_t* faces, const int32_t* nv, size_t n,
+             const double* point_radiance, const double* point_irradiance, const Glazing* glazing = nullptr);
     RayScene(const RayScene&) = delete;
     RayScene& operator=(const RayScene&) = delete;
 
@@ -100,6 +108,10 @@ public:
     RayCastResult camera_rays(const Camera& camera) const;
 
 private:
+    // Patch i's corner k and its two values, from either form of the arrays.
+    template <class Corner, class Value>
+    void build(size_t n, const int32_t* nv, Corner&& corner, const Value* radiance, const Value* irradiance,
+               const Glazing* glazing);
     FaceTable patches_;
     CornerValues radiance_, irradiance_;
     bool has_values_ = false;

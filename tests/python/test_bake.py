@@ -235,6 +235,36 @@ def test_stored_solution_probes_like_the_result(cornell):
     np.testing.assert_allclose(stored.radiance_at(pts, nrm), r.radiance_at(pts, nrm), rtol=1e-5, atol=1e-9)
 
 
+def test_indexed_and_spelled_out_surfaces_answer_alike(cornell):
+    # The bake's Result holds its display mesh indexed (points, faces, values per point); a
+    # solution spelled out per face corner from it must render, probe and measure illuminance
+    # to the same bits, and so must a stored layer's indexed solution and its spelled-out twin.
+    from hirad import SurfaceSolution
+
+    def spelled_out(s):
+        return SurfaceSolution(s.corners, s.nv, s.corner_radiance, s.corner_irradiance, cameras=s.cameras,
+                               up_axis=s.up_axis, emitted_radiance=s.emitted_radiance, luminaires=s.luminaires,
+                               transmittance=s.transmittance)
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform([0.01, 0.0, 0.01], [0.54, 0.54, 0.55], (200, 3))
+    pts[:100, 1] = 0.0  # on the floor
+    nrm = np.tile([0.0, 1.0, 0.0], (200, 1))
+    nrm[100:] = rng.normal(size=(100, 3))
+    nrm[100:] /= np.linalg.norm(nrm[100:], axis=1, keepdims=True)
+    for s in (cornell["result"], load_solution(cornell["out"] / "solution.usda")):
+        assert s.indexed and not spelled_out(s).indexed
+        t = spelled_out(s)
+        assert np.array_equal(s.render("/World/Camera", 48, 32, 2), t.render("/World/Camera", 48, 32, 2))
+        for key in ("patch", "irradiance", "radiance"):
+            assert np.array_equal(s.query(pts[:100], nrm[:100])[key], t.query(pts[:100], nrm[:100])[key]), key
+        assert np.array_equal(s.illuminance(pts, nrm, rays=32), t.illuminance(pts, nrm, rays=32))
+    # what the indexed Result holds, against its corners and two corner values spelled out
+    r = cornell["result"]
+    held = sum(a.nbytes for a in (r.points, r.faces, r.point_radiance, r.point_irradiance))
+    assert held < 0.5 * (r.corners.nbytes + r.corner_radiance.nbytes + r.corner_irradiance.nbytes)
+
+
 def test_unknown_camera_in_api_render(cornell):
     with pytest.raises(BakeError, match="/World/Nope"):
         cornell["result"].render("/World/Nope", 16, 16, 1)

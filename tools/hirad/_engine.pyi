@@ -3,7 +3,7 @@ hirad's C++ engine: meshing, form factors, solvers, hierarchy, reconstruction, r
 """
 
 from collections.abc import Sequence
-from typing import Annotated
+from typing import Annotated, overload
 
 import numpy
 from numpy.typing import NDArray
@@ -1120,6 +1120,11 @@ class Engine:
         The reference at surface points, each on the closest patch facing along its normal within max_distance (ValueError otherwise).
         """
 
+    def display_arrays(self, crease_angle: float) -> dict:
+        """
+        The display mesh display_mesh makes and keeps, as a dict of its DisplayMesh arrays.
+        """
+
 class DisplayMesh:
     """Welded display mesh of the patches (reconstruct.h)."""
 
@@ -1271,9 +1276,16 @@ class SurfaceField:
     A solved surface as one Embree scene, built once: render, probe, lift_samples, volume_probes and ray_cast query it.
     """
 
+    @overload
     def __init__(self, corners: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], nv: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], corner_radiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, corner_irradiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, transmittance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, glass_angular: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
         """
         Patches (n, 4, 3) with nv (n) of 3 or 4; radiance W/(m^2 sr) and irradiance W/m^2 per corner (n, 4, 3), optional (zero without); glazing: transmittance (n) per patch and glass_angular (visibility.h), so that the luminaires' and distant lights' direct light passes windows.
+        """
+
+    @overload
+    def __init__(self, *, points: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)], faces: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], nv: Annotated[NDArray[numpy.int32], dict(order='C', device='cpu', writable=False)], point_radiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, point_irradiance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, transmittance: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None, glass_angular: Annotated[NDArray[numpy.float64], dict(order='C', device='cpu', writable=False)] | None = None) -> None:
+        """
+        The same from an indexed mesh (ray_scene.h): points (m, 3), faces (n, 4) of point indices with nv (n), radiance and irradiance per point (m, 3); the same patches and values, to the bit, as from points[faces] and the values at points[faces].
         """
 
     def __len__(self) -> int: ...

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, _engine, files, interrupts, units, usd
-from .engine import build_engine, display_dict, patch_dict, streaming_dict
+from .engine import build_engine, patch_dict, streaming_dict
 from .estimate import estimate as estimate_cost, memory_warning
 from .outputs import images
 from .config import Config, load_config
@@ -380,7 +380,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                  glazing=glazing)
 
     with rep.stage("reconstruct"):
-        display = display_dict(model.display_mesh(cfg.reconstruction.crease_angle))
+        display = dict(model.display_arrays(cfg.reconstruction.crease_angle))
         vertex_radiance = model.vertex_values(b) / np.pi
         vertex_irradiance = model.vertex_values(h)
         if grouped:
@@ -392,19 +392,20 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
             vertex_irradiance = grouped.total([v[1] for v in grouped.vertex])
     faces = display["faces"]
 
-    def make_result(v_radiance, v_irradiance):
-        return Result(np.ascontiguousarray(display["points"][faces]), display["face_nv"].astype(np.int32),
-                      v_radiance[faces], v_irradiance[faces],
+    def make_result(v_radiance, v_irradiance):  # indexed: the display mesh's points, faces and vertex values
+        return Result(nv=display["face_nv"].astype(np.int32), points=display["points"],
+                      faces=np.asarray(faces, dtype=np.int32), point_radiance=v_radiance, point_irradiance=v_irradiance,
                       cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
                       patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
                       emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
                       luminaires=luminaires,
                       transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
 
-    # The Result holds each display face's corners and corner values (288 bytes a face): the
-    # one the bake keeps is made after the engine's patches are let go, and the one the vertex
-    # gather reads is dropped before it (one floor of the bench building: the write-USD stage
-    # held both the engine's patches and this, 193 MiB over the reconstruction).
+    # The Result holds the display mesh indexed (about 90 bytes a face; its corners and corner
+    # values spelled out took 288): the one the bake keeps is made after the engine's patches are
+    # let go, and the one the vertex gather reads is dropped before it (one floor of the bench
+    # building: the write-USD stage held both the engine's patches and the spelled-out one, 193
+    # MiB over the reconstruction).
     result = None
     display_info = None
     if values == "final_gather" and grouped:
@@ -795,7 +796,7 @@ def _annual_daylight(cfg: Config, scene, model, solved, result, display, grids, 
 def patches_transmittance(result) -> np.ndarray:
     """The glazing of a result's display faces (0 where it has none)."""
     t = getattr(result, "transmittance", None)
-    return np.zeros(len(result.corners)) if t is None else np.asarray(t, dtype=np.float64)
+    return np.zeros(result.face_count) if t is None else np.asarray(t, dtype=np.float64)
 
 
 def _luminaire_schedule(specs, patches: dict) -> list[dict]:

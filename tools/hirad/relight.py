@@ -777,7 +777,7 @@ def replay_result(result, records: list, weights: np.ndarray):
                 out["l1"] = weighted_sum([r[k]["l1"] for r in records], np.asarray(weights)[:, :, None])
             return out
 
-    r = _Replayed(**{f: getattr(result, f) for f in result.__dataclass_fields__})
+    r = result._copy_into(_Replayed)
     r._calls = 0
     return r
 

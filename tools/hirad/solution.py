@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,27 +32,76 @@ def luminance_y(rgb) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 
 
-@dataclass
 class SurfaceSolution:
-    """Radiance and irradiance over the solved surfaces, queryable at any point."""
+    """Radiance and irradiance over the solved surfaces, queryable at any point.
 
-    corners: np.ndarray          # (P,4,3) patch corners, metres
-    nv: np.ndarray               # (P,) 3 or 4
-    corner_radiance: np.ndarray  # (P,4,3) exitant radiance W/(m^2 sr)
-    corner_irradiance: np.ndarray  # (P,4,3) W/m^2
-    cameras: list = field(default_factory=list)
-    up_axis: str = "Y"
-    # (P,3) self-emitted radiance E/pi of each patch, W/(m^2 sr), 0 for non-emitters; None when
-    # unknown (a solution layer written before hirad stored primvars:hirad:emission)
-    emitted_radiance: np.ndarray | None = None
-    # the luminaires (hirad._engine.Luminaire) whose exact direct light illuminance and the
-    # volume probes add; stored beside the layer as luminaires.npz (save_luminaires)
-    luminaires: list = field(default_factory=list)
-    # glazing: per patch the normal transmittance of direct light (None: all opaque), so that
-    # the luminaires' and the sun's and sky's direct light reaches grid points through windows
-    transmittance: np.ndarray | None = None
-    _field: object = None
-    source: str | None = None  # the solution layer this was read from, for messages
+    The surface is held in one of two forms. Spelled out per face: `corners` (P,4,3) metres,
+    `nv` (P,) 3 or 4, and per corner `corner_radiance` (exitant, W/(m^2 sr)) and
+    `corner_irradiance` (W/m^2), each (P,4,3); triangles repeat corner 2 as corner 3. Or
+    indexed, as a display mesh holds it (keywords `points` (V,3), `faces` (P,4) of point
+    indices, `point_radiance` and `point_irradiance` (V,3)): 16 bytes a face and 72 a point
+    instead of 288 bytes a face (a bake's Result: one floor of the bench building, 623k faces,
+    holds 55 MB instead of 171). Both forms answer every query with the same bits; in the
+    indexed one `corners`, `corner_radiance` and `corner_irradiance` are made when read (use
+    `face_count` for their length).
+    Also: `cameras`, `up_axis`; `emitted_radiance` (P,3) the self-emitted radiance E/pi of each
+    face (0 for non-emitters; None when unknown: a solution layer written before hirad stored
+    primvars:hirad:emission); `luminaires` (hirad._engine.Luminaire) whose exact direct light
+    illuminance and the volume probes add, stored beside the layer as luminaires.npz
+    (save_luminaires); `transmittance` (P,) per face the normal transmittance of direct light
+    through glazing (None: all opaque), so that the luminaires' and the sun's and sky's direct
+    light reaches grid points through windows; `source`, the solution layer this was read from,
+    for messages."""
+
+    def __init__(self, corners: np.ndarray | None = None, nv: np.ndarray | None = None,
+                 corner_radiance: np.ndarray | None = None, corner_irradiance: np.ndarray | None = None,
+                 cameras: list | None = None, up_axis: str = "Y", emitted_radiance: np.ndarray | None = None,
+                 luminaires: list | None = None, transmittance: np.ndarray | None = None, source: str | None = None,
+                 *, points: np.ndarray | None = None, faces: np.ndarray | None = None,
+                 point_radiance: np.ndarray | None = None, point_irradiance: np.ndarray | None = None):
+        if nv is None:
+            raise TypeError("SurfaceSolution needs nv")
+        if (corners is None) == (points is None or faces is None):
+            raise TypeError("SurfaceSolution takes either corners or points and faces")
+        self._corners, self._corner_radiance, self._corner_irradiance = corners, corner_radiance, corner_irradiance
+        self.points, self.faces = points, faces
+        self.point_radiance, self.point_irradiance = point_radiance, point_irradiance
+        self.nv = nv
+        self.cameras = list(cameras) if cameras is not None else []
+        self.up_axis = up_axis
+        self.emitted_radiance = emitted_radiance
+        self.luminaires = list(luminaires) if luminaires is not None else []
+        self.transmittance = transmittance
+        self.source = source
+        self._field = None
+
+    @property
+    def indexed(self) -> bool:
+        return self._corners is None
+
+    @property
+    def face_count(self) -> int:
+        return len(self.nv)
+
+    def _per_corner(self, spelled, per_point):
+        if not self.indexed:
+            return spelled
+        return None if per_point is None else np.ascontiguousarray(per_point[self.faces])
+
+    @property
+    def corners(self) -> np.ndarray:
+        """(P,4,3) the faces' corners, metres (made from the points when indexed)."""
+        return self._per_corner(self._corners, self.points)
+
+    @property
+    def corner_radiance(self) -> np.ndarray | None:
+        """(P,4,3) exitant radiance W/(m^2 sr) at the faces' corners."""
+        return self._per_corner(self._corner_radiance, self.point_radiance)
+
+    @property
+    def corner_irradiance(self) -> np.ndarray | None:
+        """(P,4,3) irradiance W/m^2 at the faces' corners."""
+        return self._per_corner(self._corner_irradiance, self.point_irradiance)
 
     @property
     def field(self) -> "_engine.SurfaceField":
@@ -63,8 +111,18 @@ class SurfaceSolution:
                 from .daylight.glazing import angular_table
                 glass = {"transmittance": np.ascontiguousarray(self.transmittance, dtype=np.float64),
                          "glass_angular": np.ascontiguousarray(angular_table(), dtype=np.float64)}
-            self._field = _engine.SurfaceField(self.corners, self.nv.astype(np.int32),
-                                               self.corner_radiance, self.corner_irradiance, **glass)
+            nv = np.ascontiguousarray(self.nv, dtype=np.int32)
+            if self.indexed:
+                self._field = _engine.SurfaceField(
+                    points=np.ascontiguousarray(self.points, dtype=np.float64),
+                    faces=np.ascontiguousarray(self.faces, dtype=np.int32), nv=nv,
+                    point_radiance=None if self.point_radiance is None else np.ascontiguousarray(
+                        self.point_radiance, dtype=np.float64),
+                    point_irradiance=None if self.point_irradiance is None else np.ascontiguousarray(
+                        self.point_irradiance, dtype=np.float64), **glass)
+            else:
+                self._field = _engine.SurfaceField(self.corners, nv, self.corner_radiance, self.corner_irradiance,
+                                                   **glass)
             if self.luminaires:
                 self._field.set_luminaires(list(self.luminaires))
         return self._field
@@ -128,8 +186,8 @@ class SurfaceSolution:
         if nrm.shape != pts.shape:
             raise ValueError(f"normals: {len(nrm)} rows for {len(pts)} points")
         emitted = np.ascontiguousarray(self.emitted_radiance, dtype=np.float64)
-        if emitted.shape != (len(self.corners), 3):
-            raise ValueError(f"emitted_radiance has shape {emitted.shape}, expected ({len(self.corners)}, 3)")
+        if emitted.shape != (self.face_count, 3):
+            raise ValueError(f"emitted_radiance has shape {emitted.shape}, expected ({self.face_count}, 3)")
         res = self.field.illuminance(pts, nrm, emitted, int(rays), int(seed), int(emitter_samples))
         return np.asarray(res.direct, dtype=np.float64) + np.asarray(res.indirect, dtype=np.float64)
 
@@ -156,18 +214,30 @@ class SurfaceSolution:
             return images.view_from_camera(self.cameras[0])
         return images.default_view(self.corners.reshape(-1, 3), self.up_axis)
 
+    def _copy_into(self, cls):
+        """This solution as an instance of `cls` (a subclass), sharing its arrays and field."""
+        other = cls.__new__(cls)
+        other.__dict__.update(self.__dict__)
+        return other
 
-@dataclass
+
 class Result(SurfaceSolution):
-    """What `bake` returns: the solution in memory plus where its outputs were written."""
+    """What `bake` returns: the solution in memory plus where its outputs were written:
+    `output_dir`, `report`; per patch (the solution's elements) `patch_radiosity` B and
+    `patch_irradiance` H (P,3) W/m^2, and `patches` (their arrays); the engine model, kept for
+    the final gather; whether the bake was hierarchical."""
 
-    output_dir: Path | None = None
-    report: dict = field(default_factory=dict)
-    patch_radiosity: np.ndarray | None = None   # (P,3) B, W/m^2
-    patch_irradiance: np.ndarray | None = None  # (P,3) H, W/m^2
-    patches: dict = field(default_factory=dict)
-    _model: object = None   # the engine model, kept for the final gather
-    hierarchical: bool = False
+    def __init__(self, *args, output_dir: Path | None = None, report: dict | None = None,
+                 patch_radiosity: np.ndarray | None = None, patch_irradiance: np.ndarray | None = None,
+                 patches: dict | None = None, _model: object = None, hierarchical: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.output_dir = output_dir
+        self.report = report if report is not None else {}
+        self.patch_radiosity = patch_radiosity
+        self.patch_irradiance = patch_irradiance
+        self.patches = patches if patches is not None else {}
+        self._model = _model
+        self.hierarchical = hierarchical
 
     def gather(self, points, normals, *, rays: int = 4, cluster_samples: int = 8,
                seed: int = 1, directional: bool = False, importance: float = 0.0,
@@ -254,29 +324,40 @@ def load_luminaires(path) -> list:
 def load_solution(path: str | os.PathLike) -> SurfaceSolution:
     """Opens a solution layer written by a bake, for rendering or probing without solving."""
     data = usd.read_solution_layer(path)
-    corners, nv, rad, irr, emitted = [], [], [], [], []
+    points, faces, nv, rad, irr, emitted = [], [], [], [], [], []
     has_emission = all(m.face_emission is not None for m in data.meshes)
+    base = 0
     for m in data.meshes:
-        counts = np.asarray(m.face_vertex_counts)
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        idx = np.asarray(m.face_vertex_indices)
-        for f, c in enumerate(counts):
-            if c not in (3, 4):
-                raise BakeError(f"{path}: {m.name}: face {f} has {c} corners; hirad writes triangles and quads")
-            ids = idx[offsets[f]:offsets[f + 1]]
-            ids4 = np.append(ids, ids[-1]) if c == 3 else ids
-            corners.append(m.points[ids4])
-            rad.append(m.vertex_radiance[ids4])
-            irr.append(m.vertex_irradiance[ids4])
-            nv.append(c)
-            if has_emission:
-                emitted.append(m.face_emission[f] / np.pi)
-    if not corners:
+        counts = np.asarray(m.face_vertex_counts, dtype=np.int64)
+        bad = np.nonzero((counts != 3) & (counts != 4))[0]
+        if len(bad):
+            raise BakeError(f"{path}: {m.name}: face {int(bad[0])} has {int(counts[bad[0]])} corners; hirad writes "
+                            "triangles and quads")
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        idx = np.asarray(m.face_vertex_indices, dtype=np.int64)
+        if len(idx) != counts.sum() or (len(idx) and (idx.min() < 0 or idx.max() >= len(m.points))):
+            raise BakeError(f"{path}: {m.name}: its faceVertexIndices do not index its {len(m.points)} points")
+        # per face its corners' points; a triangle repeats its last as its fourth
+        four = idx[first[:, None] + np.minimum(np.arange(4)[None, :], counts[:, None] - 1)]
+        faces.append(four + base)
+        base += len(m.points)
+        points.append(np.asarray(m.points, dtype=np.float64))
+        rad.append(np.asarray(m.vertex_radiance, dtype=np.float64))
+        irr.append(np.asarray(m.vertex_irradiance, dtype=np.float64))
+        nv.append(counts)
+        if has_emission:
+            emitted.append(np.asarray(m.face_emission, dtype=np.float64) / np.pi)
+    if not faces or sum(len(f) for f in faces) == 0:
         raise BakeError(f"{path}: the solution has no faces")
-    return SurfaceSolution(np.ascontiguousarray(corners, dtype=np.float64), np.asarray(nv, dtype=np.int32),
-                           np.ascontiguousarray(rad, dtype=np.float64), np.ascontiguousarray(irr, dtype=np.float64),
+    if base > np.iinfo(np.int32).max:
+        raise BakeError(f"{path}: the solution has {base:,} points, more than hirad indexes")
+    return SurfaceSolution(nv=np.concatenate(nv).astype(np.int32),
+                           points=np.ascontiguousarray(np.concatenate(points)),
+                           faces=np.ascontiguousarray(np.concatenate(faces), dtype=np.int32),
+                           point_radiance=np.ascontiguousarray(np.concatenate(rad)),
+                           point_irradiance=np.ascontiguousarray(np.concatenate(irr)),
                            cameras=data.cameras, up_axis=data.up_axis,
-                           emitted_radiance=np.ascontiguousarray(emitted, dtype=np.float64) if has_emission else None,
+                           emitted_radiance=np.ascontiguousarray(np.concatenate(emitted)) if has_emission else None,
                            luminaires=_stored_luminaires(path, data), source=str(path))
 
 

@@ -590,15 +590,16 @@ def apply_stored_daylight(sol, solution) -> dict:
     except StudyError as e:
         raise SceneError(str(e)) from None
     faces = int(arrays["faces"])
-    if faces != len(sol.corners):
-        raise SceneError(f"{file}: written for {faces} faces, the layer {solution} has {len(sol.corners)}: the layer "
+    if faces != sol.face_count:
+        raise SceneError(f"{file}: written for {faces} faces, the layer {solution} has {sol.face_count}: the layer "
                          "changed since the bake; bake again")
     glazed = 0
     if "transmittance" in arrays:
         tau = np.asarray(arrays["transmittance"], dtype=np.float64)
         glass = np.asarray(arrays["glass_faces"], dtype=np.int64)
-        at = _centroids(np.asarray(sol.corners)[glass], np.asarray(sol.nv)[glass])
-        scale = 1.0 + float(np.abs(np.asarray(sol.corners)).max()) if len(sol.corners) else 1.0
+        corners = np.asarray(sol.corners)
+        at = _centroids(corners[glass], np.asarray(sol.nv)[glass])
+        scale = 1.0 + float(np.abs(corners).max()) if len(corners) else 1.0
         off = np.abs(at - np.asarray(arrays["glass_centroids"])).max() if len(glass) else 0.0
         if tau.shape != (faces,) or off > 1e-5 * scale:
             raise SceneError(f"{file}: its glazed faces are not where the layer {solution} has them (off by "
