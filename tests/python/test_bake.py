@@ -140,6 +140,29 @@ def test_concave_polygon_patch_area(tmp_path):
     assert result.report["warnings"] == []
 
 
+def test_leaves_corners_are_made_from_the_display_mesh_to_the_bit(tmp_path):
+    # A hierarchical bake holds its leaves without their corners (a third of their bytes); the
+    # Result's patches make them from the display mesh: the engine's own leaves' corners, bit for
+    # bit, triangles (the L's ear-clipped pieces) repeating their third corner.
+    from hirad.engine import patch_dict
+
+    ell, _ = l_shape(tmp_path / "ell.usda")
+    # (the box's display mesh refined where its vertex gather varies: new points after the leaves')
+    for name, scene, nv, values in (("box", CORNELL, 4, "final_gather"), ("ell", ell, 3, "patches")):
+        result = bake(write_config(tmp_path / f"{name}.yaml", scene, tmp_path / name, method="hierarchical",
+                                   hierarchy={"epsilon": 1e-4, "min_area": 1e-3, "samples": 4},
+                                   reconstruction={"values": values},
+                                   outputs={"preview": {"enabled": False}}), keep_hierarchy=True)
+        if values == "final_gather":
+            assert result.report["display"]["split"] > 0
+        engine = patch_dict(result._model.patch_arrays())
+        assert (engine["nv"] == nv).sum() >= 4  # the box's leaves are mostly quads, the L's triangles
+        assert not dict.__contains__(result.patches, "corners") and "corners" in result.patches
+        assert np.array_equal(result.patches["corners"], engine["corners"]), name
+        assert np.array_equal(result.patches.get("corners"), engine["corners"]), name
+        assert np.array_equal(result.patches["centroid"], engine["centroid"]), name
+
+
 # ---------------------------------------------------------------------------------------------
 # determinism and threads
 # ---------------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, _engine, files, interrupts, units, usd
-from .engine import build_engine, patch_dict, streaming_dict
+from .engine import PatchTable, build_engine, patch_dict, streaming_dict
 from .estimate import estimate as estimate_cost, memory_warning
 from .outputs import images
 from .config import Config, load_config
@@ -396,7 +396,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         return Result(nv=display["face_nv"].astype(np.int32), points=display["points"],
                       faces=np.asarray(faces, dtype=np.int32), point_radiance=v_radiance, point_irradiance=v_irradiance,
                       cameras=scene.cameras, up_axis=scene.up_axis, patch_radiosity=b, patch_irradiance=h,
-                      patches=patches, _model=model, hierarchical=cfg.method == "hierarchical",
+                      patches=PatchTable(patches, display["points"], display["corners"]), _model=model,
+                      hierarchical=cfg.method == "hierarchical",
                       emitted_radiance=np.ascontiguousarray(patches["emission"][display["face_patch"]] / np.pi),
                       luminaires=luminaires,
                       transmittance=np.ascontiguousarray(patches["transmittance"][display["face_patch"]]))
@@ -1017,8 +1018,11 @@ def _publish_leaves(model, solved, let_go=None) -> dict:
     if release:
         release_free_memory()
     # per leaf, the share of its area outside other geometry: its B, H and direct light are that
-    # part's, so its powers are over open x area (energy balance)
-    return dict(patch_dict(model.patch_arrays()), open=np.asarray(solved.open, dtype=np.float64))
+    # part's, so its powers are over open x area (energy balance). No output of a hierarchical
+    # bake reads the leaves' corners: the Result's PatchTable makes them from the display mesh.
+    arrays = patch_dict(model.patch_arrays())
+    del arrays["corners"]
+    return dict(arrays, open=np.asarray(solved.open, dtype=np.float64))
 
 
 def _solve_progress(cfg: Config, update):

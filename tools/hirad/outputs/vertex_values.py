@@ -453,7 +453,8 @@ def gathered_vertex_values(result, display: dict, patches: dict, *, rays: int, i
         out = {"points": mesh.P, "point_mesh": point_mesh,
                "faces": faces.astype(np.asarray(display["faces"]).dtype),
                "face_nv": nv.astype(np.asarray(display["face_nv"]).dtype),
-               "face_patch": face_patch.astype(np.asarray(display["face_patch"]).dtype)}
+               "face_patch": face_patch.astype(np.asarray(display["face_patch"]).dtype),
+               "corners": display["corners"]}  # the patches' corner points: the first points, kept
     stats.update(samples=sampler.samples, unfound=sampler.unfound, enclosed=sampler.enclosed,
                  unfilled=int(unfilled.sum()))
     return out, mesh.R, mesh.H, stats
