@@ -113,7 +113,7 @@ def _meshed_patch_count(_engine, scene, cfg) -> int:
 def test_memory_counts_the_scene_besides_the_links_and_grows_with_its_faces(tmp_path):
     # An out-of-core bake's links take at most the budget; the scene, its hierarchy and the
     # outputs take memory of their own, in proportion to the input faces (the kitchen's
-    # 2.0-2.6 KB a face): the same surface cut into 100 times more faces needs more memory,
+    # 1.3-1.9 KB a face): the same surface cut into 100 times more faces needs more memory,
     # the links' part unchanged, and final-gather lightmaps more again.
     def cut(n):
         return _quads([(2.0 / n, 2.0 / n)] * (n * n))

@@ -51,16 +51,18 @@ CLUSTER_SOLVE_PER_LINKING = 0.2       # in memory (Jacobi, Gauss-Seidel, Southwe
 STREAMED_SECONDS_PER_LINK_ROUND = 7.1e-6  # block_southwell: each round after the first
 STORE_BYTES_PER_LINK = 13.7
 FLAT_LINK_BYTES = 8.0
-# Memory besides the links (bench/README.md, the country kitchen end to end, 1,050,937 input
-# faces, stop 41): the process and its libraries about 170 MB; the scene, the hierarchy and its
-# BVH, the leaves as patches and the outputs about 1.6 KB per input face at the solve's peak
-# (2,195 MiB, of which about 463 MB the streaming solver's state and chunks), and 2.15 KB with
+# Memory besides the links (bench/README.md): the process and its libraries about 170 MB; the
+# scene, the hierarchy and its BVH, the leaves, the solver's state and the outputs about 1.3 KB
+# per input face (the country kitchen end to end, 1,050,937 input faces, 2026-12-07: its solve
+# stage peaked at 1,457 MiB with a 2 GB budget, 1,290 bytes a face over the process, the
+# streaming solver's state and chunks in it; one floor of the bench building, 615,054 faces,
+# 842 MiB for the whole bake with a 4 GB budget, 1,160 bytes a face), and 1.9 KB with
 # final-gather lightmaps, whose gather (with its table of the links) is then the bake's peak
-# (2,310 MiB). The links' part is the budget counted whole out of core, so the sum is a bound
-# (the kitchen's solve used about a quarter of its 2 GB).
+# (the kitchen: 2,065 MiB, 1,900 bytes a face). The links' part is the budget counted whole out
+# of core, so the sum is a bound (the kitchen's solve used about a quarter of its 2 GB).
 PROCESS_BYTES = 170e6
-FACE_BYTES = 1.6e3
-FACE_BYTES_GATHERED_LIGHTMAPS = 2.15e3
+FACE_BYTES = 1.3e3
+FACE_BYTES_GATHERED_LIGHTMAPS = 1.9e3
 
 # Beyond these a setting is called out in a warning.
 SLOW_SECONDS = 3600.0
