@@ -8,22 +8,29 @@ namespace hirad::py {
 
 using namespace nb::literals;
 
+namespace {
+
+// A vector of unsigned indices as int32 (numpy's usual index type).
+template <class C, class U>
+auto int32s(std::vector<U> C::*p) {
+    return [p](const C& c) {
+        std::vector<int32_t> v((c.*p).begin(), (c.*p).end());
+        return to_numpy(std::move(v), {(c.*p).size()});
+    };
+}
+
+}  // namespace
+
 void bind_display(nb::module_& m) {
     nb::class_<DisplayMesh>(m, "DisplayMesh", "Welded display mesh of the patches (reconstruct.h).")
         .def_prop_ro("points", vec3s(&DisplayMesh::points), kOwned, "(points, 3) m.")
-        .def_prop_ro("point_mesh", [](const DisplayMesh& d) {
-            std::vector<int32_t> v(d.point_mesh.begin(), d.point_mesh.end());
-            return to_numpy(std::move(v), {d.point_mesh.size()});
-        }, kOwned, "(points) input mesh of each point.")
+        .def_prop_ro("point_mesh", int32s(&DisplayMesh::point_mesh), kOwned, "(points) input mesh of each point.")
         .def_prop_ro("corners", quads<int32_t>(&DisplayMesh::corners), kOwned,
                      "(patches, 4) each patch's corner points.")
         .def_prop_ro("boundary", arr(&DisplayMesh::boundary), kOwned, "(points) 1 on a boundary.")
         .def_prop_ro("faces", quads<int32_t>(&DisplayMesh::faces), kOwned, "(faces, 4) display faces' points.")
         .def_prop_ro("face_nv", arr(&DisplayMesh::face_nv), kOwned, "(faces) 3 or 4.")
-        .def_prop_ro("face_patch", [](const DisplayMesh& d) {
-            std::vector<int32_t> v(d.face_patch.begin(), d.face_patch.end());
-            return to_numpy(std::move(v), {d.face_patch.size()});
-        }, kOwned, "(faces) the patch each face belongs to.")
+        .def_prop_ro("face_patch", int32s(&DisplayMesh::face_patch), kOwned, "(faces) the patch each face belongs to.")
         .def_prop_ro("face_code", quads<uint8_t>(&DisplayMesh::face_code), kOwned,
                      "(faces, 4) corner codes (reconstruct.h).")
         .def_prop_ro("anchored", [](const DisplayMesh& d) {

@@ -19,6 +19,20 @@ Vec3 vec3(const std::vector<double>& v, const char* what) {
     return {v[0], v[1], v[2]};
 }
 
+// The glazing of n patches from SurfaceField's optional arrays (visibility.h).
+Glazing glazing_of(long n, const std::optional<In<double>>& tau, const std::optional<In<double>>& angular) {
+    Glazing glazing;
+    if (tau) {
+        require_shape(*tau, {n}, "transmittance");
+        glazing.face_transmittance.assign(tau->data(), tau->data() + n);
+    }
+    if (angular) {
+        require_shape(*angular, {-1}, "glass_angular");
+        glazing.angular.assign(angular->data(), angular->data() + angular->shape(0));
+    }
+    return glazing;
+}
+
 // The pinhole camera of a render or camera_rays call.
 Camera camera_of(const std::vector<double>& pos, const std::vector<double>& fwd, const std::vector<double>& up,
                  double fov, int width, int height) {
@@ -94,15 +108,7 @@ void bind_fields(nb::module_& m) {
                  require_shape(corners, {n, 4, 3}, "corners");
                  if (rad) require_shape(*rad, {n, 4, 3}, "corner_radiance");
                  if (irr) require_shape(*irr, {n, 4, 3}, "corner_irradiance");
-                 Glazing glazing;
-                 if (tau) {
-                     require_shape(*tau, {n}, "transmittance");
-                     glazing.face_transmittance.assign(tau->data(), tau->data() + n);
-                 }
-                 if (angular) {
-                     require_shape(*angular, {-1}, "glass_angular");
-                     glazing.angular.assign(angular->data(), angular->data() + angular->shape(0));
-                 }
+                 const Glazing glazing = glazing_of(n, tau, angular);
                  new (self) RayScene(corners.data(), nv.data(), size_t(n), rad ? rad->data() : nullptr,
                                      irr ? irr->data() : nullptr, tau ? &glazing : nullptr);
              },
@@ -121,15 +127,7 @@ void bind_fields(nb::module_& m) {
                  require_shape(faces, {n, 4}, "faces");
                  if (rad) require_shape(*rad, {m, 3}, "point_radiance");
                  if (irr) require_shape(*irr, {m, 3}, "point_irradiance");
-                 Glazing glazing;
-                 if (tau) {
-                     require_shape(*tau, {n}, "transmittance");
-                     glazing.face_transmittance.assign(tau->data(), tau->data() + n);
-                 }
-                 if (angular) {
-                     require_shape(*angular, {-1}, "glass_angular");
-                     glazing.angular.assign(angular->data(), angular->data() + angular->shape(0));
-                 }
+                 const Glazing glazing = glazing_of(n, tau, angular);
                  new (self) RayScene(points.data(), size_t(m), faces.data(), nv.data(), size_t(n),
                                      rad ? rad->data() : nullptr, irr ? irr->data() : nullptr,
                                      tau ? &glazing : nullptr);
