@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, _engine, files, interrupts, units, usd
-from .engine import PatchTable, build_engine, patch_dict, streaming_dict
+from .engine import PatchTable, build_engine, display_dict, patch_dict, streaming_dict
 from .estimate import estimate as estimate_cost, memory_warning
 from .outputs import images
 from .config import Config, load_config
@@ -380,7 +380,7 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
                                  glazing=glazing)
 
     with rep.stage("reconstruct"):
-        display = dict(model.display_arrays(cfg.reconstruction.crease_angle))
+        display = display_dict(model.display_arrays(cfg.reconstruction.crease_angle))
         vertex_radiance = model.vertex_values(b) / np.pi
         vertex_irradiance = model.vertex_values(h)
         if grouped:

@@ -88,8 +88,10 @@ class PatchTable(dict):
         return self[key] if key in self else default
 
 
-def display_dict(mesh: "_engine.DisplayMesh") -> dict:
-    """The display mesh as {name: array}."""
+def display_dict(mesh: "_engine.DisplayMesh | dict") -> dict:
+    """The display mesh as {name: array}, from a DisplayMesh or Engine.display_arrays' dict."""
+    if isinstance(mesh, dict):
+        return {k: mesh[k] for k in DISPLAY_FIELDS}
     return {k: getattr(mesh, k) for k in DISPLAY_FIELDS}
 
 
