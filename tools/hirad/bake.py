@@ -843,12 +843,13 @@ def _group_lightmaps(cfg, scene, patches, display, vertex_irradiance, meshes, me
     from . import relight
 
     records = []
+    corners = result.corners  # made once from the indexed Result, shared by the groups
     for k, g in enumerate(grouped.groups):
         vr_c, vi_c = store["corners"][g.name]
         emitted = np.ascontiguousarray(grouped.emission[k][display["face_patch"]] / np.pi)
         lums = grouped.luminaires[k]  # the group's own, unweighted
         res_g = relight.group_result(result, model, k, np.ascontiguousarray(vr_c), np.ascontiguousarray(vi_c),
-                                     emitted, lums)
+                                     emitted, lums, corners=corners)
         records.append(relight.recording_gather(res_g))
         out_g = staging / relight.GROUPS_DIR / g.name
         out_g.mkdir(parents=True, exist_ok=True)
@@ -885,9 +886,10 @@ def _group_grid_evaluator(cfg, scene, grids, result, grouped, store):
     from .solution import SurfaceSolution
 
     sols = []
+    corners = result.corners  # made once from the indexed Result, shared by the groups
     for k, g in enumerate(grouped.groups):
         vr_c, vi_c = store["corners"][g.name]
-        sols.append(SurfaceSolution(result.corners, result.nv, np.ascontiguousarray(vr_c), np.ascontiguousarray(vi_c),
+        sols.append(SurfaceSolution(corners, result.nv, np.ascontiguousarray(vr_c), np.ascontiguousarray(vi_c),
                                     cameras=result.cameras, up_axis=result.up_axis,
                                     emitted_radiance=np.ascontiguousarray(
                                         grouped.emission[k][store["face_patch"]] / np.pi),

@@ -732,9 +732,10 @@ def group_solutions(cfg, model, solved, patches, groups, seconds: float = 0.0) -
                       [float(s.residual) for s in sols])
 
 
-def group_result(result, model, k: int, corner_radiance, corner_irradiance, emitted, luminaires):
+def group_result(result, model, k: int, corner_radiance, corner_irradiance, emitted, luminaires, corners=None):
     """A copy of the bake's Result for group k alone: its corner values, emission and
-    luminaires, and its final gather."""
+    luminaires, and its final gather. `corners`: result.corners when the caller has made them
+    already (an indexed Result makes them on each read)."""
     from .solution import Result
 
     class _GroupResult(Result):
@@ -753,7 +754,7 @@ def group_result(result, model, k: int, corner_radiance, corner_irradiance, emit
             keys = ("patch", "irradiance", "radiance") + (("l0", "l1") if directional else ())
             return {key: np.asarray(getattr(g, key)) for key in keys}
 
-    return _GroupResult(result.corners, result.nv, corner_radiance, corner_irradiance, cameras=result.cameras,
+    return _GroupResult(result.corners if corners is None else corners, result.nv, corner_radiance, corner_irradiance, cameras=result.cameras,
                         up_axis=result.up_axis, patch_radiosity=None, patch_irradiance=None, patches=result.patches,
                         _model=model, hierarchical=result.hierarchical, emitted_radiance=emitted,
                         luminaires=list(luminaires), transmittance=result.transmittance)
