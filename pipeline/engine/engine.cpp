@@ -139,7 +139,7 @@ void Engine::set_glass_angular(std::vector<double> relative) {
     g.angular = std::move(relative);
     g.validate();
     glazing_ = std::move(g);
-    if (visibility_) visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
+    if (visibility_) visibility_ = std::make_unique<Visibility>(patch_view(), &glazing_);
 }
 
 Engine::~Engine() = default;
@@ -153,7 +153,7 @@ Stats Engine::stats() const {
     s.self_intersecting_faces = scene_.stats.self_intersecting_faces;
     s.triangulated_faces = scene_.stats.triangulated_faces;
     s.nonmanifold_edges = scene_.stats.nonmanifold_edges;
-    s.patches = patches_.patches.size();
+    s.patches = num_patches();
     s.links = links_ ? links_->link_count() : 0;
     s.link_bytes = links_ ? links_->bytes() : 0;
     s.rays = rays_cast();
@@ -173,7 +173,20 @@ void Engine::require_mesh() const {
 
 void Engine::require_index(uint32_t i) const {
     require_mesh();
-    if (i >= patches_.patches.size()) throw std::out_of_range("patch index out of range");
+    if (i >= num_patches()) throw std::out_of_range("patch index out of range");
+}
+
+void Engine::require_flat(const char* what) const {
+    if (!leaves_.empty())
+        throw std::invalid_argument(std::string(what) + " is the flat method's: the patches are a hierarchical solve's "
+                                    "leaves");
+}
+
+std::vector<Patch> Engine::patch_vector() const {
+    if (leaves_.empty()) return patches_.patches;
+    std::vector<Patch> out(leaves_.size());
+    for (size_t i = 0; i < out.size(); ++i) leaves_.get(i, out[i]);
+    return out;
 }
 
 void Engine::replace_patches(PatchSet patches) {
@@ -181,6 +194,7 @@ void Engine::replace_patches(PatchSet patches) {
     visibility_.reset();  // it refers to the old patches
     display_ = DisplayMesh{};
     patches_ = std::move(patches);
+    leaves_ = FaceTable(PatchCentroid::CornerMean, Welding::ByMesh);
     visibility_ = std::make_unique<Visibility>(patches_.patches, &glazing_);
 }
 
@@ -433,7 +447,7 @@ std::vector<RGB> Engine::luminaire_light(const std::vector<Vec3>& x, const std::
 
 PatchArrays Engine::patch_arrays() const {
     if (patches_released_) require_mesh();  // says they were let go
-    const auto& P = patches_.patches;
+    const PatchView P = patch_view();
     const size_t n = P.size();
     PatchArrays a;
     a.count = n;
@@ -450,8 +464,9 @@ PatchArrays Engine::patch_arrays() const {
     a.face.resize(n);
     a.source_face.resize(n);
     a.transmittance.resize(n);
+    Patch scratch;
     for (size_t i = 0; i < n; ++i) {
-        const Patch& p = P[i];
+        const Patch& p = P.get(i, scratch);
         const FaceRecord r = face_record(p.face);
         for (int k = 0; k < 4; ++k) {
             for (int c = 0; c < 3; ++c) a.corners[i * 12 + k * 3 + c] = p.p[k][c];
@@ -477,6 +492,7 @@ PatchArrays Engine::patch_arrays() const {
 
 void Engine::compute_links(const FormFactorOptions& o, const DoneFn& done) {
     require_mesh();
+    require_flat("compute_links");
     const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
     if (o.method == "raycast") {
         RayCastFormFactors ff(patches_.patches, *visibility_, {o.samples, o.seed});
@@ -505,6 +521,7 @@ RadiositySystem Engine::system() const {
 FlatSolveResult Engine::solve(const SolveOptions& o, const FormFactorOptions& ff, const SnapshotFn& snapshot,
                               const FlatProgressFn& progress) {
     require_mesh();
+    require_flat("solve");
     RadiositySystem sys = system();
     SolverOptions base;
     base.tolerance = o.tolerance;
@@ -540,6 +557,7 @@ FlatSolveResult Engine::solve(const SolveOptions& o, const FormFactorOptions& ff
 
 Transport Engine::transport(const std::vector<RGB>& b, const FormFactorOptions& o) const {
     require_mesh();
+    require_flat("transport");
     const uint32_t n = static_cast<uint32_t>(patches_.patches.size());
     if (b.size() != n) throw std::invalid_argument("radiosity: one row per patch");
     Transport t;
@@ -569,6 +587,7 @@ Transport Engine::transport(const std::vector<RGB>& b, const FormFactorOptions& 
 
 std::vector<GroupSolution> Engine::solve_groups(const SolveOptions& o, const FormFactorOptions& ff) {
     require_mesh();
+    require_flat("solve_groups");
     std::vector<GroupSolution> out;
     if (groups_.empty()) return out;
     std::vector<Patch>& P = patches_.patches;
@@ -622,6 +641,7 @@ double Engine::residual_of(const std::vector<RGB>& b) const {
 }
 
 double Engine::form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) const {
+    require_flat("form_factor");
     require_index(i);
     require_index(j);
     RayCastFormFactors ff(patches_.patches, *visibility_, {samples, seed});
@@ -629,6 +649,7 @@ double Engine::form_factor(uint32_t i, uint32_t j, int samples, uint64_t seed) c
 }
 
 std::vector<double> Engine::hemicube_row(uint32_t i, int resolution, int points) const {
+    require_flat("hemicube_row");
     require_index(i);
     Hemicube hc(patches_.patches, {resolution, points});
     std::vector<std::pair<uint32_t, double>> row;
@@ -974,15 +995,22 @@ void Engine::use_leaves_as_patches(bool release_hierarchy) {
         std::vector<std::vector<RGB>>().swap(solved_->group_radiosity);
         std::vector<uint32_t>().swap(solved_->leaf_index);
     }
-    std::vector<Patch> shapes;
-    shapes.reserve(solved_->leaves.size());
-    for (uint32_t leaf : solved_->leaves) shapes.push_back(solved_->hierarchy.shape(leaf));
+    FaceTable leaves(PatchCentroid::CornerMean, Welding::ByMesh);
+    leaves.reserve(solved_->leaves.size());
+    Patch scratch;
+    for (uint32_t leaf : solved_->leaves) leaves.push_back(solved_->hierarchy.shape(leaf, scratch));
+    leaves.seal();
     leaves_published_ = true;
     if (release_hierarchy)
         this->release_hierarchy();  // before the copy's BVH is built
     else
         std::vector<uint32_t>().swap(solved_->leaf_index);  // the published patches' BVH finds leaves now
-    replace_patches(weld_patches(std::move(shapes)));
+    links_.reset();
+    visibility_.reset();
+    display_ = DisplayMesh{};
+    patches_ = PatchSet{};
+    leaves_ = std::move(leaves);
+    visibility_ = std::make_unique<Visibility>(patch_view(), &glazing_);
 }
 
 LeafArrays Engine::leaf_arrays() const {
@@ -1014,6 +1042,7 @@ void Engine::release_patches() {
     if (visibility_) rays_let_go_ += visibility_->rays_cast();
     visibility_.reset();
     patches_ = PatchSet{};
+    leaves_ = FaceTable(PatchCentroid::CornerMean, Welding::ByMesh);
     display_ = DisplayMesh{};
     patches_released_ = true;
 }
@@ -1030,15 +1059,16 @@ void Engine::release_hierarchy() {
 
 const DisplayMesh& Engine::display_mesh(double crease_angle) {
     require_mesh();
-    display_ = build_display_mesh(patches_, crease_angle);
+    display_ = leaves_.empty() ? build_display_mesh(patches_, crease_angle) : build_display_mesh(leaves_, crease_angle);
     return display_;
 }
 
 std::vector<RGB> Engine::vertex_values(const std::vector<RGB>& values) const {
-    if (display_.corners.size() != patches_.patches.size() || patches_.patches.empty())
+    if (display_.corners.size() != num_patches() || num_patches() == 0)
         throw std::invalid_argument("vertex_values: call display_mesh first");
-    if (values.size() != patches_.patches.size()) throw std::invalid_argument("values: one row per patch");
-    return hirad::vertex_values(patches_, display_, values);
+    if (values.size() != num_patches()) throw std::invalid_argument("values: one row per patch");
+    return leaves_.empty() ? hirad::vertex_values(patches_, display_, values)
+                           : hirad::vertex_values(leaves_, display_, values);
 }
 
 std::vector<float> Engine::direct_transmittance(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
@@ -1195,7 +1225,7 @@ LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3
         hirad::lift_samples(solved_->hierarchy.faces, *solved_->visibility, points, normals, epsilon, reach, r.moved,
                             anchors);
     else if (visibility_)
-        hirad::lift_samples(patches_.patches, *visibility_, points, normals, epsilon, reach, r.moved, anchors);
+        hirad::lift_samples(patch_view(), *visibility_, points, normals, epsilon, reach, r.moved, anchors);
     else
         throw std::invalid_argument("lift_samples needs meshed patches or a solved hierarchy");
     r.points = std::move(points);
@@ -1204,13 +1234,15 @@ LiftResult Engine::lift_samples(std::vector<Vec3> points, const std::vector<Vec3
 
 RayCastResult Engine::ray_cast(const std::vector<Vec3>& origins, const std::vector<Vec3>& directions) const {
     if (!visibility_) throw std::invalid_argument("ray_cast needs meshed patches");
-    return cast_rays(patches_.patches, *visibility_, origins, directions);
+    return cast_rays(patch_view(), *visibility_, origins, directions);
 }
 
 PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vector<Vec3>& normals,
                                 const std::vector<RGB>& radiosity, int rays, uint64_t seed) const {
-    const size_t n = points.size(), np = patches_.patches.size();
+    const size_t n = points.size(), np = num_patches();
     if (!visibility_ || np == 0) throw std::invalid_argument("gather_flat needs a meshed, solved model");
+    const std::vector<Patch> made = leaves_.empty() ? std::vector<Patch>{} : patch_vector();
+    const std::vector<Patch>& patches = leaves_.empty() ? patches_.patches : made;
     require_points(points, normals);
     if (radiosity.size() != np) throw std::invalid_argument("radiosity: one row per patch");
     std::vector<Vec3> x(n), nn(n);
@@ -1221,18 +1253,18 @@ PointValues Engine::gather_flat(const std::vector<Vec3>& points, const std::vect
     for (size_t q = 0; q < n; ++q) {
         const RayHit hit = visibility_->closest_point(points[q], normals[q], 1e30);
         out.patch[q] = hit.patch;
-        const Patch& s = patches_.patches[std::max(0, hit.patch)];
+        const Patch& s = patches[std::max(0, hit.patch)];
         nn[q] = s.normal;
         x[q] = points[q] - s.normal * dot(points[q] - s.p[0], s.normal);
     }
     std::vector<RGB> e(n);
-    hirad::gather_flat(patches_.patches, radiosity, *visibility_, x.data(), nn.data(), n, rays, seed, e.data());
+    hirad::gather_flat(patches, radiosity, *visibility_, x.data(), nn.data(), n, rays, seed, e.data());
     const std::vector<RGB> d = luminaire_light(x, nn, *visibility_);
     for (size_t q = 0; q < n; ++q) e[q] += d[q];
     for (size_t q = 0; q < n; ++q) {
         if (out.patch[q] < 0) continue;
         out.irradiance[q] = e[q];
-        out.radiance[q] = exitant(patches_.patches[out.patch[q]], e[q]);
+        out.radiance[q] = exitant(patches[out.patch[q]], e[q]);
     }
     return out;
 }
@@ -1242,8 +1274,10 @@ ReferenceResult Engine::reference(const std::vector<uint32_t>& patch, const std:
     require_mesh();
     if (st.size() != patch.size()) throw std::invalid_argument("patch and st differ in length");
     for (uint32_t p : patch)
-        if (p >= patches_.patches.size()) throw std::out_of_range("patch index out of range");
-    std::vector<ReferenceEstimate> est = reference_radiance(patches_.patches, *visibility_, patch, st, options, luminaires_);
+        if (p >= num_patches()) throw std::out_of_range("patch index out of range");
+    const std::vector<Patch> made = leaves_.empty() ? std::vector<Patch>{} : patch_vector();
+    std::vector<ReferenceEstimate> est = reference_radiance(leaves_.empty() ? patches_.patches : made, *visibility_, patch,
+                                                            st, options, luminaires_);
     ReferenceResult r;
     r.radiance.resize(est.size());
     r.standard_error.resize(est.size());

@@ -322,7 +322,7 @@ public:
 
     // ---- flat method
     void mesh(const MeshOptions& options);
-    size_t num_patches() const { return patches_.patches.size(); }
+    size_t num_patches() const { return leaves_.empty() ? patches_.patches.size() : leaves_.size(); }
     PatchArrays patch_arrays() const;
     // `done(rows)`: rows finished so far (called from TBB worker threads, not in order).
     void compute_links(const FormFactorOptions& options, const DoneFn& done = {});
@@ -460,7 +460,16 @@ private:
     std::vector<LightGroup> groups_;
     std::vector<std::vector<uint8_t>> group_mesh_;  // per group: per input mesh, 1 when in it
     PatchSet patches_;
-    std::unique_ptr<Visibility> visibility_;   // over patches_
+    // After use_leaves_as_patches: the leaves, compact (about 190 of a Patch's 328 bytes, with
+    // texture coordinates), welded as weld_patches welds; patches_ is empty then.
+    FaceTable leaves_{PatchCentroid::CornerMean, Welding::ByMesh};
+    PatchView patch_view() const { return leaves_.empty() ? PatchView(patches_.patches) : PatchView(leaves_); }
+    // The patches as a vector: patches_'s own, or the leaves made again (a copy, for the calls
+    // written over vectors: the flat final gather and the reference).
+    std::vector<Patch> patch_vector() const;
+    // Throws for the flat method's calls once the patches are a hierarchy's leaves.
+    void require_flat(const char* what) const;
+    std::unique_ptr<Visibility> visibility_;   // over patch_view()
     std::unique_ptr<LinkMatrix> links_;
     std::unique_ptr<Solved> solved_;
     bool leaves_published_ = false;

@@ -57,6 +57,7 @@ public:
     uint64_t refine(int next, const std::vector<RGB>& b) override {
         const uint64_t before = run_.refine.split;
         pending_ = next == 1 ? refiner_.initial_links(b, run_.refine) : refiner_.refine(run_.links, b, run_.refine);
+        refiner_.release();
         return run_.refine.split - before;
     }
     void commit(int) override {
@@ -144,6 +145,7 @@ public:
                 if (progress_) progress_({next, kept_links, shots_, 1.0, g + 1, ng_});
             }
         }
+        refiner_.release();
         src_.resize(h_.nodes.size(), 0);
         own_.resize(h_.nodes.size(), 0.0);
         return run_.refine.split - splits_before;

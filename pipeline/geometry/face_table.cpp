@@ -46,9 +46,43 @@ uint32_t intern(std::vector<Vec3>& values, std::vector<uint32_t>& slots, const V
     return static_cast<uint32_t>(values.size() - 1);
 }
 
+// intern's table for Welding::ByMesh: equal when the mesh is and the positions are (-0.0 and
+// +0.0 alike); the first corner's bits are the point's.
+uint32_t intern_by_mesh(std::vector<Vec3>& values, std::vector<uint32_t>& meshes, std::vector<uint32_t>& slots,
+                        const Vec3& v, uint32_t mesh) {
+    auto hash = [](const Vec3& x, uint32_t m) {
+        return bits_hash(x + Vec3{0, 0, 0}) ^ (uint64_t(m) * 0xD6E8FEB86659FD93ull);
+    };
+    if (2 * (values.size() + 1) > slots.size()) {
+        std::vector<uint32_t> grown(slots.empty() ? 1024 : 2 * slots.size(), 0u);
+        const size_t mask = grown.size() - 1;
+        for (size_t i = 0; i < values.size(); ++i) {
+            size_t s = hash(values[i], meshes[i]) & mask;
+            while (grown[s] != 0) s = (s + 1) & mask;
+            grown[s] = static_cast<uint32_t>(i + 1);
+        }
+        slots.swap(grown);
+    }
+    const size_t mask = slots.size() - 1;
+    const Vec3 key = v + Vec3{0, 0, 0};
+    size_t s = hash(v, mesh) & mask;
+    while (slots[s] != 0) {
+        const uint32_t i = slots[s] - 1;
+        if (meshes[i] == mesh && same_bits(values[i] + Vec3{0, 0, 0}, key)) return i;
+        s = (s + 1) & mask;
+    }
+    values.push_back(v);
+    meshes.push_back(mesh);
+    slots[s] = static_cast<uint32_t>(values.size());
+    return static_cast<uint32_t>(values.size() - 1);
+}
+
 }  // namespace
 
-uint32_t FaceTable::point_index(const Vec3& p) { return intern(points_, point_slots_, p); }
+uint32_t FaceTable::point_index(const Vec3& p, uint32_t mesh) {
+    return welding_ == Welding::ByMesh ? intern_by_mesh(points_, point_mesh_, point_slots_, p, mesh)
+                                       : intern(points_, point_slots_, p);
+}
 uint32_t FaceTable::reflectance_index(const RGB& r) { return intern(reflectances_, reflectance_slots_, r); }
 
 void FaceTable::reserve(size_t n) {
@@ -60,7 +94,7 @@ void FaceTable::reserve(size_t n) {
 
 void FaceTable::push_back(const Patch& p) {
     Record r;
-    for (int k = 0; k < 4; ++k) r.corner[k] = point_index(p.p[k]);
+    for (int k = 0; k < 4; ++k) r.corner[k] = point_index(p.p[k], p.mesh);
     r.mesh = p.mesh;
     r.face = p.face;
     r.reflectance = reflectance_index(p.reflectance);
@@ -82,6 +116,7 @@ void FaceTable::seal() {
     std::vector<uint32_t>().swap(reflectance_slots_);
     records_.shrink_to_fit();
     points_.shrink_to_fit();
+    point_mesh_.shrink_to_fit();
     area_.shrink_to_fit();
     reflectances_.shrink_to_fit();
     emission_.shrink_to_fit();
@@ -121,6 +156,7 @@ void FaceTable::get(size_t f, Patch& p) const {
 
 size_t FaceTable::bytes() const {
     return records_.capacity() * sizeof(Record) + points_.capacity() * sizeof(Vec3) +
+           point_mesh_.capacity() * sizeof(uint32_t) +
            area_.capacity() * sizeof(double) +
            reflectances_.capacity() * sizeof(RGB) +
            (emission_.capacity() + direct_.capacity()) * sizeof(RGB) + uv_.capacity() * sizeof(uv_[0]) +

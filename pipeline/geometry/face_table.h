@@ -22,11 +22,18 @@
 
 namespace hirad {
 
+// How corners are shared. Bits: one point for every corner with the same bits, whatever its
+// mesh (the hierarchy's faces, a RayScene). ByMesh: one point per mesh and position, with -0.0
+// and +0.0 one position, the first corner's bits kept (weld_patches' rule, which the display
+// mesh is built on: a solved hierarchy's leaves, Engine::use_leaves_as_patches).
+enum class Welding : uint8_t { Bits, ByMesh };
+
 class FaceTable {
 public:
     // `centroid`: the rule the patches were finished with (the hierarchy's corner mean; a
     // RayScene's area-weighted), by which a patch's centroid is made again.
-    explicit FaceTable(PatchCentroid centroid = PatchCentroid::CornerMean) : centroid_(centroid) {}
+    explicit FaceTable(PatchCentroid centroid = PatchCentroid::CornerMean, Welding welding = Welding::Bits)
+        : centroid_(centroid), welding_(welding) {}
     FaceTable(FaceTable&&) = default;
     FaceTable& operator=(FaceTable&&) = default;
 
@@ -55,6 +62,9 @@ public:
     // Corner k's index in points(): the faces' shared vertices (an indexed mesh for Embree).
     uint32_t corner_index(size_t f, int k) const { return records_[f].corner[k]; }
     const std::vector<Vec3>& point_list() const { return points_; }
+    Welding welding() const { return welding_; }
+    // Welding::ByMesh: the mesh of point v (its corners' faces').
+    uint32_t point_mesh(size_t v) const { return point_mesh_[v]; }
     const Vec3& normal(size_t f) const { return records_[f].normal; }
     // Patch::centroid of face f by the table's rule, without making the patch.
     Vec3 centroid(size_t f) const;
@@ -93,8 +103,10 @@ private:
     std::vector<std::array<Vec2, 4>> uv_;   // empty while every face's are zero
     // Welding: open addressing over points_ (and over reflectances_), by the values' bits.
     std::vector<uint32_t> point_slots_, reflectance_slots_;
+    std::vector<uint32_t> point_mesh_;      // Welding::ByMesh: per point
     PatchCentroid centroid_ = PatchCentroid::CornerMean;
-    uint32_t point_index(const Vec3& p);
+    Welding welding_ = Welding::Bits;
+    uint32_t point_index(const Vec3& p, uint32_t mesh);
     uint32_t reflectance_index(const RGB& r);
 };
 

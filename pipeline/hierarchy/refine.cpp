@@ -341,6 +341,12 @@ void Refiner::set_radiosity(const std::vector<RGB>& radiosity, bool solved) {
     }
 }
 
+void Refiner::release() {
+    std::vector<double>().swap(peak_);
+    std::vector<double>().swap(trough_);
+    std::vector<double>().swap(gathered_);
+}
+
 std::vector<Link> Refiner::run_group(std::vector<Link> frontier, std::vector<uint8_t> evaluated, RefineStats& stats) {
     std::vector<Link> all;
     run_group(std::move(frontier), std::move(evaluated), stats, SIZE_MAX, [&](std::vector<Link>& kept) {

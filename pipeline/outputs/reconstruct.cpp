@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <array>
+#include <stdexcept>
 #include <utility>
 
 namespace hirad {
@@ -30,27 +31,57 @@ PointKey point_key(uint32_t mesh, const Vec3& p) {
 
 }  // namespace
 
-DisplayMesh build_display_mesh(const PatchSet& set, double crease_angle_degrees) {
+// What the display mesh reads of the patches, from a PatchSet or from a FaceTable welded by mesh.
+struct SetSource {
+    const PatchSet& s;
+    size_t size() const { return s.patches.size(); }
+    int nv(uint32_t i) const { return s.patches[i].nv; }
+    uint32_t vertex(uint32_t i, int k) const { return s.patches[i].vertex[k]; }
+    const Vec3& normal(uint32_t i) const { return s.patches[i].normal; }
+    const Vec3& corner(uint32_t i, int k) const { return s.patches[i].p[k]; }
+    uint32_t mesh(uint32_t i) const { return s.patches[i].mesh; }
+    Vec3 centroid(uint32_t i) const { return s.patches[i].centroid; }
+    size_t vertices() const { return s.vertices.size(); }
+    const Vec3& vertex_point(size_t v) const { return s.vertices[v]; }
+    uint32_t vertex_mesh(size_t v) const { return s.vertex_mesh[v]; }
+};
+
+struct TableSource {
+    const FaceTable& t;
+    size_t size() const { return t.size(); }
+    int nv(uint32_t i) const { return t.nv(i); }
+    uint32_t vertex(uint32_t i, int k) const { return t.corner_index(i, k); }
+    const Vec3& normal(uint32_t i) const { return t.normal(i); }
+    const Vec3& corner(uint32_t i, int k) const { return t.corner(i, k); }
+    uint32_t mesh(uint32_t i) const { return t.mesh(i); }
+    Vec3 centroid(uint32_t i) const { return t.centroid(i); }
+    size_t vertices() const { return t.points(); }
+    const Vec3& vertex_point(size_t v) const { return t.point_list()[v]; }
+    uint32_t vertex_mesh(size_t v) const { return t.point_mesh(v); }
+};
+
+template <class Src>
+DisplayMesh build_display(const Src& set, double crease_angle_degrees) {
     const double cos_crease = std::cos(crease_angle_degrees * kPi / 180.0);
-    const auto& patches = set.patches;
+    const uint32_t n = static_cast<uint32_t>(set.size());
     DisplayMesh mesh;
-    mesh.corners.resize(patches.size());
+    mesh.corners.resize(n);
     // Incidences (patch, corner) of every welded vertex, in patch order.
-    std::vector<uint32_t> first(set.vertices.size() + 1, 0);
-    for (const Patch& p : patches)
-        for (int k = 0; k < p.nv; ++k) ++first[p.vertex[k] + 1];
-    for (size_t v = 0; v < set.vertices.size(); ++v) first[v + 1] += first[v];
+    std::vector<uint32_t> first(set.vertices() + 1, 0);
+    for (uint32_t i = 0; i < n; ++i)
+        for (int k = 0; k < set.nv(i); ++k) ++first[set.vertex(i, k) + 1];
+    for (size_t v = 0; v < set.vertices(); ++v) first[v + 1] += first[v];
     std::vector<std::pair<uint32_t, int>> incidence(first.back());
     std::vector<uint32_t> cursor(first.begin(), first.end() - 1);
-    for (uint32_t i = 0; i < patches.size(); ++i)
-        for (int k = 0; k < patches[i].nv; ++k) incidence[cursor[patches[i].vertex[k]]++] = {i, k};
+    for (uint32_t i = 0; i < n; ++i)
+        for (int k = 0; k < set.nv(i); ++k) incidence[cursor[set.vertex(i, k)]++] = {i, k};
 
     // Split each vertex into one point per group of patches whose normals agree within the
     // crease angle (greedy, against the first normal of each group).
-    std::vector<std::vector<std::pair<Vec3, uint32_t>>> groups(set.vertices.size());
+    std::vector<std::vector<std::pair<Vec3, uint32_t>>> groups(set.vertices());
     auto new_point = [&](uint32_t v) {
-        mesh.points.push_back(set.vertices[v]);
-        mesh.point_mesh.push_back(set.vertex_mesh[v]);
+        mesh.points.push_back(set.vertex_point(v));
+        mesh.point_mesh.push_back(set.vertex_mesh(v));
         return static_cast<uint32_t>(mesh.points.size() - 1);
     };
     auto point_for = [&](uint32_t v, const Vec3& n) {
@@ -60,54 +91,55 @@ DisplayMesh build_display_mesh(const PatchSet& set, double crease_angle_degrees)
         groups[v].emplace_back(n, p);
         return p;
     };
-    for (size_t v = 0; v < set.vertices.size(); ++v)
+    for (size_t v = 0; v < set.vertices(); ++v)
         for (uint32_t k = first[v]; k < first[v + 1]; ++k) {
             const auto [pi, corner] = incidence[k];
-            mesh.corners[pi][corner] = point_for(static_cast<uint32_t>(v), patches[pi].normal);
+            mesh.corners[pi][corner] = point_for(static_cast<uint32_t>(v), set.normal(pi));
         }
-    for (uint32_t i = 0; i < patches.size(); ++i)
-        if (patches[i].nv == 3) mesh.corners[i][3] = mesh.corners[i][2];
+    for (uint32_t i = 0; i < n; ++i)
+        if (set.nv(i) == 3) mesh.corners[i][3] = mesh.corners[i][2];
     mesh.anchors.resize(mesh.points.size());
 
     // T-vertices: a welded vertex of the same mesh exactly at the midpoint of a patch edge
     // (midpoints are computed as (a + b) / 2 everywhere, so they match bit for bit).
-    std::vector<std::pair<PointKey, uint32_t>> welded(set.vertices.size());
-    for (uint32_t v = 0; v < set.vertices.size(); ++v) welded[v] = {point_key(set.vertex_mesh[v], set.vertices[v]), v};
+    std::vector<std::pair<PointKey, uint32_t>> welded(set.vertices());
+    for (uint32_t v = 0; v < set.vertices(); ++v) welded[v] = {point_key(set.vertex_mesh(v), set.vertex_point(v)), v};
     std::sort(welded.begin(), welded.end());  // the key, then the lowest vertex first among equal keys
     auto find_welded = [&](const PointKey& key) -> int64_t {
         auto it = std::lower_bound(welded.begin(), welded.end(), key,
                                    [](const std::pair<PointKey, uint32_t>& e, const PointKey& k) { return e.first < k; });
         return it != welded.end() && it->first == key ? int64_t(it->second) : -1;
     };
-    for (uint32_t i = 0; i < patches.size(); ++i) {
-        const Patch& p = patches[i];
+    for (uint32_t i = 0; i < n; ++i) {
+        const int nv = set.nv(i);
+        const uint32_t patch_mesh = set.mesh(i);
         std::array<int64_t, 4> mid_point{-1, -1, -1, -1};
         bool any = false;
-        for (int k = 0; k < p.nv; ++k) {
-            const int64_t v = find_welded(point_key(p.mesh, (p.p[k] + p.p[(k + 1) % p.nv]) * 0.5));
+        for (int k = 0; k < nv; ++k) {
+            const int64_t v = find_welded(point_key(patch_mesh, (set.corner(i, k) + set.corner(i, (k + 1) % nv)) * 0.5));
             if (v < 0) continue;
-            const uint32_t point = point_for(static_cast<uint32_t>(v), p.normal);
+            const uint32_t point = point_for(static_cast<uint32_t>(v), set.normal(i));
             if (point >= mesh.anchors.size()) mesh.anchors.resize(point + 1);
-            mesh.anchors[point] = {{mesh.corners[i][k], 0.5}, {mesh.corners[i][(k + 1) % p.nv], 0.5}};
+            mesh.anchors[point] = {{mesh.corners[i][k], 0.5}, {mesh.corners[i][(k + 1) % nv], 0.5}};
             mid_point[k] = point;
             any = true;
         }
         if (!any) {
             mesh.faces.push_back(mesh.corners[i]);
-            mesh.face_nv.push_back(static_cast<uint8_t>(p.nv));
+            mesh.face_nv.push_back(static_cast<uint8_t>(nv));
             mesh.face_patch.push_back(i);
-            mesh.face_code.push_back({0, 1, 2, static_cast<uint8_t>(p.nv == 4 ? 3 : 2)});
+            mesh.face_code.push_back({0, 1, 2, static_cast<uint8_t>(nv == 4 ? 3 : 2)});
             continue;
         }
         // Fan around the centre, which takes the mean of the corners.
-        mesh.points.push_back(p.centroid);
-        mesh.point_mesh.push_back(p.mesh);
+        mesh.points.push_back(set.centroid(i));
+        mesh.point_mesh.push_back(patch_mesh);
         const uint32_t centre = static_cast<uint32_t>(mesh.points.size() - 1);
         mesh.anchors.resize(mesh.points.size());
-        for (int k = 0; k < p.nv; ++k) mesh.anchors[centre].emplace_back(mesh.corners[i][k], 1.0 / p.nv);
-        for (int k = 0; k < p.nv; ++k) {
-            const uint32_t a = mesh.corners[i][k], b = mesh.corners[i][(k + 1) % p.nv];
-            const uint8_t ca = static_cast<uint8_t>(k), cb = static_cast<uint8_t>((k + 1) % p.nv);
+        for (int k = 0; k < nv; ++k) mesh.anchors[centre].emplace_back(mesh.corners[i][k], 1.0 / nv);
+        for (int k = 0; k < nv; ++k) {
+            const uint32_t a = mesh.corners[i][k], b = mesh.corners[i][(k + 1) % nv];
+            const uint8_t ca = static_cast<uint8_t>(k), cb = static_cast<uint8_t>((k + 1) % nv);
             auto tri = [&](uint32_t x, uint32_t y, uint8_t cx, uint8_t cy) {
                 mesh.faces.push_back({centre, x, y, y});
                 mesh.face_nv.push_back(3);
@@ -150,13 +182,14 @@ DisplayMesh build_display_mesh(const PatchSet& set, double crease_angle_degrees)
     return mesh;
 }
 
-std::vector<RGB> vertex_values(const PatchSet& set, const DisplayMesh& mesh, const std::vector<RGB>& patch_values) {
-    const auto& patches = set.patches;
+template <class Src>
+std::vector<RGB> values_at_points(const Src& set, const DisplayMesh& mesh, const std::vector<RGB>& patch_values) {
+    const uint32_t n = static_cast<uint32_t>(set.size());
     const size_t np = mesh.points.size();
     std::vector<RGB> mean(np);
     std::vector<uint32_t> count(np, 0);
-    for (uint32_t i = 0; i < patches.size(); ++i)
-        for (int k = 0; k < patches[i].nv; ++k) {
+    for (uint32_t i = 0; i < n; ++i)
+        for (int k = 0; k < set.nv(i); ++k) {
             mean[mesh.corners[i][k]] += patch_values[i];
             ++count[mesh.corners[i][k]];
         }
@@ -173,9 +206,9 @@ std::vector<RGB> vertex_values(const PatchSet& set, const DisplayMesh& mesh, con
         double d = length(mesh.points[b] - mesh.points[i]);
         if (d < nearest_d[b] || (d == nearest_d[b] && i < nearest[b])) { nearest_d[b] = d; nearest[b] = i; }
     };
-    for (uint32_t i = 0; i < patches.size(); ++i)
-        for (int k = 0; k < patches[i].nv; ++k)
-            for (int l = 0; l < patches[i].nv; ++l)
+    for (uint32_t i = 0; i < n; ++i)
+        for (int k = 0; k < set.nv(i); ++k)
+            for (int l = 0; l < set.nv(i); ++l)
                 if (l != k) consider(mesh.corners[i][k], mesh.corners[i][l]);
 
     std::vector<RGB> out = mean;
@@ -198,6 +231,24 @@ std::vector<RGB> vertex_values(const PatchSet& set, const DisplayMesh& mesh, con
         if (!changed) break;
     }
     return out;
+}
+
+
+DisplayMesh build_display_mesh(const PatchSet& patches, double crease_angle_degrees) {
+    return build_display(SetSource{patches}, crease_angle_degrees);
+}
+
+DisplayMesh build_display_mesh(const FaceTable& patches, double crease_angle_degrees) {
+    if (patches.welding() != Welding::ByMesh) throw std::invalid_argument("build_display_mesh: a FaceTable welded by mesh");
+    return build_display(TableSource{patches}, crease_angle_degrees);
+}
+
+std::vector<RGB> vertex_values(const PatchSet& patches, const DisplayMesh& mesh, const std::vector<RGB>& patch_values) {
+    return values_at_points(SetSource{patches}, mesh, patch_values);
+}
+
+std::vector<RGB> vertex_values(const FaceTable& patches, const DisplayMesh& mesh, const std::vector<RGB>& patch_values) {
+    return values_at_points(TableSource{patches}, mesh, patch_values);
 }
 
 }  // namespace hirad

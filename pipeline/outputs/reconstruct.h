@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "pipeline/geometry/face_table.h"
 #include "pipeline/geometry/patches.h"
 
 namespace hirad {
@@ -39,11 +40,16 @@ struct DisplayMesh {
 };
 
 // Splits welded patch vertices across creases, marks boundary points and fans patches with
-// T-vertices.
+// T-vertices. The same from a FaceTable welded by mesh (Welding::ByMesh: a solved hierarchy's
+// leaves), with the same points, corners and faces as from the PatchSet weld_patches makes of
+// the same patches.
 DisplayMesh build_display_mesh(const PatchSet& patches, double crease_angle_degrees);
+DisplayMesh build_display_mesh(const FaceTable& patches, double crease_angle_degrees);
 
 // Per-point values from per-patch values by the rules above.
 std::vector<RGB> vertex_values(const PatchSet& patches, const DisplayMesh& mesh,
+                               const std::vector<RGB>& patch_values);
+std::vector<RGB> vertex_values(const FaceTable& patches, const DisplayMesh& mesh,
                                const std::vector<RGB>& patch_values);
 
 }  // namespace hirad

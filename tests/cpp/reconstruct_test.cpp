@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <map>
 #include <vector>
 
@@ -183,6 +184,83 @@ TEST(VertexValues, CreasesKeepFacesFromBlurringIntoEachOther) {
         // Faces through the origin: 0 (z = 0), 2 (x = 0), 4 (y = 0).
         EXPECT_NEAR(blurred[v].x, (1.0 + 3.0 + 5.0) / 3, 1e-12);
     }
+}
+
+// The leaves of a solved hierarchy are held as a FaceTable welded by mesh (Engine::
+// use_leaves_as_patches): its display mesh and vertex values must be those of the PatchSet
+// weld_patches makes of the same patches, to the bit. The case has what the welding decides:
+// T-vertices (one quad of four split again), two meshes meeting along an edge (their points
+// stay apart), a triangle, and a corner at -0.0 where its neighbour has +0.0 (one vertex).
+TEST(DisplayMesh, LeavesHeldCompactlyGiveTheSameMeshAndValuesToTheBit) {
+    auto quad = [](Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mesh) {
+        Patch p;
+        p.nv = 4;
+        p.p = {a, b, c, d};
+        p.mesh = mesh;
+        p.face = mesh;
+        finish_patch(p, PatchCentroid::CornerMean);
+        return p;
+    };
+    std::vector<Patch> patches;
+    for (int j = 0; j < 2; ++j)
+        for (int i = 0; i < 2; ++i) {
+            const double x = 0.5 * i, y = 0.5 * j;
+            Patch p = quad({x, y, 0}, {x + 0.5, y, 0}, {x + 0.5, y + 0.5, 0}, {x, y + 0.5, 0}, 0);
+            if (i == 0 && j == 0) {
+                Patch kids[4];
+                split_in_four(p, kids);
+                for (Patch& k : kids) {
+                    finish_patch(k, PatchCentroid::CornerMean);
+                    patches.push_back(k);
+                }
+            } else {
+                patches.push_back(p);
+            }
+        }
+    // Another mesh along the edge x = 1, and a wall of the first mesh with a corner at -0.0.
+    patches.push_back(quad({1, 0, 0}, {1.5, 0, 0}, {1.5, 1, 0}, {1, 1, 0}, 1));
+    patches.push_back(quad({-0.0, 0, 0}, {0, 0, 1}, {0, 0.5, 1}, {0, 0.5, 0}, 0));
+    Patch tri;
+    tri.nv = 3;
+    tri.p = {Vec3{0, 1, 0}, Vec3{0.5, 1, 0}, Vec3{0.25, 1.5, 0}, Vec3{}};
+    finish_patch(tri, PatchCentroid::CornerMean);
+    patches.push_back(tri);
+
+    FaceTable table(PatchCentroid::CornerMean, Welding::ByMesh);
+    for (const Patch& p : patches) table.push_back(p);
+    table.seal();
+    const PatchSet set = weld_patches(patches);
+    ASSERT_EQ(table.points(), set.vertices.size());
+    for (double crease : {30.0, 100.0}) {
+        SCOPED_TRACE(crease);
+        const DisplayMesh a = build_display_mesh(set, crease), b = build_display_mesh(table, crease);
+        ASSERT_EQ(a.points.size(), b.points.size());
+        for (size_t v = 0; v < a.points.size(); ++v) {
+            EXPECT_EQ(std::memcmp(&a.points[v], &b.points[v], sizeof(Vec3)), 0) << "point " << v;
+            EXPECT_EQ(a.point_mesh[v], b.point_mesh[v]);
+            EXPECT_EQ(a.boundary[v], b.boundary[v]);
+            EXPECT_EQ(a.anchors[v], b.anchors[v]);
+        }
+        EXPECT_EQ(a.corners, b.corners);
+        EXPECT_EQ(a.faces, b.faces);
+        EXPECT_EQ(a.face_nv, b.face_nv);
+        EXPECT_EQ(a.face_patch, b.face_patch);
+        EXPECT_EQ(a.face_code, b.face_code);
+        // T-vertices were found (fans) and the two meshes kept apart at x = 1.
+        EXPECT_GT(a.faces.size(), patches.size());
+        int at_one = 0;
+        for (const Vec3& p : a.points) at_one += p.x == 1 && p.y == 0 && p.z == 0;
+        EXPECT_EQ(at_one, 2);
+        std::vector<RGB> values;
+        for (size_t i = 0; i < patches.size(); ++i) values.push_back({0.1 * i, std::sin(double(i)), 1.0 / (i + 1)});
+        const std::vector<RGB> va = vertex_values(set, a, values), vb = vertex_values(table, b, values);
+        ASSERT_EQ(va.size(), vb.size());
+        EXPECT_EQ(std::memcmp(va.data(), vb.data(), va.size() * sizeof(RGB)), 0);
+    }
+    // A table welded by bits is refused: its points may join meshes.
+    FaceTable by_bits;
+    for (const Patch& p : patches) by_bits.push_back(p);
+    EXPECT_THROW(build_display_mesh(by_bits, 30.0), std::invalid_argument);
 }
 
 }  // namespace
