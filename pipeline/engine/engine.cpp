@@ -871,18 +871,26 @@ HierarchicalResult Engine::publish(std::unique_ptr<Solved> state, RoundsRun& run
     HierarchicalResult r;
     r.balance_splits = h.balance();
     light_new_elements(h, *state->visibility, nullptr, nullptr);
+    // The balance's new elements take their parents' values: the arrays grow once, to their
+    // size (push_back alone would double them, 56 bytes a node, and hold the spare capacity).
+    sol.radiosity.reserve(h.nodes.size());
+    sol.irradiance.reserve(h.nodes.size());
+    sol.outgoing.reserve(h.nodes.size());
     for (size_t i = sol.radiosity.size(); i < h.nodes.size(); ++i) {
         const uint32_t parent = h.nodes[i].parent;
         sol.radiosity.push_back(sol.radiosity[parent]);
         sol.irradiance.push_back(sol.irradiance[parent]);
         sol.outgoing.push_back(sol.outgoing[parent]);
     }
-    for (HierarchicalSolution& g : groups)
+    for (HierarchicalSolution& g : groups) {
+        g.radiosity.reserve(h.nodes.size());
+        g.irradiance.reserve(h.nodes.size());
         for (size_t i = g.radiosity.size(); i < h.nodes.size(); ++i) {
             const uint32_t parent = h.nodes[i].parent;
             g.radiosity.push_back(g.radiosity[parent]);
             g.irradiance.push_back(g.irradiance[parent]);
         }
+    }
     // The backs of glazed faces are solved with the rest but not published: their light shows
     // in the energy balance's glazing terms.
     std::vector<uint32_t> leaves, backs;

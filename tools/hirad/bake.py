@@ -27,7 +27,8 @@ from .outputs.lightmaps import attach_lightmaps, bake_lightmaps, lightmap_source
 from .photometry.luminaires import with_config_lights
 from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
-from .report import Reporter, energy_balance, release_free_memory, scene_fingerprint, write_json
+from .report import (Reporter, energy_balance, keep_large_blocks_mapped, release_free_memory, scene_fingerprint,
+                     write_json)
 from .solution import LUMINAIRES_FILE, Result, SurfaceSolution, load_solution, luminance_y, save_luminaires  # noqa: F401  (the API: hirad.bake.load_solution)
 from .studies import StudyError, build_grids, evaluate_grids, resolve_room
 
@@ -68,6 +69,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     returned Result's `gather` works only with `keep_hierarchy` (or when an output gathered last:
     light groups, daylight coefficients).
     """
+    keep_large_blocks_mapped()
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
     if overrides and isinstance(config, Config):
