@@ -7,9 +7,8 @@
 
 namespace hirad {
 
-template <class Corner, class Value>
-void RayScene::build(size_t n, const int32_t* nv, Corner&& corner, const Value* radiance, const Value* irradiance,
-                     const Glazing* glazing) {
+template <class Corner>
+void RayScene::build(size_t n, const int32_t* nv, Corner&& corner, bool values, const Glazing* glazing) {
     // The patches kept compact (face_table.h: about 112 bytes a patch and 24 a corner, where a
     // Patch is 328), made again when one is read.
     patches_.reserve(n);
@@ -27,18 +26,7 @@ void RayScene::build(size_t n, const int32_t* nv, Corner&& corner, const Value* 
     }
     patches_.seal();
     // Either value may be missing (zero), as may both (has_values false).
-    has_values_ = radiance && irradiance;
-    auto fill = [&](CornerValues& out, const Value* value) {
-        out = CornerValues(n);
-        if (value)
-            for (size_t i = 0; i < n; ++i)
-                for (int k = 0; k < 4; ++k) {
-                    const Vec3 c = (*value)(i, k);
-                    for (int a = 0; a < 3; ++a) out[i].v[3 * k + a] = static_cast<float>(c[a]);
-                }
-    };
-    fill(radiance_, radiance);
-    fill(irradiance_, irradiance);
+    has_values_ = values;
     if (glazing) glazing->validate();
     visibility_ = std::make_unique<Visibility>(patches_, glazing);
 }
@@ -50,8 +38,14 @@ RayScene::RayScene(const double* corners, const int32_t* nv, size_t n, const dou
     auto at = [](const double* a) -> At {
         return [a](size_t i, int k) { const double* c = a + (i * 4 + k) * 3; return Vec3{c[0], c[1], c[2]}; };
     };
-    const At rad = corner_radiance ? at(corner_radiance) : At{}, irr = corner_irradiance ? at(corner_irradiance) : At{};
-    build(n, nv, at(corners), corner_radiance ? &rad : nullptr, corner_irradiance ? &irr : nullptr, glazing);
+    build(n, nv, at(corners), corner_radiance && corner_irradiance, glazing);
+    auto fill = [n](CornerValues& out, const double* value) {
+        out = CornerValues(n);
+        if (value)
+            for (size_t i = 0; i < 12 * n; ++i) out.corners(i / 12).v[i % 12] = static_cast<float>(value[i]);
+    };
+    fill(radiance_, corner_radiance);
+    fill(irradiance_, corner_irradiance);
 }
 
 RayScene::RayScene(const double* points, size_t num_points, const int32_t* faces, const int32_t* nv, size_t n,
@@ -70,8 +64,21 @@ RayScene::RayScene(const double* points, size_t num_points, const int32_t* faces
             return Vec3{c[0], c[1], c[2]};
         };
     };
-    const At rad = point_radiance ? at(point_radiance) : At{}, irr = point_irradiance ? at(point_irradiance) : At{};
-    build(n, nv, at(points), point_radiance ? &rad : nullptr, point_irradiance ? &irr : nullptr, glazing);
+    build(n, nv, at(points), point_radiance && point_irradiance, glazing);
+    // The values stay indexed: the faces' four points each, shared by both, and a float RGB a
+    // point (zeros for a missing one).
+    auto index = std::make_shared<std::vector<std::array<uint32_t, 4>>>(n);
+    for (size_t i = 0; i < n; ++i)
+        for (int k = 0; k < 4; ++k) (*index)[i][k] = static_cast<uint32_t>(faces[4 * i + k]);
+    auto fill = [&](CornerValues& out, const double* value) {
+        std::vector<std::array<float, 3>> v(num_points, std::array<float, 3>{0.0f, 0.0f, 0.0f});
+        if (value)
+            for (size_t q = 0; q < num_points; ++q)
+                for (int a = 0; a < 3; ++a) v[q][a] = static_cast<float>(value[3 * q + a]);
+        out = CornerValues(index, std::move(v));
+    };
+    fill(radiance_, point_radiance);
+    fill(irradiance_, point_irradiance);
 }
 
 std::vector<float> RayScene::render(const Camera& camera, int samples) const {

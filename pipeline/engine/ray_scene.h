@@ -108,10 +108,10 @@ public:
     RayCastResult camera_rays(const Camera& camera) const;
 
 private:
-    // Patch i's corner k and its two values, from either form of the arrays.
-    template <class Corner, class Value>
-    void build(size_t n, const int32_t* nv, Corner&& corner, const Value* radiance, const Value* irradiance,
-               const Glazing* glazing);
+    // The patches from patch i's corner k (either form of the arrays) and their BVH; each
+    // constructor sets the values.
+    template <class Corner>
+    void build(size_t n, const int32_t* nv, Corner&& corner, bool values, const Glazing* glazing);
     FaceTable patches_;
     CornerValues radiance_, irradiance_;
     bool has_values_ = false;

@@ -3,7 +3,9 @@
 // become the leaves of the hierarchy later.
 #pragma once
 #include <array>
+#include <memory>
 #include <cstdint>
+#include <initializer_list>
 #include <vector>
 
 #include "pipeline/geometry/scene.h"
@@ -99,8 +101,39 @@ struct CornerRGB {
             for (int a = 0; a < 3; ++a) v[3 * k + a] = static_cast<float>(c[k][a]);
     }
     RGB operator[](int k) const { return {v[3 * k], v[3 * k + 1], v[3 * k + 2]}; }
+    // Assignable only as a named object: CornerValues' faces are read by value.
+    CornerRGB(const CornerRGB&) = default;
+    CornerRGB& operator=(const CornerRGB&) & = default;
 };
-using CornerValues = std::vector<CornerRGB>;
+// Per face, its corners' values (CornerRGB): spelled out, 48 bytes a face; or indexed, as a
+// display mesh holds them, four point indices a face (shared by a field's radiance and
+// irradiance) into float RGB per point: 16 bytes a face and 12 a point, about half. A face's
+// CornerRGB is the same floats either way.
+class CornerValues {
+public:
+    CornerValues() = default;
+    explicit CornerValues(size_t faces, const CornerRGB& value = {}) : corners_(faces, value) {}  // spelled out
+    CornerValues(std::initializer_list<CornerRGB> faces) : corners_(faces) {}  // spelled out
+    void push_back(const CornerRGB& c) { corners_.push_back(c); }  // spelled out: one face more
+    CornerValues(std::shared_ptr<const std::vector<std::array<uint32_t, 4>>> index,
+                 std::vector<std::array<float, 3>> points)
+        : index_(std::move(index)), points_(std::move(points)) {}
+    size_t size() const { return index_ ? index_->size() : corners_.size(); }
+    CornerRGB operator[](size_t i) const {
+        if (!index_) return corners_[i];
+        CornerRGB c;
+        const std::array<uint32_t, 4>& f = (*index_)[i];
+        for (int k = 0; k < 4; ++k)
+            for (int a = 0; a < 3; ++a) c.v[3 * k + a] = points_[f[k]][a];
+        return c;
+    }
+    CornerRGB& corners(size_t i) { return corners_[i]; }  // spelled out: face i's, to set
+
+private:
+    std::vector<CornerRGB> corners_;
+    std::shared_ptr<const std::vector<std::array<uint32_t, 4>>> index_;
+    std::vector<std::array<float, 3>> points_;
+};
 
 inline RGB interpolate_corners(int nv, const CornerRGB& c, double u, double v) {
     return interpolate_corners(nv, std::array<RGB, 4>{c[0], c[1], c[2], c[3]}, u, v);

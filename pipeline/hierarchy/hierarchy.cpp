@@ -317,7 +317,6 @@ void Hierarchy::subdivide(uint32_t i) {
     Patch kids[4];
     split_in_four(shape(i), kids);
     const uint32_t first = static_cast<uint32_t>(nodes.size());
-    const uint16_t level = nodes[i].level + 1;
     const uint64_t parent_key = key(i);
     grow_by_an_eighth(nodes, 4);
     grow_by_an_eighth(pieces, 4);
@@ -329,7 +328,6 @@ void Hierarchy::subdivide(uint32_t i) {
         pieces.push_back(kids[k]);
         child.area = kids[k].area;
         child.parent = i;
-        child.level = level;
         child.face_begin = nodes[i].face_begin;  // its face's place in face_order
         child.face_end = nodes[i].face_end;
         bound_shape(child, kids[k]);

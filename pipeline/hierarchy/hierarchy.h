@@ -65,7 +65,6 @@ struct Node {
     uint8_t child_count = 0;
     bool cluster = false;
     bool lit = false;        // elements: shape.direct computed for this element (luminaire.h)
-    uint16_t level = 0;      // depth below the element root (elements only)
     uint32_t face_begin = 0, face_end = 0;  // their faces in Hierarchy::face_order (an element: its face's)
     // Elements: their polygon, material and face, Hierarchy::shape (an index into the
     // hierarchy's faces for an element root, which is its face, or into its pieces); clusters
@@ -75,6 +74,8 @@ struct Node {
     bool leaf() const { return child_count == 0; }
     double diagonal() const { return length(hi - lo); }
 };
+// 80 bytes: two nodes a face or more, so each 8 bytes is about 20 MB on a 1M-face scene.
+static_assert(sizeof(Node) == 80, "Node grew");
 
 // What a face of unit normal n below a receiving cluster takes, per unit area, of the power
 // G B_S a link brings the cluster: n . vector + uniform (Hierarchy::reception). A sum of

@@ -31,7 +31,7 @@ struct LitCeiling {
         for (size_t i = 0; i < patches.size(); ++i)
             if (patches[i].normal.z < -0.5) {
                 emitted[i] = test::grey(le);
-                radiance[i] = {emitted[i], emitted[i], emitted[i], emitted[i]};
+                radiance.corners(i) = {emitted[i], emitted[i], emitted[i], emitted[i]};
             }
     }
 };

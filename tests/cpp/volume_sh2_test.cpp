@@ -56,7 +56,7 @@ TEST(VolumeSH2, OnlyTheCeilingLitMatchesAQuadratureOverTheCeiling) {
     Visibility vis(patches);
     CornerValues radiance(patches.size());
     for (size_t i = 0; i < patches.size(); ++i)
-        if (patches[i].normal.z < -0.5) radiance[i] = {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}};
+        if (patches[i].normal.z < -0.5) radiance.corners(i) = {RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}, RGB{1, 1, 1}};
     const Vec3 x{0.5, 0.4, 0.35};  // off-centre: x, y and the L2 terms all differ from zero
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, {x}, 256 * 256, 11);
     // The ceiling z = 1 as a 1000 x 1000 midpoint grid: dw = h dA / r^3 with h = 1 - x.z.

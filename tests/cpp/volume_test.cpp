@@ -46,7 +46,7 @@ TEST(VolumeProbes, OnlyTheCeilingLitSeenFromTheCentre) {
     CornerValues radiance(patches.size());
     const RGB L{1, 1, 1};
     for (size_t i = 0; i < patches.size(); ++i)
-        if (patches[i].normal.z < -0.5) radiance[i] = {L, L, L, L};  // the ceiling faces down
+        if (patches[i].normal.z < -0.5) radiance.corners(i) = {L, L, L, L};  // the ceiling faces down
     const std::vector<ProbeMoments> m = probe_moments(patches, vis, radiance, {{0.5, 0.5, 0.5}}, 128 * 128, 9);
     // Solid angle of one face of a cube from its centre: 4 pi / 6.
     EXPECT_NEAR(m[0].s0.x, 4 * kPi / 6, 0.01 * 4 * kPi / 6);
