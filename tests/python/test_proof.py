@@ -423,12 +423,24 @@ print(rss() - base)
 '''
 
 
-def test_a_bake_hands_freed_arrays_back_to_the_system():
-    """hirad.bake sets glibc's mapping threshold once (keep_large_blocks_mapped): 256 MiB of
-    freed 4 MiB arrays go back to the system, not only to the heap. Without it the child keeps
-    them resident (checked too, so that the case shows what it guards against)."""
+def test_a_large_bake_hands_freed_arrays_back_to_the_system(tmp_path, monkeypatch):
+    """A large bake fixes glibc's mapping threshold (keep_large_blocks_mapped): 256 MiB of freed
+    4 MiB arrays go back to the system, not only to the heap; without it the child keeps them
+    resident (checked too, so that the case shows what it guards against). hirad.bake calls it
+    from bake.MAPPED_BLOCKS_FACES input faces on, and not below."""
+    import importlib
     import subprocess
     import sys
+
+    bake_module = importlib.import_module("hirad.bake")
+    calls = []
+    monkeypatch.setattr(bake_module, "keep_large_blocks_mapped", lambda: calls.append(1))
+    flat = {"method": "flat", "meshing": {"max_patch_area": 0.05, "max_edge_length": 0.3}}
+    _bake(tmp_path, CORNELL, "small", **flat)
+    assert calls == []  # the box's 30-odd faces
+    monkeypatch.setattr(bake_module, "MAPPED_BLOCKS_FACES", 10)
+    _bake(tmp_path, CORNELL, "large", **flat)
+    assert calls == [1]
 
     kept = {}
     for mode in ("plain", "bake"):

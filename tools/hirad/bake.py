@@ -42,6 +42,14 @@ class OptionError(BakeError):
     """An option that does not apply to this config (the CLI exits with 2, a usage error)."""
 
 
+# From this many input faces a bake keeps glibc's mapping threshold fixed
+# (report.keep_large_blocks_mapped): on one floor of the bench building (615k faces) its peak
+# RSS was 864 MiB with the threshold rising and 723 MiB without, in the same time, while the
+# Cornell box's final-gather lightmaps took about 7 % longer (its fresh mappings are faulted in
+# again; bench/README.md, stop 48).
+MAPPED_BLOCKS_FACES = 200_000
+
+
 def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int | None = None,
          snapshots: int | None = None, resume: bool = False, reuse_links: bool = False,
          overrides: tuple[str, ...] | list[str] = (), progress: str = "auto", scheduler: str | None = None,
@@ -69,7 +77,6 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     returned Result's `gather` works only with `keep_hierarchy` (or when an output gathered last:
     light groups, daylight coefficients).
     """
-    keep_large_blocks_mapped()
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
     if overrides and isinstance(config, Config):
@@ -244,6 +251,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
     for w in cfg.ignored_settings():
         rep.warn(w)
+    if len(scene.face_mesh) >= MAPPED_BLOCKS_FACES:
+        keep_large_blocks_mapped()  # memory, not time, is what limits a bake this large
     est = estimate_cost(scene, cfg)  # a bake expected not to fit says so before it starts
     if est.get("machine_bytes") and est["memory_bytes"] > est["machine_bytes"]:
         rep.warn(memory_warning(est))

@@ -67,7 +67,9 @@ def keep_large_blocks_mapped() -> None:
     heap, whose freed space a process keeps. A bake frees and makes again arrays of many
     megabytes from stage to stage, so it kept far more than it held: on one floor of the bench
     building (615,054 triangles) the peak RSS was 864 MiB with the rise and 723 MiB without, in
-    the same time (bench/README.md, stop 48). Set once, for the process."""
+    the same time (bench/README.md, stop 48). The price is page faults: a freed block's pages
+    are mapped and zeroed again when the next is made. hirad.bake sets it for large scenes
+    (bake.MAPPED_BLOCKS_FACES); for the process, from then on."""
     try:
         import ctypes
 
