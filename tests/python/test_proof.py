@@ -411,8 +411,8 @@ def rss():
     with open("/proc/self/status") as f:
         return next(int(l.split()[1]) for l in f if l.startswith("VmRSS")) * 1024
 if sys.argv[1] == "bake":
-    from hirad.report import keep_large_blocks_mapped
-    keep_large_blocks_mapped()
+    from hirad.report import MAPPED_FROM_SMALL, map_blocks_from
+    map_blocks_from(MAPPED_FROM_SMALL)
 big = np.ones(16 << 20, np.uint8)
 del big
 base = rss()
@@ -424,23 +424,27 @@ print(rss() - base)
 
 
 def test_a_large_bake_hands_freed_arrays_back_to_the_system(tmp_path, monkeypatch):
-    """A large bake fixes glibc's mapping threshold (keep_large_blocks_mapped): 256 MiB of freed
-    4 MiB arrays go back to the system, not only to the heap; without it the child keeps them
-    resident (checked too, so that the case shows what it guards against). hirad.bake calls it
-    from bake.MAPPED_BLOCKS_FACES input faces on, and not below."""
+    """A bake fixes glibc's mapping threshold at 128 KiB (report.map_blocks_from) before it reads
+    the scene: 256 MiB of freed 4 MiB arrays go back to the system, not only to the heap; with
+    glibc's rising threshold the child keeps them resident (checked too, so that the case shows
+    what it guards against). Below bake.MAPPED_BLOCKS_FACES input faces it sets 32 MiB (speed)
+    once the scene is read."""
     import importlib
     import subprocess
     import sys
 
+    from hirad.report import MAPPED_FROM_LARGE, MAPPED_FROM_SMALL
+
     bake_module = importlib.import_module("hirad.bake")
     calls = []
-    monkeypatch.setattr(bake_module, "keep_large_blocks_mapped", lambda: calls.append(1))
+    monkeypatch.setattr(bake_module, "map_blocks_from", calls.append)
     flat = {"method": "flat", "meshing": {"max_patch_area": 0.05, "max_edge_length": 0.3}}
     _bake(tmp_path, CORNELL, "small", **flat)
-    assert calls == []  # the box's 30-odd faces
+    assert calls == [MAPPED_FROM_SMALL, MAPPED_FROM_LARGE]  # the box's 30-odd faces
+    calls.clear()
     monkeypatch.setattr(bake_module, "MAPPED_BLOCKS_FACES", 10)
     _bake(tmp_path, CORNELL, "large", **flat)
-    assert calls == [1]
+    assert calls == [MAPPED_FROM_SMALL]
 
     kept = {}
     for mode in ("plain", "bake"):

@@ -27,8 +27,8 @@ from .outputs.lightmaps import attach_lightmaps, bake_lightmaps, lightmap_source
 from .photometry.luminaires import with_config_lights
 from .outputs.meshes import patch_meshes
 from .outputs.volume import write_volume
-from .report import (Reporter, energy_balance, keep_large_blocks_mapped, release_free_memory, scene_fingerprint,
-                     write_json)
+from .report import (MAPPED_FROM_LARGE, MAPPED_FROM_SMALL, Reporter, energy_balance, map_blocks_from,
+                     release_free_memory, scene_fingerprint, write_json)
 from .solution import LUMINAIRES_FILE, Result, SurfaceSolution, load_solution, luminance_y, save_luminaires  # noqa: F401  (the API: hirad.bake.load_solution)
 from .studies import StudyError, build_grids, evaluate_grids, resolve_room
 
@@ -42,11 +42,8 @@ class OptionError(BakeError):
     """An option that does not apply to this config (the CLI exits with 2, a usage error)."""
 
 
-# From this many input faces a bake keeps glibc's mapping threshold fixed
-# (report.keep_large_blocks_mapped): on one floor of the bench building (615k faces) its peak
-# RSS was 864 MiB with the threshold rising and 723 MiB without, in the same time, while the
-# Cornell box's final-gather lightmaps took about 7 % longer (its fresh mappings are faulted in
-# again; bench/README.md, stop 48).
+# From this many input faces a bake keeps glibc's mapping threshold at 128 KiB, below it at 32
+# MiB (report.map_blocks_from): memory first for large scenes, time for small ones.
 MAPPED_BLOCKS_FACES = 200_000
 
 
@@ -77,6 +74,7 @@ def bake(config: Config | str | os.PathLike, *, quiet: bool = True, threads: int
     returned Result's `gather` works only with `keep_hierarchy` (or when an output gathered last:
     light groups, daylight coefficients).
     """
+    map_blocks_from(MAPPED_FROM_SMALL)  # freed arrays go back to the system (report.py)
     source = None if isinstance(config, Config) else Path(config).absolute()
     cfg = config if isinstance(config, Config) else load_config(config, overrides)
     if overrides and isinstance(config, Config):
@@ -251,8 +249,8 @@ def _run(cfg: Config, staging: Path, rep: Reporter, source: Path | None = None, 
         rep.warn(w)
     for w in cfg.ignored_settings():
         rep.warn(w)
-    if len(scene.face_mesh) >= MAPPED_BLOCKS_FACES:
-        keep_large_blocks_mapped()  # memory, not time, is what limits a bake this large
+    if len(scene.face_mesh) < MAPPED_BLOCKS_FACES:
+        map_blocks_from(MAPPED_FROM_LARGE)  # time, not memory, is what limits a bake this small
     est = estimate_cost(scene, cfg)  # a bake expected not to fit says so before it starts
     if est.get("machine_bytes") and est["memory_bytes"] > est["machine_bytes"]:
         rep.warn(memory_warning(est))

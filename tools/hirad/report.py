@@ -56,24 +56,28 @@ def release_free_memory() -> None:
 
 # glibc's mallopt parameter for the size from which a block is its own mapping (malloc.h).
 _M_MMAP_THRESHOLD = -3
-_MMAP_THRESHOLD = 128 * 1024
+# glibc's own starting threshold, and the most its rising threshold reaches (64-bit).
+MAPPED_FROM_SMALL = 128 * 1024
+MAPPED_FROM_LARGE = 32 * 1024 * 1024
 
 
-def keep_large_blocks_mapped() -> None:
-    """Every block of 128 KiB or more gets a mapping of its own, returned to the system when it
-    is freed (glibc mallopt M_MMAP_THRESHOLD; a no-op elsewhere). 128 KiB is glibc's own
-    starting threshold; what this turns off is its rise: glibc raises the threshold to the size
-    of each mapped block freed (up to 32 MiB), after which arrays of that size come from the
-    heap, whose freed space a process keeps. A bake frees and makes again arrays of many
-    megabytes from stage to stage, so it kept far more than it held: on one floor of the bench
-    building (615,054 triangles) the peak RSS was 864 MiB with the rise and 723 MiB without, in
-    the same time (bench/README.md, stop 48). The price is page faults: a freed block's pages
-    are mapped and zeroed again when the next is made. hirad.bake sets it for large scenes
-    (bake.MAPPED_BLOCKS_FACES); for the process, from then on."""
+def map_blocks_from(size: int) -> None:
+    """Blocks of `size` bytes or more get a mapping of their own, returned to the system when
+    freed (glibc mallopt M_MMAP_THRESHOLD; a no-op elsewhere); glibc then stops moving the
+    threshold itself. It starts at 128 KiB and rises to the size of each mapped block freed (up
+    to 32 MiB), after which arrays of that size come from the heap, whose freed space the process
+    keeps: a bake frees and makes again arrays of many megabytes from stage to stage, and so kept
+    far more than it held. On one floor of the bench building (615,054 triangles) the peak RSS was
+    864 MiB with the threshold rising and 723 MiB with it fixed at 128 KiB, in the same time; the
+    price is page faults, a freed block's pages mapped and zeroed again for the next, which made
+    the Cornell box's final-gather lightmaps about 7 % slower (bench/README.md, stop 48). So
+    hirad.bake fixes it at 128 KiB (MAPPED_FROM_SMALL) before it reads the scene, and at 32 MiB
+    (MAPPED_FROM_LARGE: the heap reused as before) for a scene of fewer than
+    bake.MAPPED_BLOCKS_FACES faces."""
     try:
         import ctypes
 
-        ctypes.CDLL("libc.so.6").mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)
+        ctypes.CDLL("libc.so.6").mallopt(_M_MMAP_THRESHOLD, int(size))
     except (OSError, AttributeError):
         pass
 
