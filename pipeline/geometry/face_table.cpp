@@ -22,66 +22,77 @@ uint64_t bits_hash(const Vec3& v) {
 
 bool same_bits(const Vec3& a, const Vec3& b) { return std::memcmp(&a, &b, sizeof(Vec3)) == 0; }
 
+// Makes `slots` (indices + 1, 0 empty) room for one more of `count` keys at most half full,
+// placing the keys again by `hash_of(i)`.
+template <class HashOf>
+void make_room(std::vector<uint32_t>& slots, size_t count, HashOf&& hash_of) {
+    if (2 * (count + 1) <= slots.size()) return;
+    std::vector<uint32_t> grown(slots.empty() ? 1024 : 2 * slots.size(), 0u);
+    const size_t mask = grown.size() - 1;
+    for (size_t i = 0; i < count; ++i) {
+        size_t s = hash_of(i) & mask;
+        while (grown[s] != 0) s = (s + 1) & mask;
+        grown[s] = static_cast<uint32_t>(i + 1);
+    }
+    slots.swap(grown);
+}
+
+// The slot of the key with hash `h` for which `same(i)` holds, or the empty slot where it goes.
+template <class Same>
+size_t slot_of(const std::vector<uint32_t>& slots, uint64_t h, Same&& same) {
+    const size_t mask = slots.size() - 1;
+    size_t s = h & mask;
+    while (slots[s] != 0 && !same(slots[s] - 1)) s = (s + 1) & mask;
+    return s;
+}
+
 // Index of v in `values` by the bits, added if new; `slots` is an open-addressing table of
 // indices + 1 (0 empty), kept at most half full.
 uint32_t intern(std::vector<Vec3>& values, std::vector<uint32_t>& slots, const Vec3& v) {
-    if (2 * (values.size() + 1) > slots.size()) {
-        std::vector<uint32_t> grown(slots.empty() ? 1024 : 2 * slots.size(), 0u);
-        const size_t mask = grown.size() - 1;
-        for (size_t i = 0; i < values.size(); ++i) {
-            size_t s = bits_hash(values[i]) & mask;
-            while (grown[s] != 0) s = (s + 1) & mask;
-            grown[s] = static_cast<uint32_t>(i + 1);
-        }
-        slots.swap(grown);
-    }
-    const size_t mask = slots.size() - 1;
-    size_t s = bits_hash(v) & mask;
-    while (slots[s] != 0) {
-        if (same_bits(values[slots[s] - 1], v)) return slots[s] - 1;
-        s = (s + 1) & mask;
-    }
+    make_room(slots, values.size(), [&](size_t i) { return bits_hash(values[i]); });
+    const size_t s = slot_of(slots, bits_hash(v), [&](uint32_t i) { return same_bits(values[i], v); });
+    if (slots[s] != 0) return slots[s] - 1;
     values.push_back(v);
     slots[s] = static_cast<uint32_t>(values.size());
     return static_cast<uint32_t>(values.size() - 1);
 }
 
-// intern's table for Welding::ByMesh: equal when the mesh is and the positions are (-0.0 and
-// +0.0 alike); the first corner's bits are the point's.
-uint32_t intern_by_mesh(std::vector<Vec3>& values, std::vector<uint32_t>& meshes, std::vector<uint32_t>& slots,
-                        const Vec3& v, uint32_t mesh) {
-    auto hash = [](const Vec3& x, uint32_t m) {
-        return bits_hash(x + Vec3{0, 0, 0}) ^ (uint64_t(m) * 0xD6E8FEB86659FD93ull);
-    };
-    if (2 * (values.size() + 1) > slots.size()) {
-        std::vector<uint32_t> grown(slots.empty() ? 1024 : 2 * slots.size(), 0u);
-        const size_t mask = grown.size() - 1;
-        for (size_t i = 0; i < values.size(); ++i) {
-            size_t s = hash(values[i], meshes[i]) & mask;
-            while (grown[s] != 0) s = (s + 1) & mask;
-            grown[s] = static_cast<uint32_t>(i + 1);
-        }
-        slots.swap(grown);
-    }
-    const size_t mask = slots.size() - 1;
-    const Vec3 key = v + Vec3{0, 0, 0};
-    size_t s = hash(v, mesh) & mask;
-    while (slots[s] != 0) {
-        const uint32_t i = slots[s] - 1;
-        if (meshes[i] == mesh && same_bits(values[i] + Vec3{0, 0, 0}, key)) return i;
-        s = (s + 1) & mask;
-    }
-    values.push_back(v);
-    meshes.push_back(mesh);
-    slots[s] = static_cast<uint32_t>(values.size());
-    return static_cast<uint32_t>(values.size() - 1);
+uint64_t mesh_hash(const Vec3& p, uint32_t mesh) {
+    return bits_hash(p + Vec3{0, 0, 0}) ^ (uint64_t(mesh) * 0xD6E8FEB86659FD93ull);
 }
 
 }  // namespace
 
+uint32_t MeshPoints::index(uint32_t mesh, const Vec3& p) {
+    make_room(slots_, points.size(), [&](size_t i) { return mesh_hash(points[i], meshes[i]); });
+    const size_t s = slot(mesh, p);
+    if (slots_[s] != 0) return slots_[s] - 1;
+    points.push_back(p);
+    meshes.push_back(mesh);
+    slots_[s] = static_cast<uint32_t>(points.size());
+    return static_cast<uint32_t>(points.size() - 1);
+}
+
+int64_t MeshPoints::find(uint32_t mesh, const Vec3& p) const {
+    if (slots_.empty()) return -1;
+    const size_t s = slot(mesh, p);
+    return slots_[s] == 0 ? -1 : int64_t(slots_[s]) - 1;
+}
+
+size_t MeshPoints::slot(uint32_t mesh, const Vec3& p) const {
+    const Vec3 key = p + Vec3{0, 0, 0};
+    return slot_of(slots_, mesh_hash(p, mesh),
+                   [&](uint32_t i) { return meshes[i] == mesh && same_bits(points[i] + Vec3{0, 0, 0}, key); });
+}
+
+void MeshPoints::seal() {
+    std::vector<uint32_t>().swap(slots_);
+    points.shrink_to_fit();
+    meshes.shrink_to_fit();
+}
+
 uint32_t FaceTable::point_index(const Vec3& p, uint32_t mesh) {
-    return welding_ == Welding::ByMesh ? intern_by_mesh(points_, point_mesh_, point_slots_, p, mesh)
-                                       : intern(points_, point_slots_, p);
+    return welding_ == Welding::ByMesh ? by_mesh_.index(mesh, p) : intern(points_, point_slots_, p);
 }
 uint32_t FaceTable::reflectance_index(const RGB& r) { return intern(reflectances_, reflectance_slots_, r); }
 
@@ -116,7 +127,7 @@ void FaceTable::seal() {
     std::vector<uint32_t>().swap(reflectance_slots_);
     records_.shrink_to_fit();
     points_.shrink_to_fit();
-    point_mesh_.shrink_to_fit();
+    by_mesh_.seal();
     area_.shrink_to_fit();
     reflectances_.shrink_to_fit();
     emission_.shrink_to_fit();
@@ -128,7 +139,7 @@ Vec3 FaceTable::centroid(size_t f) const {
     const Record& r = records_[f];
     if (centroid_ == PatchCentroid::CornerMean) {  // patch_centroid's expression
         Vec3 c;
-        for (int k = 0; k < r.nv; ++k) c += points_[r.corner[k]];
+        for (int k = 0; k < r.nv; ++k) c += pts()[r.corner[k]];
         return c / r.nv;
     }
     Patch p;
@@ -139,7 +150,7 @@ Vec3 FaceTable::centroid(size_t f) const {
 void FaceTable::get(size_t f, Patch& p) const {
     const Record& r = records_[f];
     p.nv = r.nv;
-    for (int k = 0; k < 4; ++k) p.p[k] = points_[r.corner[k]];
+    for (int k = 0; k < 4; ++k) p.p[k] = pts()[r.corner[k]];
     if (uv_.empty()) p.uv = {};
     else p.uv = uv_[f];
     p.reflectance = reflectances_[r.reflectance];
@@ -156,7 +167,7 @@ void FaceTable::get(size_t f, Patch& p) const {
 
 size_t FaceTable::bytes() const {
     return records_.capacity() * sizeof(Record) + points_.capacity() * sizeof(Vec3) +
-           point_mesh_.capacity() * sizeof(uint32_t) +
+           by_mesh_.bytes() +
            area_.capacity() * sizeof(double) +
            reflectances_.capacity() * sizeof(RGB) +
            (emission_.capacity() + direct_.capacity()) * sizeof(RGB) + uv_.capacity() * sizeof(uv_[0]) +

@@ -22,6 +22,24 @@
 
 namespace hirad {
 
+// Points by mesh and position, -0.0 and +0.0 one position, the first point's bits kept
+// (weld_patches' rule): open addressing over indices, about 40 bytes a point.
+class MeshPoints {
+public:
+    std::vector<Vec3> points;
+    std::vector<uint32_t> meshes;   // per point
+    uint32_t index(uint32_t mesh, const Vec3& p);      // its index, added if new
+    int64_t find(uint32_t mesh, const Vec3& p) const;  // its index, -1 if absent
+    void seal();                                       // no more points: the table goes
+    size_t bytes() const {
+        return points.capacity() * sizeof(Vec3) + (meshes.capacity() + slots_.capacity()) * sizeof(uint32_t);
+    }
+
+private:
+    size_t slot(uint32_t mesh, const Vec3& p) const;
+    std::vector<uint32_t> slots_;   // index + 1, 0 empty; at most half full
+};
+
 // How corners are shared. Bits: one point for every corner with the same bits, whatever its
 // mesh (the hierarchy's faces, a RayScene). ByMesh: one point per mesh and position, with -0.0
 // and +0.0 one position, the first corner's bits kept (weld_patches' rule, which the display
@@ -58,13 +76,13 @@ public:
     bool back(size_t f) const { return records_[f].back != 0; }
     uint32_t mesh(size_t f) const { return records_[f].mesh; }
     uint32_t face(size_t f) const { return records_[f].face; }
-    const Vec3& corner(size_t f, int k) const { return points_[records_[f].corner[k]]; }
+    const Vec3& corner(size_t f, int k) const { return pts()[records_[f].corner[k]]; }
     // Corner k's index in points(): the faces' shared vertices (an indexed mesh for Embree).
     uint32_t corner_index(size_t f, int k) const { return records_[f].corner[k]; }
-    const std::vector<Vec3>& point_list() const { return points_; }
+    const std::vector<Vec3>& point_list() const { return pts(); }
     Welding welding() const { return welding_; }
     // Welding::ByMesh: the mesh of point v (its corners' faces').
-    uint32_t point_mesh(size_t v) const { return point_mesh_[v]; }
+    uint32_t point_mesh(size_t v) const { return by_mesh_.meshes[v]; }
     const Vec3& normal(size_t f) const { return records_[f].normal; }
     // Patch::centroid of face f by the table's rule, without making the patch.
     Vec3 centroid(size_t f) const;
@@ -72,7 +90,8 @@ public:
     // Patch::point of face f, without making the patch.
     Vec3 point(size_t f, double s, double t) const {
         const Record& r = records_[f];
-        return polygon_point(points_[r.corner[0]], points_[r.corner[1]], points_[r.corner[2]], points_[r.corner[3]],
+        const std::vector<Vec3>& q = pts();
+        return polygon_point(q[r.corner[0]], q[r.corner[1]], q[r.corner[2]], q[r.corner[3]],
                              r.nv, s, t);
     }
     const RGB& reflectance(size_t f) const { return reflectances_[records_[f].reflectance]; }
@@ -86,7 +105,7 @@ public:
 
     // Bytes held (for reports and tests).
     size_t bytes() const;
-    size_t points() const { return points_.size(); }
+    size_t points() const { return pts().size(); }
 
 private:
     struct Record {  // what sampling a face reads, together: its corners' indices and normal
@@ -103,7 +122,8 @@ private:
     std::vector<std::array<Vec2, 4>> uv_;   // empty while every face's are zero
     // Welding: open addressing over points_ (and over reflectances_), by the values' bits.
     std::vector<uint32_t> point_slots_, reflectance_slots_;
-    std::vector<uint32_t> point_mesh_;      // Welding::ByMesh: per point
+    MeshPoints by_mesh_;                    // Welding::ByMesh: the points (points_ unused)
+    const std::vector<Vec3>& pts() const { return welding_ == Welding::ByMesh ? by_mesh_.points : points_; }
     PatchCentroid centroid_ = PatchCentroid::CornerMean;
     Welding welding_ = Welding::Bits;
     uint32_t point_index(const Vec3& p, uint32_t mesh);

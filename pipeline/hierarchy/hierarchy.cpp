@@ -401,86 +401,17 @@ std::vector<uint32_t> Hierarchy::leaves() const {
     return out;
 }
 
-namespace {
-
-// The leaves' corners as a set of (mesh, position) with -0.0 and +0.0 one position: open
-// addressing over the keys, about 48 bytes a corner (a set of string keys took about 130, and
-// on a 615k-face floor was the largest thing a bake made after its solve).
-class CornerSet {
-public:
-    explicit CornerSet(size_t expected) {
-        size_t n = 1024;
-        while (n < 2 * expected + 2) n *= 2;
-        slots_.assign(n, 0u);
-        keys_.reserve(expected);
-    }
-    void insert(uint32_t mesh, const Vec3& p) {
-        const Key k = key(mesh, p);
-        size_t s = find(k);
-        if (slots_[s] != 0) return;
-        if (2 * (keys_.size() + 1) > slots_.size()) {
-            grow();
-            s = find(k);
-        }
-        keys_.push_back(k);
-        slots_[s] = static_cast<uint32_t>(keys_.size());
-    }
-    bool contains(uint32_t mesh, const Vec3& p) const { return slots_[find(key(mesh, p))] != 0; }
-
-private:
-    struct Key {
-        uint64_t w[3];
-        uint32_t mesh;
-        bool operator==(const Key& o) const { return mesh == o.mesh && w[0] == o.w[0] && w[1] == o.w[1] && w[2] == o.w[2]; }
-    };
-    static Key key(uint32_t mesh, const Vec3& p) {
-        Key k;
-        const Vec3 q = p + Vec3{0, 0, 0};
-        std::memcpy(k.w, &q, sizeof k.w);
-        k.mesh = mesh;
-        return k;
-    }
-    static uint64_t hash(const Key& k) {
-        uint64_t h = 0x9E3779B97F4A7C15ull ^ k.mesh;
-        for (uint64_t x : k.w) {
-            h ^= x + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
-            h = (h ^ (h >> 30)) * 0xBF58476D1CE4E5B9ull;
-            h = (h ^ (h >> 27)) * 0x94D049BB133111EBull;
-            h ^= h >> 31;
-        }
-        return h;
-    }
-    size_t find(const Key& k) const {
-        const size_t mask = slots_.size() - 1;
-        size_t s = hash(k) & mask;
-        while (slots_[s] != 0 && !(keys_[slots_[s] - 1] == k)) s = (s + 1) & mask;
-        return s;
-    }
-    void grow() {
-        std::vector<uint32_t> grown(2 * slots_.size(), 0u);
-        const size_t mask = grown.size() - 1;
-        for (size_t i = 0; i < keys_.size(); ++i) {
-            size_t s = hash(keys_[i]) & mask;
-            while (grown[s] != 0) s = (s + 1) & mask;
-            grown[s] = static_cast<uint32_t>(i + 1);
-        }
-        slots_.swap(grown);
-    }
-    std::vector<Key> keys_;
-    std::vector<uint32_t> slots_;   // index + 1 into keys_, 0 empty; at most half full
-};
-
-}  // namespace
-
 uint64_t Hierarchy::balance() {
     uint64_t split = 0;
     for (;;) {
         const std::vector<uint32_t> leaf = leaves();
-        CornerSet corners(leaf.size() + leaf.size() / 2);
+        // The leaves' corners by mesh (about 40 bytes a corner: a set of string keys took about
+        // 130, and on a 615k-face floor was the largest thing a bake made after its solve).
+        MeshPoints corners;
         Patch scratch;
         for (uint32_t i : leaf) {
             const Patch& s = shape(i, scratch);
-            for (int k = 0; k < s.nv; ++k) corners.insert(s.mesh, s.p[k]);
+            for (int k = 0; k < s.nv; ++k) corners.index(s.mesh, s.p[k]);
         }
         std::vector<uint32_t> marked;
         for (uint32_t i : leaf) {
@@ -489,8 +420,8 @@ uint64_t Hierarchy::balance() {
                 const Vec3& a = s.p[k];
                 const Vec3& b = s.p[(k + 1) % s.nv];
                 const Vec3 m = mid(a, b);
-                if (!corners.contains(s.mesh, m)) continue;
-                if (corners.contains(s.mesh, mid(a, m)) || corners.contains(s.mesh, mid(m, b))) {
+                if (corners.find(s.mesh, m) < 0) continue;
+                if (corners.find(s.mesh, mid(a, m)) >= 0 || corners.find(s.mesh, mid(m, b)) >= 0) {
                     marked.push_back(i);
                     break;
                 }
