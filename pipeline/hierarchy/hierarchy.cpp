@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -32,6 +33,53 @@ void bound_shape(Node& node, const Patch& shape) {
 // Midpoints are computed as (a + b) / 2, which is symmetric in a and b: the two faces of a
 // shared edge produce the same bits and their vertices weld.
 Vec3 mid(const Vec3& a, const Vec3& b) { return (a + b) * 0.5; }
+
+}  // namespace
+
+namespace {
+
+// The sizes of the ranges a cluster of m faces is cut into (Hierarchy's constructor). The
+// faces are taken in buckets of kClusterFaces (the last may hold fewer, and stays last): a
+// range of one bucket has its faces as children; a larger one is cut in halves of whole
+// buckets, and each half of more than one bucket in halves again, so that all but the last
+// cluster above the faces hold kClusterFaces of them.
+struct ClusterCut {
+    int parts = 0;                        // children
+    int lower = 0;                        // of them in the lower half (0: the faces themselves)
+    uint32_t size[kClusterChildren] = {}; // faces in each
+};
+
+ClusterCut cluster_cut(uint32_t m) {
+    const auto buckets = [](uint32_t faces) { return (faces + kClusterFaces - 1) / kClusterFaces; };
+    ClusterCut c;
+    if (buckets(m) <= 1) {
+        for (uint32_t k = 0; k < m; ++k) c.size[c.parts++] = 1;
+        return c;
+    }
+    const uint32_t lo = buckets(m) / 2 * kClusterFaces;
+    for (uint32_t half : {lo, m - lo}) {
+        if (buckets(half) < 2) {
+            c.size[c.parts++] = half;
+        } else {
+            c.size[c.parts] = buckets(half) / 2 * kClusterFaces;
+            c.size[c.parts + 1] = half - c.size[c.parts];
+            c.parts += 2;
+        }
+        if (c.lower == 0) c.lower = c.parts;
+    }
+    return c;
+}
+
+// Nodes in the cluster tree over m faces.
+size_t tree_nodes(uint32_t m) {
+    static thread_local std::map<uint32_t, size_t> known;
+    if (m <= 1) return m;
+    if (auto it = known.find(m); it != known.end()) return it->second;
+    const ClusterCut c = cluster_cut(m);
+    size_t count = 1;
+    for (int k = 0; k < c.parts; ++k) count += tree_nodes(c.size[k]);
+    return known[m] = count;
+}
 
 }  // namespace
 
@@ -85,10 +133,28 @@ Hierarchy::Hierarchy(const Scene& scene) {
     face_node.assign(n, kNoNode);
     if (n == 0) return;
 
-    // Node 0 is the root; every split reserves both child slots before recursing so that
-    // siblings are adjacent. A binary tree over n faces has 2n - 1 nodes: reserved exactly
-    // (grown by doubling they held up to twice that: 82 MB unused on a 615k-face floor).
-    nodes.reserve(2 * size_t(n) - 1);
+    // Node 0 is the root; every split reserves all its child slots before recursing so that
+    // siblings are adjacent. The nodes are reserved exactly (grown by doubling they held up to
+    // twice their number: 82 MB unused on a 615k-face floor): how a range is cut depends on its
+    // size alone.
+    nodes.reserve(tree_nodes(n));
+    // Puts the faces of face_order[begin, end) whose centroids come first along the longest
+    // axis of their bounds (ties by face index) before `at`, the others after it.
+    auto split_at = [&](uint32_t begin, uint32_t at, uint32_t end) {
+        Vec3 clo{1e300, 1e300, 1e300}, chi{-1e300, -1e300, -1e300};
+        for (uint32_t k = begin; k < end; ++k)
+            for (int a = 0; a < 3; ++a) {
+                clo[a] = std::min(clo[a], centroid[face_order[k]][a]);
+                chi[a] = std::max(chi[a], centroid[face_order[k]][a]);
+            }
+        const Vec3 ext = chi - clo;
+        const int axis = ext.x >= ext.y && ext.x >= ext.z ? 0 : (ext.y >= ext.z ? 1 : 2);
+        std::nth_element(face_order.begin() + begin, face_order.begin() + at, face_order.begin() + end,
+                         [&](uint32_t a, uint32_t b) {
+                             double ca = centroid[a][axis], cb = centroid[b][axis];
+                             return ca < cb || (ca == cb && a < b);
+                         });
+    };
     nodes.emplace_back();
     struct Task { uint32_t node, begin, end; };
     std::vector<Task> stack{{0, 0, n}};
@@ -114,41 +180,45 @@ Hierarchy::Hierarchy(const Scene& scene) {
             continue;
         }
         node.cluster = true;
-        Vec3 clo{1e300, 1e300, 1e300}, chi{-1e300, -1e300, -1e300};
-        for (uint32_t k = t.begin; k < t.end; ++k)
-            for (int a = 0; a < 3; ++a) {
-                clo[a] = std::min(clo[a], centroid[face_order[k]][a]);
-                chi[a] = std::max(chi[a], centroid[face_order[k]][a]);
-            }
-        Vec3 ext = chi - clo;
-        int axis = ext.x >= ext.y && ext.x >= ext.z ? 0 : (ext.y >= ext.z ? 1 : 2);
-        const uint32_t m = t.begin + (t.end - t.begin) / 2;
-        std::nth_element(face_order.begin() + t.begin, face_order.begin() + m, face_order.begin() + t.end,
-                         [&](uint32_t a, uint32_t b) {
-                             double ca = centroid[a][axis], cb = centroid[b][axis];
-                             return ca < cb || (ca == cb && a < b);
-                         });
+        // Children: up to kClusterChildren ranges (cluster_cut), each of one face (an element
+        // root) or of several (a cluster).
+        const ClusterCut c = cluster_cut(t.end - t.begin);
+        const int parts = c.parts;
+        uint32_t cut[kClusterChildren + 1];
+        cut[0] = t.begin;
+        for (int k = 0; k < parts; ++k) cut[k + 1] = cut[k] + c.size[k];
+        // The same cuts made along the faces' centroids: the halves, then each half's halves.
+        if (c.lower > 0) {
+            split_at(t.begin, cut[c.lower], t.end);
+            if (c.lower == 2) split_at(t.begin, cut[1], cut[2]);
+            if (parts - c.lower == 2) split_at(cut[c.lower], cut[parts - 1], t.end);
+        }
         const uint32_t first = static_cast<uint32_t>(nodes.size());
         nodes[t.node].first_child = first;
-        nodes[t.node].child_count = 2;
-        nodes.emplace_back();
-        nodes.emplace_back();
-        nodes[first].parent = nodes[first + 1].parent = t.node;
-        stack.push_back({first + 1, m, t.end});
-        stack.push_back({first, t.begin, m});
+        nodes[t.node].child_count = static_cast<uint8_t>(parts);
+        for (int k = 0; k < parts; ++k) {
+            nodes.emplace_back();
+            nodes.back().parent = t.node;
+        }
+        for (int k = parts; k-- > 0;) stack.push_back({first + uint32_t(k), cut[k], cut[k + 1]});
     }
+    if (nodes.size() != nodes.capacity()) throw std::logic_error("hierarchy: cluster tree not of its counted size");
     area_prefix.assign(n + 1, 0.0);
     for (uint32_t k = 0; k < n; ++k) area_prefix[k + 1] = area_prefix[k] + faces.area(face_order[k]);
     // Cluster bounds and areas, children before parents (they have larger indices).
     for (uint32_t i = static_cast<uint32_t>(nodes.size()); i-- > 0;) {
         Node& node = nodes[i];
         if (!node.cluster) continue;
-        const Node& a = nodes[node.first_child];
-        const Node& b = nodes[node.first_child + 1];
-        node.area = a.area + b.area;
-        for (int k = 0; k < 3; ++k) {
-            node.lo[k] = std::min(a.lo[k], b.lo[k]);
-            node.hi[k] = std::max(a.hi[k], b.hi[k]);
+        node.area = 0;
+        node.lo = {1e300, 1e300, 1e300};
+        node.hi = {-1e300, -1e300, -1e300};
+        for (uint32_t c = node.first_child; c < node.first_child + node.child_count; ++c) {
+            const Node& a = nodes[c];
+            node.area += a.area;
+            for (int k = 0; k < 3; ++k) {
+                node.lo[k] = std::min(node.lo[k], a.lo[k]);
+                node.hi[k] = std::max(node.hi[k], a.hi[k]);
+            }
         }
     }
     built_nodes = static_cast<uint32_t>(nodes.size());  // keyed by their index (key())
@@ -434,6 +504,19 @@ uint64_t Hierarchy::balance() {
 }
 
 namespace {
+// Where a ray of the open share or the closure leaves element `s` for its point (s0, t0): lifted
+// off it by `lift` (Visibility::ray_offset) and moved as far towards its centroid (at most
+// half way), so that a point drawn on an edge does not start within float precision of the
+// surface meeting it there (a floor's point 1.3e-7 m from the wall standing on its edge met
+// the wall at t = 0 on a ray leaving it, and the closed room's closure read 63/64).
+Vec3 ray_start(const Patch& s, double s0, double t0, double lift) {
+    Vec3 x = s.point(s0, t0);
+    const Vec3 in = s.centroid - x;
+    const double l = length(in);
+    if (l > 0) x += in * (std::min(lift, 0.5 * l) / l);
+    return x + s.normal * lift;
+}
+
 // The share of the cosine-weighted hemisphere above 8 x 8 stratified points of `s` that meets
 // the front of a surface (Hierarchy::closure); over the whole element, points inside geometry
 // (whose rays meet backs) included.
@@ -451,7 +534,7 @@ double measure_closure(const Visibility& vis, const FaceTable& faces, const Patc
     double sum = 0;
     for (int k = 0; k < g * g; ++k) {
         const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
-        const Vec3 x = s.point(s0, t0) + n * lift;
+        const Vec3 x = ray_start(s, s0, t0, lift);
         // Malley: uniform on the disk, lifted to the hemisphere.
         const int m = order[k];
         const double r = std::sqrt((m % g + rng.uniform()) / g), phi = 2 * kPi * (m / g + rng.uniform()) / g;
@@ -491,7 +574,7 @@ void Hierarchy::measure_open(const Visibility& vis) {
             int inside = 0;
             for (int k = 0; k < g * g; ++k) {
                 const double s0 = (k % g + rng.uniform()) / g, t0 = (k / g + rng.uniform()) / g;
-                const Vec3 x = s.point(s0, t0) + n * lift;
+                const Vec3 x = ray_start(s, s0, t0, lift);
                 bool enclosed = true;
                 for (const Vec3& d : dirs) {
                     // (glass encloses nothing: seen through, the backs behind it count)

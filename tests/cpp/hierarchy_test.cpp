@@ -23,10 +23,25 @@ TEST(Hierarchy, ClustersAboveFacesParentsFirst) {
     Hierarchy h(scene);
     size_t clusters = 0;
     for (size_t i = 0; i < h.nodes.size(); ++i) {
-        clusters += h.nodes[i].cluster;
-        if (i != h.root) EXPECT_LT(h.nodes[i].parent, i);
+        const Node& n = h.nodes[i];
+        clusters += n.cluster;
+        if (i != h.root) EXPECT_LT(n.parent, i);
+        if (!n.cluster) continue;
+        // 2 to kClusterChildren children, whose faces follow each other and make up the cluster's
+        EXPECT_GE(n.child_count, 2);
+        EXPECT_LE(n.child_count, kClusterChildren);
+        uint32_t at = n.face_begin;
+        for (uint32_t c = n.first_child; c < n.first_child + n.child_count; ++c) {
+            EXPECT_EQ(h.nodes[c].face_begin, at);
+            at = h.nodes[c].face_end;
+        }
+        EXPECT_EQ(at, n.face_end);
     }
-    EXPECT_EQ(clusters, scene.faces.size() - 1);  // a binary tree over 6 leaves
+    // 6 faces, two buckets: the root cut into a bucket of 4 and one of 2, each holding its
+    // faces as children
+    EXPECT_EQ(clusters, 3u);
+    EXPECT_EQ(h.nodes.size(), 9u);
+    EXPECT_EQ(h.nodes[h.root].child_count, 2);
     EXPECT_NEAR(h.nodes[h.root].area, 6.0, 1e-12);
     for (uint32_t f = 0; f < 6; ++f) EXPECT_FALSE(h.nodes[h.face_node[f]].cluster);
 }
