@@ -99,8 +99,14 @@ uint32_t FaceTable::reflectance_index(const RGB& r) { return intern(reflectances
 void FaceTable::reserve(size_t n) {
     records_.reserve(n);
     area_.reserve(n);
-    emission_.reserve(n);
-    direct_.reserve(n);
+}
+
+RGB& FaceTable::light(std::vector<RGB>& v, size_t f) {
+    if (v.empty()) {  // the faces so far had none
+        v.reserve(records_.capacity());
+        v.resize(records_.size());
+    }
+    return v[f];
 }
 
 void FaceTable::push_back(const Patch& p) {
@@ -118,8 +124,11 @@ void FaceTable::push_back(const Patch& p) {
     if (!uv_.empty()) uv_.push_back(p.uv);
     records_.push_back(r);
     area_.push_back(p.area);
-    emission_.push_back(p.emission);
-    direct_.push_back(p.direct);
+    static_assert(sizeof(RGB) == 3 * sizeof(double), "RGB is three doubles");
+    for (auto [v, x] : {std::pair{&emission_, &p.emission}, std::pair{&direct_, &p.direct}}) {
+        if (!v->empty()) v->push_back(*x);
+        else if (std::memcmp(x, &kNoLight, sizeof(RGB)) != 0) light(*v, records_.size() - 1) = *x;  // (-0.0 kept)
+    }
 }
 
 void FaceTable::seal() {
@@ -154,8 +163,8 @@ void FaceTable::get(size_t f, Patch& p) const {
     if (uv_.empty()) p.uv = {};
     else p.uv = uv_[f];
     p.reflectance = reflectances_[r.reflectance];
-    p.emission = emission_[f];
-    p.direct = direct_[f];
+    p.emission = emission(f);
+    p.direct = direct(f);
     p.mesh = r.mesh;
     p.face = r.face;
     p.back = r.back != 0;

@@ -95,12 +95,13 @@ public:
                              r.nv, s, t);
     }
     const RGB& reflectance(size_t f) const { return reflectances_[records_[f].reflectance]; }
-    const RGB& emission(size_t f) const { return emission_[f]; }
-    const RGB& direct(size_t f) const { return direct_[f]; }
+    const RGB& emission(size_t f) const { return emission_.empty() ? kNoLight : emission_[f]; }
+    const RGB& direct(size_t f) const { return direct_.empty() ? kNoLight : direct_[f]; }
     // What luminaires give face f (Patch::direct) and its source term with it (Patch::emission).
+    // (Not from several threads at once: the first light a table holds makes its array.)
     void set_light(size_t f, const RGB& direct, const RGB& emission) {
-        direct_[f] = direct;
-        emission_[f] = emission;
+        light(direct_, f) = direct;
+        light(emission_, f) = emission;
     }
 
     // Bytes held (for reports and tests).
@@ -118,7 +119,11 @@ private:
     std::vector<Vec3> points_;
     std::vector<double> area_;
     std::vector<RGB> reflectances_;
+    // Emission and direct light, each made only once a face has some (all bits zero until
+    // then: a ray scene's display faces have neither, 48 bytes a face).
     std::vector<RGB> emission_, direct_;
+    static inline const RGB kNoLight{};
+    RGB& light(std::vector<RGB>& v, size_t f);
     std::vector<std::array<Vec2, 4>> uv_;   // empty while every face's are zero
     // Welding: open addressing over points_ (and over reflectances_), by the values' bits.
     std::vector<uint32_t> point_slots_, reflectance_slots_;

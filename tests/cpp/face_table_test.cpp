@@ -93,6 +93,38 @@ TEST(FaceTable, APatchMadeFromTheTableIsThePatchItWasMadeFrom) {
     EXPECT_FALSE(std::signbit(table[0].p[0].x));
 }
 
+TEST(FaceTable, LightIsHeldOnlyOnceAFaceHasSome) {
+    // A table whose faces have no emission or direct light (a ray scene's display faces) holds
+    // neither array: 48 bytes a face less. The first face with some makes the array, the faces
+    // before it reading zeros; an emission of -0.0 is some (its bits are kept); set_light on a
+    // table without light makes it too.
+    std::vector<Patch> dark;
+    for (int k = 0; k < 64; ++k) {
+        dark.push_back(finished({{0, 0, double(k)}, {1, 0, double(k)}, {1, 1, double(k)}}, {}, k));
+        dark.back().emission = {};
+    }
+    FaceTable plain, lit;
+    for (const Patch& p : dark) plain.push_back(p);
+    Patch glowing = dark[10], signed_zero = dark[20];
+    glowing.emission = {1, 2, 3};
+    signed_zero.direct = {-0.0, 0, 0};
+    for (size_t k = 0; k < dark.size(); ++k) lit.push_back(k == 10 ? glowing : (k == 20 ? signed_zero : dark[k]));
+    plain.seal();
+    lit.seal();
+    EXPECT_EQ(lit.bytes() - plain.bytes(), 2 * dark.size() * sizeof(RGB));
+    for (size_t f = 0; f < dark.size(); ++f) {
+        const Patch want = f == 10 ? glowing : (f == 20 ? signed_zero : dark[f]);
+        expect_same_patch(want, lit[f], f);
+        expect_same_patch(dark[f], plain[f], f);
+    }
+    EXPECT_TRUE(std::signbit(lit.direct(20).x));
+    const RGB d{0.5, 0.25, 0.125};
+    plain.set_light(7, d, RGB{});
+    EXPECT_TRUE(same(plain.direct(7), d));
+    EXPECT_TRUE(same(plain.direct(8), RGB{}));
+    EXPECT_TRUE(same(plain.emission(7), RGB{}));
+}
+
 TEST(FaceTable, AHierarchysFacesAreThePatchesOfItsSceneFacesAndTakeAFractionOfTheirBytes) {
     // A tiled cube of 40 x 40 quads a side, each quad as two triangles: 19,200 faces whose
     // corners are shared by up to six of them. Every element root's patch is its scene face
