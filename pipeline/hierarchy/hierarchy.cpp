@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <map>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -33,10 +32,6 @@ void bound_shape(Node& node, const Patch& shape) {
 // Midpoints are computed as (a + b) / 2, which is symmetric in a and b: the two faces of a
 // shared edge produce the same bits and their vertices weld.
 Vec3 mid(const Vec3& a, const Vec3& b) { return (a + b) * 0.5; }
-
-}  // namespace
-
-namespace {
 
 // The sizes of the ranges a cluster of m faces is cut into (Hierarchy's constructor). The
 // faces are taken in buckets of kClusterFaces (the last may hold fewer, and stays last): a
@@ -70,15 +65,13 @@ ClusterCut cluster_cut(uint32_t m) {
     return c;
 }
 
-// Nodes in the cluster tree over m faces.
+// Nodes in the cluster tree over m faces (one visit a node, as building it).
 size_t tree_nodes(uint32_t m) {
-    static thread_local std::map<uint32_t, size_t> known;
     if (m <= 1) return m;
-    if (auto it = known.find(m); it != known.end()) return it->second;
     const ClusterCut c = cluster_cut(m);
     size_t count = 1;
     for (int k = 0; k < c.parts; ++k) count += tree_nodes(c.size[k]);
-    return known[m] = count;
+    return count;
 }
 
 }  // namespace
