@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <atomic>
 #include <chrono>
@@ -695,6 +696,9 @@ std::unique_ptr<Engine::Solved> Engine::fresh_hierarchy(const HierarchyOptions& 
     solved_.reset();
     hierarchy_released_ = false;
     auto state = std::make_unique<Solved>(scene_);
+    // The hierarchy has its copy: the input faces go before its BVH and the luminaires' light
+    // are made (a 615k-triangle floor: the heap's peak was here, 136 MB of them held).
+    if (o.release_scene) release_scene();
     state->hierarchy.closure_reflectance = o.closure_reflectance;
     state->visibility =
         std::make_unique<Visibility>(state->hierarchy.faces, &glazing_, state->hierarchy.scene_faces);
@@ -717,7 +721,6 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
                                                              "southwell, not '" + s.method + "'");
     double emitted = 0;
     auto state = fresh_hierarchy(o, emitted);
-    if (o.release_scene) release_scene();  // the hierarchy has its copy
     const RefineOptions ropt = refine_options(o, emitted);
     SolverOptions so;
     so.tolerance = s.tolerance;
@@ -747,15 +750,16 @@ HierarchicalResult Engine::solve_hierarchical(const HierarchyOptions& o, const S
 SpillLog Engine::refine_groups(const HierarchyOptions& o, const OutOfCoreOptions& c, int round, uint32_t begin,
                                uint32_t end) {
     double emitted = 0;
+    const StoreFingerprints fingerprints = store_fingerprints(o, c);  // of the faces, before they go
     auto state = fresh_hierarchy(o, emitted);
     const RefineOptions ropt = refine_options(o, emitted);
     const SourceGroups groups = SourceGroups::cut(state->hierarchy, c.group_faces);
-    const RunStore store = run_store(o, c, groups.count());
+    const RunStore store(c.store, fingerprints, groups.count());
     if (!store.on_disk()) throw std::invalid_argument("refine_groups: out_of_core.store must name the link store");
     return refine_range(state->hierarchy, *state->visibility, ropt, groups, store, round, begin, end);
 }
 
-RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c, size_t groups) const {
+StoreFingerprints Engine::store_fingerprints(const HierarchyOptions& o, const OutOfCoreOptions& c) const {
     // The light: the luminaires, and the glass's angular transmittance where there is glass.
     uint64_t light = luminaires_.empty() ? 0 : luminaires_fingerprint(luminaires_);
     if (glazing_.any()) {
@@ -767,16 +771,16 @@ RunStore Engine::run_store(const HierarchyOptions& o, const OutOfCoreOptions& c,
             std::memcpy(&b, &r, sizeof b);
             light = hash_pair(light, b, 19);
         }
-    return RunStore(c.store,
-                    StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces,
-                                          light, o.relative, o.spread),
-                    groups);
+    require_scene("the link store's fingerprints");
+    return StoreFingerprints::of(scene_, o.epsilon, o.min_area, o.samples, o.seed, o.max_rounds, c.group_faces, light,
+                                 o.relative, o.spread);
 }
 
 HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const SolveOptions& s,
                                              const OutOfCoreOptions& c, const RoundProgressFn& progress,
                                              const RemoteRefineFn& remote) {
     double emitted = 0;
+    const StoreFingerprints fingerprints = store_fingerprints(o, c);  // of the faces, before they go
     auto state = fresh_hierarchy(o, emitted);
     Hierarchy& h = state->hierarchy;
     const RefineOptions ropt = refine_options(o, emitted);
@@ -786,8 +790,7 @@ HierarchicalResult Engine::solve_out_of_core(const HierarchyOptions& o, const So
     so.memory_budget = c.memory_budget;
     so.checkpoint_seconds = c.checkpoint_seconds;
     const SourceGroups groups = SourceGroups::cut(h, c.group_faces);
-    RunStore store = run_store(o, c, groups.count());
-    if (o.release_scene) release_scene();  // the hierarchy has its copy, the store its fingerprints
+    RunStore store(c.store, fingerprints, groups.count());
     Solved* st = state.get();
     RoundsRun run = run_streamed(h, *state->visibility, ropt, o.max_rounds, groups, so, store, c.resume,
                                  c.reuse_links, progress,
@@ -1038,10 +1041,32 @@ LeafArrays Engine::leaf_arrays() const {
 void Engine::release_scene() {
     if (scene_released_) return;
     scene_faces_ = scene_.faces.size();
-    face_records_.resize(scene_faces_);
-    for (size_t f = 0; f < scene_faces_; ++f) face_records_[f] = face_record(uint32_t(f));
+    face_origins_.resize(scene_faces_);
+    emitting_faces_.clear();
+    for (size_t f = 0; f < scene_faces_; ++f) {
+        const Face& x = scene_.faces[f];
+        face_origins_[f] = {x.mesh, x.source_face};
+        if (x.emission.x != 0 || x.emission.y != 0 || x.emission.z != 0 || std::signbit(x.emission.x) ||
+            std::signbit(x.emission.y) || std::signbit(x.emission.z))  // -0.0 kept as read
+            emitting_faces_.emplace_back(static_cast<uint32_t>(f), x.emission);
+    }
     std::vector<Face>().swap(scene_.faces);
     scene_released_ = true;
+}
+
+Engine::FaceRecord Engine::face_record(uint32_t f) const {
+    if (!scene_released_) {
+        const Face& x = scene_.faces[f];
+        return {x.emission, x.transmittance, x.source_face, x.mesh};
+    }
+    FaceRecord r;
+    r.mesh = face_origins_[f][0];
+    r.source_face = face_origins_[f][1];
+    r.transmittance = glazing_.face_transmittance[f];
+    const auto it = std::lower_bound(emitting_faces_.begin(), emitting_faces_.end(), f,
+                                     [](const std::pair<uint32_t, RGB>& e, uint32_t g) { return e.first < g; });
+    if (it != emitting_faces_.end() && it->first == f) r.emission = it->second;
+    return r;
 }
 
 void Engine::release_patches() {
