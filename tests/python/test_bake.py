@@ -279,6 +279,17 @@ def test_indexed_and_spelled_out_surfaces_answer_alike(cornell):
         assert s.indexed and not spelled_out(s).indexed
         t = spelled_out(s)
         assert np.array_equal(s.render("/World/Camera", 48, 32, 2), t.render("/World/Camera", 48, 32, 2))
+        # the default view (no camera) frames the faces' bounds: from the points the faces use
+        # when indexed, from the corners spelled out otherwise; a point no face uses moves nothing
+        bare = SurfaceSolution(None, s.nv, points=s.points, faces=s.faces, point_radiance=s.point_radiance,
+                               up_axis=s.up_axis)
+        bare_t = SurfaceSolution(s.corners, s.nv, s.corner_radiance, up_axis=s.up_axis)
+        far = SurfaceSolution(None, s.nv, points=np.vstack([s.points, [[50.0, 50.0, 50.0]]]), faces=s.faces,
+                              point_radiance=np.vstack([s.point_radiance, [[1.0, 1.0, 1.0]]]), up_axis=s.up_axis)
+        for u in (bare_t, far):
+            a, b = vars(bare.view(None)), vars(u.view(None))
+            assert all(np.array_equal(a[k], b[k]) for k in a), (a, b)
+        assert np.array_equal(bare.render(None, 24, 16, 1), bare_t.render(None, 24, 16, 1))
         for key in ("patch", "irradiance", "radiance"):
             assert np.array_equal(s.query(pts[:100], nrm[:100])[key], t.query(pts[:100], nrm[:100])[key]), key
         assert np.array_equal(s.illuminance(pts, nrm, rays=32), t.illuminance(pts, nrm, rays=32))

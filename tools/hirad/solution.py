@@ -212,6 +212,10 @@ class SurfaceSolution:
             raise BakeError(f"camera {camera} not found (cameras in the scene: {known})")
         if self.cameras:
             return images.view_from_camera(self.cameras[0])
+        if self.indexed:  # the faces' points, not their corners spelled out (96 bytes a face)
+            used = np.zeros(len(self.points), dtype=bool)
+            used[np.asarray(self.faces).reshape(-1)] = True
+            return images.default_view(np.asarray(self.points)[used], self.up_axis)
         return images.default_view(self.corners.reshape(-1, 3), self.up_axis)
 
     def _copy_into(self, cls):
