@@ -5,7 +5,6 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <cmath>
 #include <cstring>
 #include <atomic>
 #include <chrono>
@@ -1046,8 +1045,8 @@ void Engine::release_scene() {
     for (size_t f = 0; f < scene_faces_; ++f) {
         const Face& x = scene_.faces[f];
         face_origins_[f] = {x.mesh, x.source_face};
-        if (x.emission.x != 0 || x.emission.y != 0 || x.emission.z != 0 || std::signbit(x.emission.x) ||
-            std::signbit(x.emission.y) || std::signbit(x.emission.z))  // -0.0 kept as read
+        const RGB none{};
+        if (std::memcmp(&x.emission, &none, sizeof(RGB)) != 0)  // any bits, -0.0 kept (as FaceTable's light)
             emitting_faces_.emplace_back(static_cast<uint32_t>(f), x.emission);
     }
     std::vector<Face>().swap(scene_.faces);
