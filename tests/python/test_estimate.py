@@ -29,6 +29,57 @@ def _cfg(tmp_path, **sections):
     return config_from_dict({"scene": "s.usda", **sections}, base_dir=tmp_path)
 
 
+def test_face_geometry_in_blocks_is_each_faces_own_closed_form():
+    """The per-face areas and edge lengths are made a block of faces at a time (their float64
+    temporaries were 4 GB at 10M faces): at every block size, each face gets its closed form,
+    faces of fewer than three corners none."""
+    from hirad.estimate import _face_geometry
+
+    pts, counts, idx, want = [], [], [], []
+    rng = np.random.default_rng(7)
+    for k in range(40):
+        kind = k % 5
+        s = 0.5 + rng.random()  # the face's size, m
+        x0 = 3.0 * k
+        if kind == 0:  # a rectangle s x 2s: u along 0-1, v along 0-3
+            ring = [[0, 0], [s, 0], [s, 2 * s], [0, 2 * s]]
+            want.append((2 * s * s, s, 2 * s))
+        elif kind == 1:  # a right triangle with legs s and 2s: longest edge and the height over it
+            ring = [[0, 0], [s, 0], [0, 2 * s]]
+            hyp = s * np.sqrt(5.0)
+            want.append((s * s, hyp, 2 * s * s / hyp))
+        elif kind == 2:  # a regular pentagon of circumradius s
+            ang = 2 * np.pi * np.arange(5) / 5
+            ring = np.c_[s * np.cos(ang), s * np.sin(ang)].tolist()
+            side = 2 * s * np.sin(np.pi / 5)
+            area = 2.5 * s * s * np.sin(2 * np.pi / 5)
+            want.append((area, side, 2 * area / side))
+        elif kind == 3:  # two corners: not a face
+            ring = [[0, 0], [s, 0]]
+            want.append((0.0, 0.0, 0.0))
+        else:  # a square tilted out of the plane, side s
+            ring = None
+            base = len(pts)
+            c, si = np.cos(0.3), np.sin(0.3)
+            pts += [[x0, 0, 0], [x0 + s * c, 0, s * si], [x0 + s * c, s, s * si], [x0, s, 0]]
+            counts.append(4)
+            idx += list(range(base, base + 4))
+            want.append((s * s, s, s))
+        if ring is not None:
+            base = len(pts)
+            pts += [[x0 + x, y, 0.0] for x, y in ring]
+            counts.append(len(ring))
+            idx += list(range(base, base + len(ring)))
+    scene = SimpleNamespace(points=np.array(pts), face_vertex_counts=np.array(counts, dtype=np.int32),
+                            face_vertex_indices=np.array(idx, dtype=np.int32))
+    want = np.array(want)
+    whole = _face_geometry(scene)
+    for got in (whole, _face_geometry(scene, block=1), _face_geometry(scene, block=7)):
+        for k in range(3):
+            np.testing.assert_allclose(got[k], want[:, k], rtol=1e-12, atol=1e-15)
+            assert got[k].tobytes() == whole[k].tobytes()  # the same bits whatever the block
+
+
 def test_flat_patch_count_of_a_square_is_its_grid(tmp_path):
     # 1 m x 1 m with cells of at most 0.01 m^2 and edges of at most 0.1 m: exactly 10 x 10
     cfg = _cfg(tmp_path, method="flat", meshing={"max_patch_area": 0.01, "max_edge_length": 0.1})

@@ -69,35 +69,48 @@ SLOW_SECONDS = 3600.0
 MANY_FLAT_PATCHES = 20_000
 
 
-def _face_geometry(scene):
-    """Per face: area (m^2) and the two longest edge lengths (m)."""
-    counts = np.asarray(scene.face_vertex_counts, dtype=np.int64)
-    idx = np.asarray(scene.face_vertex_indices, dtype=np.int64)
+def _face_geometry(scene, block: int = 1 << 18):
+    """Per face: area (m^2) and the two longest edge lengths (m). Computed `block` faces at a
+    time: the corners and their temporaries in float64 are some 400 bytes a face, 4 GB at 10M
+    faces if made for all of them at once (each face's numbers are its own, so the blocks give
+    the same values)."""
+    counts = np.asarray(scene.face_vertex_counts)
     pts = np.asarray(scene.points, dtype=np.float64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    area = np.zeros(len(counts))
-    lu = np.zeros(len(counts))
-    lv = np.zeros(len(counts))
-    for n in np.unique(counts):
-        if n < 3:
-            continue
-        sel = np.nonzero(counts == n)[0]
-        corners = pts[idx[starts[sel][:, None] + np.arange(n)[None, :]]]          # (F, n, 3)
-        nxt = np.roll(corners, -1, axis=1)
-        x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
-        u, v, w = nxt[..., 0], nxt[..., 1], nxt[..., 2]
-        # Newell: half the norm of the sum of corner cross products (np.cross is 4x slower here)
-        nx, ny, nz = (y * w - z * v).sum(axis=1), (z * u - x * w).sum(axis=1), (x * v - y * u).sum(axis=1)
-        area[sel] = 0.5 * np.sqrt(nx * nx + ny * ny + nz * nz)
-        edges = np.linalg.norm(nxt - corners, axis=2)
-        if n == 4:
-            # the engine's grid directions: u along edges 0-1 and 3-2, v along 0-3 and 1-2
-            lu[sel] = np.maximum(edges[:, 0], edges[:, 2])
-            lv[sel] = np.maximum(edges[:, 1], edges[:, 3])
-        else:
-            # the longest edge and the height over it
-            lu[sel] = edges.max(axis=1)
-            lv[sel] = np.where(lu[sel] > 0, 2 * area[sel] / np.where(lu[sel] > 0, lu[sel], 1), 0)
+    idx_all = np.asarray(scene.face_vertex_indices)
+    nf = len(counts)
+    ends = np.cumsum(counts, dtype=np.int64)
+    area = np.zeros(nf)
+    lu = np.zeros(nf)
+    lv = np.zeros(nf)
+    for f0 in range(0, nf, block):
+        f1 = min(nf, f0 + block)
+        c = counts[f0:f1].astype(np.int64)
+        first = int(ends[f0] - c[0]) if f1 > f0 else 0
+        starts = ends[f0:f1] - c - first
+        idx = idx_all[first:int(ends[f1 - 1])].astype(np.int64)
+        for n in np.unique(c):
+            if n < 3:
+                continue
+            local = np.nonzero(c == n)[0]
+            sel = local + f0
+            corners = pts[idx[starts[local][:, None] + np.arange(n)[None, :]]]          # (F, n, 3)
+            nxt = np.roll(corners, -1, axis=1)
+            x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
+            u, v, w = nxt[..., 0], nxt[..., 1], nxt[..., 2]
+            # Newell: half the norm of the sum of corner cross products (np.cross is 4x slower here)
+            nx, ny, nz = (y * w - z * v).sum(axis=1), (z * u - x * w).sum(axis=1), (x * v - y * u).sum(axis=1)
+            a = 0.5 * np.sqrt(nx * nx + ny * ny + nz * nz)
+            area[sel] = a
+            edges = np.linalg.norm(nxt - corners, axis=2)
+            if n == 4:
+                # the engine's grid directions: u along edges 0-1 and 3-2, v along 0-3 and 1-2
+                lu[sel] = np.maximum(edges[:, 0], edges[:, 2])
+                lv[sel] = np.maximum(edges[:, 1], edges[:, 3])
+            else:
+                # the longest edge and the height over it
+                long = edges.max(axis=1)
+                lu[sel] = long
+                lv[sel] = np.where(long > 0, 2 * a / np.where(long > 0, long, 1), 0)
     ok = np.isfinite(area) & np.isfinite(lu) & np.isfinite(lv)
     return np.where(ok, area, 0.0), np.where(ok, lu, 0.0), np.where(ok, lv, 0.0)
 
