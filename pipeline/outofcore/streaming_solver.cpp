@@ -175,16 +175,6 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     const uint64_t in_flight = window * largest;
     size_t shot_parts = 0;
     stats.chunks_in_flight = window;
-    stats.minimum_budget = stats.state_bytes + in_flight;
-    uint64_t cache_capacity = UINT64_MAX;
-    if (opt.memory_budget > 0) {
-        if (opt.memory_budget < stats.minimum_budget)
-            throw std::runtime_error("memory_budget of " + std::to_string(opt.memory_budget) +
-                                     " bytes is below what the solver needs: " + std::to_string(stats.state_bytes) +
-                                     " bytes of per-node state and " + std::to_string(in_flight) + " for " +
-                                     std::to_string(window) + " chunks in flight");
-        cache_capacity = opt.memory_budget - stats.minimum_budget;
-    }
     const std::vector<uint32_t> leaves = h.leaves();
     const double enorm = leaf_emission_norm(h, leaves);
     // The gain limit (hierarchical_solver.h) from the couplings each node receives: one pass
@@ -213,6 +203,19 @@ HierarchicalSolution solve_streaming(const Hierarchy& h, const SourceGroups& gro
     }
     std::vector<VectorIrradiance> received_clusters(clusters_receive ? h.cluster_shapes.size() : 0);
     stats.state_bytes += received_clusters.size() * sizeof(VectorIrradiance);
+    // The budget holds the whole state, the clusters' vectors too (known once the links are
+    // read: whether any ends on a cluster), and the chunks in flight; what is left of it keeps
+    // chunks decoded.
+    stats.minimum_budget = stats.state_bytes + in_flight;
+    uint64_t cache_capacity = UINT64_MAX;
+    if (opt.memory_budget > 0) {
+        if (opt.memory_budget < stats.minimum_budget)
+            throw std::runtime_error("memory_budget of " + std::to_string(opt.memory_budget) +
+                                     " bytes is below what the solver needs: " + std::to_string(stats.state_bytes) +
+                                     " bytes of per-node state and " + std::to_string(in_flight) + " for " +
+                                     std::to_string(window) + " chunks in flight");
+        cache_capacity = opt.memory_budget - stats.minimum_budget;
+    }
 
     // The irradiance gathered at each node is what it received over its area; push-pull
     // divides as it walks, and keeps no irradiance until the end.

@@ -159,6 +159,43 @@ TEST(StreamingSolver, ResumingWithClustersThatReceiveReachesTheSameBits) {
     expect_resume_reaches_the_same_bits(pb, "resume_clusters");
 }
 
+TEST(StreamingSolver, TheBudgetHoldsTheClustersVectorsToo) {
+    // With links that end on clusters, each cluster gathers a vector irradiance (96 bytes):
+    // part of the solver's state, so part of the least budget it takes; at that budget the
+    // state and the chunks held stay within it, and one byte less is refused.
+    Scene scene = test::tiled_cube(6, test::grey(0.7), test::grey(0.0));
+    scene.faces[3].emission = {36, 36, 36};
+    RefineOptions ro{1e-4, 1.0, 16, 1};
+    ro.cluster_receivers = true;
+    const Problem pb(std::move(scene), 16, ro);
+    const std::string dir = temp_dir("budget_clusters");
+    pb.write_store(dir);
+    const StoreChunks store(dir, pb.groups.count());
+    StreamingOptions opt;
+    opt.tolerance = 1e-8;
+    StreamingStats free_stats;
+    const HierarchicalSolution unlimited =
+        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, opt, free_stats);
+    const uint64_t n = pb.h.nodes.size();
+    const uint64_t per_node = n * (3 * sizeof(RGB) + sizeof(uint32_t) + 2 * sizeof(double));
+    const uint64_t vectors = pb.h.cluster_shapes.size() * sizeof(VectorIrradiance);
+    ASSERT_GT(vectors, 0u);
+    EXPECT_EQ(free_stats.state_bytes, per_node + vectors);
+    EXPECT_EQ(free_stats.minimum_budget,
+              per_node + vectors + free_stats.chunks_in_flight * free_stats.largest_chunk_bytes);
+    StreamingOptions tight = opt;
+    tight.memory_budget = free_stats.minimum_budget;
+    StreamingStats tight_stats;
+    const HierarchicalSolution small =
+        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats);
+    EXPECT_TRUE(same_bits(unlimited.radiosity, small.radiosity));
+    EXPECT_LE(tight_stats.state_bytes + tight_stats.resident_bytes_peak, tight.memory_budget);
+    tight.memory_budget -= 1;
+    EXPECT_THROW(solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats),
+                 std::runtime_error);
+    fs::remove_all(dir);
+}
+
 TEST(StreamingSolver, NonFiniteEmissionStopsAtOnce) {
     Scene scene = test::unit_cube(test::grey(0.5), test::grey(1.0));
     Problem pb(std::move(scene), 2);
