@@ -38,6 +38,22 @@ bool same_bits(const std::vector<RGB>& a, const std::vector<RGB>& b) {
     return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(RGB)) == 0;
 }
 
+// At the least budget the solver reports (`minimum`), the same bits as `reference`, with its
+// state and the chunks it held within the budget; one byte less is refused.
+void expect_the_least_budget_holds(const Problem& pb, const LinkChunks& store, const StreamingOptions& opt,
+                                   uint64_t minimum, const std::vector<RGB>& reference) {
+    StreamingOptions tight = opt;
+    tight.memory_budget = minimum;
+    StreamingStats stats;
+    const HierarchicalSolution small =
+        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, stats);
+    EXPECT_TRUE(same_bits(reference, small.radiosity));
+    EXPECT_LE(stats.state_bytes + stats.resident_bytes_peak, tight.memory_budget);
+    tight.memory_budget = minimum - 1;
+    EXPECT_THROW(solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, stats),
+                 std::runtime_error);
+}
+
 TEST(StreamingSolver, FurnaceFromMemoryAndFromTheStoreGivesEOverOneMinusRho) {
     const double rho = 0.5, E = 1.0;
     Problem pb(test::unit_cube(test::grey(rho), test::grey(E)), 2);
@@ -63,15 +79,7 @@ TEST(StreamingSolver, FurnaceFromMemoryAndFromTheStoreGivesEOverOneMinusRho) {
     EXPECT_GT(disk_stats.chunk_reads, 0u);
 
     // The budget decides only what stays decoded: the least the solver takes, the same bits.
-    StreamingOptions tight = opt;
-    tight.memory_budget = disk_stats.minimum_budget;
-    StreamingStats tight_stats;
-    const HierarchicalSolution small =
-        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats);
-    EXPECT_TRUE(same_bits(disk.radiosity, small.radiosity));
-    tight.memory_budget = disk_stats.minimum_budget - 1;
-    EXPECT_THROW(solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats),
-                 std::runtime_error);
+    expect_the_least_budget_holds(pb, store, opt, disk_stats.minimum_budget, disk.radiosity);
     fs::remove_all(dir);
 }
 
@@ -146,13 +154,19 @@ TEST(StreamingSolver, ResumingFromACheckpointReachesTheSameBits) {
     expect_resume_reaches_the_same_bits(Problem(std::move(scene), 2), "resume");
 }
 
-TEST(StreamingSolver, ResumingWithClustersThatReceiveReachesTheSameBits) {
-    // Links that end on clusters keep their vector irradiance in the checkpoint too.
+// A tiled cube lit by one tile, refined with clusters that receive (returned in place: the
+// Problem's visibility refers to its hierarchy).
+Problem clusters_problem() {
     Scene scene = test::tiled_cube(6, test::grey(0.7), test::grey(0.0));
     scene.faces[3].emission = {36, 36, 36};
     RefineOptions ro{1e-4, 1.0, 16, 1};
     ro.cluster_receivers = true;
-    const Problem pb(std::move(scene), 16, ro);
+    return Problem(std::move(scene), 16, ro);
+}
+
+TEST(StreamingSolver, ResumingWithClustersThatReceiveReachesTheSameBits) {
+    // Links that end on clusters keep their vector irradiance in the checkpoint too.
+    const Problem pb = clusters_problem();
     size_t on_clusters = 0;
     for (const Link& l : pb.links) on_clusters += pb.h.nodes[l.receiver].cluster;
     ASSERT_GT(on_clusters, 0u);
@@ -163,11 +177,7 @@ TEST(StreamingSolver, TheBudgetHoldsTheClustersVectorsToo) {
     // With links that end on clusters, each cluster gathers a vector irradiance (96 bytes):
     // part of the solver's state, so part of the least budget it takes; at that budget the
     // state and the chunks held stay within it, and one byte less is refused.
-    Scene scene = test::tiled_cube(6, test::grey(0.7), test::grey(0.0));
-    scene.faces[3].emission = {36, 36, 36};
-    RefineOptions ro{1e-4, 1.0, 16, 1};
-    ro.cluster_receivers = true;
-    const Problem pb(std::move(scene), 16, ro);
+    const Problem pb = clusters_problem();
     const std::string dir = temp_dir("budget_clusters");
     pb.write_store(dir);
     const StoreChunks store(dir, pb.groups.count());
@@ -183,16 +193,7 @@ TEST(StreamingSolver, TheBudgetHoldsTheClustersVectorsToo) {
     EXPECT_EQ(free_stats.state_bytes, per_node + vectors);
     EXPECT_EQ(free_stats.minimum_budget,
               per_node + vectors + free_stats.chunks_in_flight * free_stats.largest_chunk_bytes);
-    StreamingOptions tight = opt;
-    tight.memory_budget = free_stats.minimum_budget;
-    StreamingStats tight_stats;
-    const HierarchicalSolution small =
-        solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats);
-    EXPECT_TRUE(same_bits(unlimited.radiosity, small.radiosity));
-    EXPECT_LE(tight_stats.state_bytes + tight_stats.resident_bytes_peak, tight.memory_budget);
-    tight.memory_budget -= 1;
-    EXPECT_THROW(solve_streaming(pb.h, pb.groups, store, pb.is_source, pb.outgoing, {}, tight, tight_stats),
-                 std::runtime_error);
+    expect_the_least_budget_holds(pb, store, opt, free_stats.minimum_budget, unlimited.radiosity);
     fs::remove_all(dir);
 }
 
