@@ -85,7 +85,7 @@ def _face_geometry(scene, block: int = 1 << 18):
     for f0 in range(0, nf, block):
         f1 = min(nf, f0 + block)
         c = counts[f0:f1].astype(np.int64)
-        first = int(ends[f0] - c[0]) if f1 > f0 else 0
+        first = int(ends[f0] - c[0])  # the block's first corner
         starts = ends[f0:f1] - c - first
         idx = idx_all[first:int(ends[f1 - 1])].astype(np.int64)
         for n in np.unique(c):
